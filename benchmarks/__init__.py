@@ -1,0 +1,1 @@
+"""Benchmarks: uwval against its peers, same input, same process run (python -m benchmarks)."""

@@ -1,0 +1,5 @@
+"""``python -m uwval`` runs the CLI."""
+
+from uwval.cli import main
+
+main()

@@ -1,0 +1,179 @@
+"""Pose conventions and conversions between them (DESIGN.md section 3).
+
+A convention is a pair of signed axis permutations relative to uwval's canonical frame,
+Gazebo's ENU world with FLU bodies (REP-103/105): ``A_w`` maps canonical world vectors into
+the convention's world axes and ``A_b`` maps canonical body axes into its body axes. A pose
+(p, R) in canonical axes becomes ``p' = A_w p`` and ``R' = A_w R A_b^T``. When both
+determinants are -1 (a handedness change, as for Unity) R' is still a proper rotation, so
+one 3x3 formula serves every case and no quaternion formula is written by hand per map.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from uwval.errors import FrameError
+from uwval.posestream import PoseStream
+from uwval.rotations import matrix_from_quat, quat_from_matrix
+
+F64 = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Convention:
+    """A pose convention: world and body axis maps from canonical ENU/FLU.
+
+    ``world_axes`` and ``body_axes`` are 3x3 signed permutation matrices with
+    ``v_convention = A @ v_canonical``.
+    """
+
+    name: str
+    world_axes: F64
+    body_axes: F64
+    description: str
+
+    @property
+    def left_handed(self) -> bool:
+        """True when the convention's axes are left-handed (det A_w = -1)."""
+        return bool(np.linalg.det(self.world_axes) < 0)
+
+
+def _perm(rows: list[list[int]]) -> F64:
+    return np.array(rows, dtype=np.float64)
+
+
+_I3 = np.eye(3)
+# ROS-TCP-Connector FLU: ROS x -> Unity z, ROS y -> Unity -x, ROS z -> Unity y.
+_UNITY_FROM_FLU = _perm([[0, -1, 0], [0, 0, 1], [1, 0, 0]])
+# ROS-TCP-Connector ENU (compass, Unity +Z = north): east -> x, north -> z, up -> y.
+_UNITY_FROM_ENU_WORLD = _perm([[1, 0, 0], [0, 0, 1], [0, 1, 0]])
+# NED world (x north, y east, z down) and FRD body (x forward, y right, z down).
+_NED_FROM_ENU = _perm([[0, 1, 0], [1, 0, 0], [0, 0, -1]])
+_FRD_FROM_FLU = _perm([[1, 0, 0], [0, -1, 0], [0, 0, -1]])
+
+CONVENTIONS: dict[str, Convention] = {
+    c.name: c
+    for c in (
+        Convention("enu", _I3, _I3, "ROS/Gazebo: ENU world, FLU body (canonical)"),
+        Convention(
+            "unity-flu",
+            _UNITY_FROM_FLU,
+            _UNITY_FROM_FLU,
+            "Unity RUF, ROS-TCP-Connector To<FLU>() map (ROS x->Unity z, y->-x, z->y)",
+        ),
+        Convention(
+            "unity-enu",
+            _UNITY_FROM_ENU_WORLD,
+            _UNITY_FROM_FLU,
+            "Unity RUF, ROS-TCP-Connector To<ENU>() compass map (east->x, north->z, up->y)",
+        ),
+        Convention("ned", _NED_FROM_ENU, _FRD_FROM_FLU, "Marine/Fossen: NED world, FRD body"),
+    )
+}
+
+#: Aliases accepted on the command line.
+ALIASES = {"gazebo": "enu", "ros": "enu", "flu": "enu", "unity": "unity-flu", "frd": "ned"}
+
+
+def get_convention(name: str | Convention) -> Convention:
+    """Look up a convention by name (or alias); errors list the known names."""
+    if isinstance(name, Convention):
+        return name
+    key = ALIASES.get(name.lower(), name.lower())
+    try:
+        return CONVENTIONS[key]
+    except KeyError:
+        known = ", ".join(sorted(CONVENTIONS))
+        raise FrameError(f"unknown frame convention {name!r}; known: {known}") from None
+
+
+def convert_arrays(
+    position: F64,
+    orientation: F64,
+    src: str | Convention,
+    dst: str | Convention,
+) -> tuple[F64, F64]:
+    """Convert (N, 3) positions and (N, 4) quaternions from convention ``src`` to ``dst``.
+
+    Returns new arrays; quaternions come back with w >= 0 (q and -q are the same rotation).
+    """
+    a = get_convention(src)
+    b = get_convention(dst)
+    # world map src -> dst, body map src -> dst (signed permutations: inverse = transpose)
+    mw = b.world_axes @ a.world_axes.T
+    mb = b.body_axes @ a.body_axes.T
+    pos = np.asarray(position, dtype=np.float64) @ mw.T
+    r = matrix_from_quat(orientation)
+    r2 = mw @ r @ mb.T
+    return np.ascontiguousarray(pos), quat_from_matrix(r2)
+
+
+def convert_stream(stream: PoseStream, dst: str | Convention) -> PoseStream:
+    """The same poses expressed in convention ``dst``."""
+    conv = get_convention(dst)
+    if get_convention(stream.frame).name == conv.name:
+        return stream
+    pos, quat = convert_arrays(stream.position, stream.orientation, stream.frame, conv)
+    return stream.with_(position=pos, orientation=quat, frame=conv.name)
+
+
+def unity_from_enu(stream: PoseStream, unity_map: str = "unity-flu") -> PoseStream:
+    """Express an ENU/FLU (Gazebo) stream in Unity's frame using ROS-TCP-Connector's map."""
+    return convert_stream(stream, unity_map)
+
+
+def enu_from_unity(stream: PoseStream) -> PoseStream:
+    """Express a Unity-frame stream (its ``frame`` names the map) in ENU/FLU."""
+    return convert_stream(stream, "enu")
+
+
+# ------------------------------------------------------------------ Unity Euler angles
+
+
+def _rx(a: F64) -> F64:
+    c, s = np.cos(a), np.sin(a)
+    m = np.zeros(a.shape + (3, 3))
+    m[..., 0, 0] = 1
+    m[..., 1, 1], m[..., 1, 2], m[..., 2, 1], m[..., 2, 2] = c, -s, s, c
+    return m
+
+
+def _ry(a: F64) -> F64:
+    c, s = np.cos(a), np.sin(a)
+    m = np.zeros(a.shape + (3, 3))
+    m[..., 1, 1] = 1
+    m[..., 0, 0], m[..., 0, 2], m[..., 2, 0], m[..., 2, 2] = c, s, -s, c
+    return m
+
+
+def _rz(a: F64) -> F64:
+    c, s = np.cos(a), np.sin(a)
+    m = np.zeros(a.shape + (3, 3))
+    m[..., 2, 2] = 1
+    m[..., 0, 0], m[..., 0, 1], m[..., 1, 0], m[..., 1, 1] = c, -s, s, c
+    return m
+
+
+def quat_from_unity_euler(euler_deg: F64) -> F64:
+    """Unity ``Transform.eulerAngles`` (N, 3) degrees (ex, ey, ez) -> Unity quaternions.
+
+    Unity applies Z, then X, then Y about the fixed axes: R = Ry(ey) Rx(ex) Rz(ez).
+    The quaternion is in Unity's own axes (x, y, z, w).
+    """
+    e = np.radians(np.asarray(euler_deg, dtype=np.float64))
+    r = _ry(e[..., 1]) @ _rx(e[..., 0]) @ _rz(e[..., 2])
+    return quat_from_matrix(r)
+
+
+def unity_euler_from_quat(q: F64) -> F64:
+    """Unity quaternions -> ``Transform.eulerAngles`` (ex, ey, ez) in degrees, [0, 360)."""
+    r = matrix_from_quat(q)
+    # R = Ry Rx Rz: R[1,2] = -sin(ex); R[0,2] = cos ex sin ey; R[2,2] = cos ex cos ey;
+    # R[1,0] = cos ex sin ez; R[1,1] = cos ex cos ez
+    ex = np.arcsin(np.clip(-r[..., 1, 2], -1.0, 1.0))
+    ey = np.arctan2(r[..., 0, 2], r[..., 2, 2])
+    ez = np.arctan2(r[..., 1, 0], r[..., 1, 1])
+    return np.mod(np.degrees(np.stack([ex, ey, ez], axis=-1)), 360.0)

@@ -1,0 +1,230 @@
+"""PoseStream: the one columnar pose type that every stage of uwval passes on.
+
+Times are int64 nanoseconds, positions N x 3 float64 metres, orientations N x 4 float64
+unit quaternions in (x, y, z, w) order. The frame convention (see :mod:`uwval.frames`) is
+carried as metadata; the arrays are never lists of 4x4 matrices.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from uwval.errors import PoseStreamError
+
+#: Quaternions whose norm differs from 1 by more than this are rejected, not normalised.
+QUAT_NORM_TOLERANCE = 1e-2
+
+F64 = NDArray[np.float64]
+I64 = NDArray[np.int64]
+
+
+@dataclass(frozen=True, eq=False)
+class PoseStream:
+    """A time series of 6-DOF poses of one body on one topic.
+
+    Attributes:
+        t: (N,) int64 stamps in nanoseconds, strictly increasing.
+        position: (N, 3) float64 positions in metres, in the world axes of ``frame``.
+        orientation: (N, 4) float64 unit quaternions (x, y, z, w), body-to-world, in ``frame``.
+        frame: name of the pose convention (``uwval.frames``), e.g. ``"enu"`` or ``"unity-flu"``.
+        topic: topic (or column set) the poses came from.
+        source: file the poses came from, if any.
+        applied_stamp: (N,) int64 header stamps (ns) of the Gazebo pose each Unity sample
+            showed, when the Unity side logged them; otherwise ``None``.
+        repairs: counts of repairs made while validating (``sorted``, ``duplicates_dropped``,
+            ``renormalized``), so that no repair is silent.
+    """
+
+    t: I64
+    position: F64
+    orientation: F64
+    frame: str = "enu"
+    topic: str = ""
+    source: str = ""
+    applied_stamp: I64 | None = None
+    repairs: dict[str, int] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        n = self.t.shape[0] if self.t.ndim == 1 else -1
+        where = self.describe()
+        if self.t.ndim != 1 or self.t.dtype != np.int64:
+            raise PoseStreamError(f"{where}: t must be a 1-D int64 array of nanoseconds")
+        if self.position.shape != (n, 3) or self.position.dtype != np.float64:
+            raise PoseStreamError(
+                f"{where}: position must be ({n}, 3) float64, got {self.position.shape}"
+            )
+        if self.orientation.shape != (n, 4) or self.orientation.dtype != np.float64:
+            raise PoseStreamError(
+                f"{where}: orientation must be ({n}, 4) float64, got {self.orientation.shape}"
+            )
+        if self.applied_stamp is not None and self.applied_stamp.shape != (n,):
+            raise PoseStreamError(f"{where}: applied_stamp must have shape ({n},)")
+        if n > 1 and not bool(np.all(np.diff(self.t) > 0)):
+            raise PoseStreamError(
+                f"{where}: stamps must be strictly increasing (use PoseStream.from_arrays "
+                "to sort and drop duplicates)"
+            )
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_arrays(
+        cls,
+        t: ArrayLike,
+        position: ArrayLike,
+        orientation: ArrayLike,
+        *,
+        frame: str = "enu",
+        topic: str = "",
+        source: str = "",
+        applied_stamp: ArrayLike | None = None,
+        duplicates: str = "drop",
+        allow_empty: bool = False,
+    ) -> PoseStream:
+        """Validate and repair raw arrays into a PoseStream.
+
+        ``t`` may be int nanoseconds or float seconds (floats are taken as seconds).
+        Unsorted stamps are sorted (counted in ``repairs['sorted']``); samples with a duplicate
+        stamp are dropped keeping the first (``duplicates='drop'``) or rejected
+        (``duplicates='error'``); NaN/inf values are rejected naming the first bad row;
+        quaternions within ``QUAT_NORM_TOLERANCE`` of unit norm are normalised, others rejected.
+        """
+        where = _describe(topic, source)
+        t_arr = np.asarray(t)
+        if t_arr.dtype.kind == "f":
+            if not np.all(np.isfinite(t_arr)):
+                bad = int(np.flatnonzero(~np.isfinite(t_arr))[0])
+                raise PoseStreamError(f"{where}: stamp of sample {bad} is not finite")
+            t_arr = np.round(t_arr * 1e9).astype(np.int64)
+        elif t_arr.dtype.kind in "iu":
+            t_arr = t_arr.astype(np.int64)
+        else:
+            raise PoseStreamError(f"{where}: stamps must be numbers, got dtype {t_arr.dtype}")
+        pos = np.ascontiguousarray(position, dtype=np.float64)
+        quat = np.ascontiguousarray(orientation, dtype=np.float64)
+        n = t_arr.shape[0]
+        if n == 0 and not allow_empty:
+            raise PoseStreamError(f"{where}: no poses (N = 0)")
+        if pos.shape != (n, 3):
+            raise PoseStreamError(f"{where}: position must have shape ({n}, 3), got {pos.shape}")
+        if quat.shape != (n, 4):
+            raise PoseStreamError(
+                f"{where}: orientation must have shape ({n}, 4), got {quat.shape}"
+            )
+        finite = np.isfinite(pos).all(axis=1) & np.isfinite(quat).all(axis=1)
+        if not finite.all():
+            bad = int(np.flatnonzero(~finite)[0])
+            raise PoseStreamError(
+                f"{where}: sample {bad} (t={t_arr[bad]} ns) has a NaN or infinite value "
+                f"({int((~finite).sum())} such samples)"
+            )
+        repairs: dict[str, int] = {}
+        norms = np.linalg.norm(quat, axis=1)
+        off = np.abs(norms - 1.0)
+        if n and float(off.max()) > QUAT_NORM_TOLERANCE:
+            bad = int(np.argmax(off))
+            raise PoseStreamError(
+                f"{where}: quaternion of sample {bad} has norm {norms[bad]:.6g}, "
+                f"more than {QUAT_NORM_TOLERANCE} from 1 (is it x, y, z, w order?)"
+            )
+        renorm = off > 1e-9
+        if renorm.any():
+            quat = quat / norms[:, None]
+            repairs["renormalized"] = int(renorm.sum())
+        stamps = None if applied_stamp is None else np.asarray(applied_stamp, dtype=np.int64)
+        if n > 1:
+            d = np.diff(t_arr)
+            if (d < 0).any():
+                order = np.argsort(t_arr, kind="stable")
+                repairs["sorted"] = int((d < 0).sum())
+                t_arr, pos, quat = t_arr[order], pos[order], quat[order]
+                if stamps is not None:
+                    stamps = stamps[order]
+                d = np.diff(t_arr)
+            dup = d == 0
+            if dup.any():
+                if duplicates == "error":
+                    i = int(np.flatnonzero(dup)[0]) + 1
+                    raise PoseStreamError(
+                        f"{where}: duplicate stamp t={t_arr[i]} ns at sample {i} "
+                        f"({int(dup.sum())} duplicates)"
+                    )
+                keep = np.concatenate(([True], ~dup))
+                repairs["duplicates_dropped"] = int(dup.sum())
+                t_arr, pos, quat = t_arr[keep], pos[keep], quat[keep]
+                if stamps is not None:
+                    stamps = stamps[keep]
+        return cls(
+            t=t_arr,
+            position=pos,
+            orientation=quat,
+            frame=frame,
+            topic=topic,
+            source=source,
+            applied_stamp=stamps,
+            repairs=repairs,
+        )
+
+    # ------------------------------------------------------------------ views
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+    @property
+    def seconds(self) -> F64:
+        """Stamps as float64 seconds (relative precision is fine for logs up to ~100 days)."""
+        return self.t.astype(np.float64) * 1e-9
+
+    @property
+    def duration(self) -> float:
+        """Time span in seconds (0 for fewer than two samples)."""
+        return float(self.t[-1] - self.t[0]) * 1e-9 if len(self) > 1 else 0.0
+
+    def describe(self) -> str:
+        """Where these poses came from, for error messages."""
+        return _describe(self.topic, self.source)
+
+    def with_(self, **changes: Any) -> PoseStream:
+        """A copy with some fields replaced (validated again)."""
+        return replace(self, **changes)
+
+    def slice(self, mask_or_index: NDArray[Any] | slice) -> PoseStream:
+        """A sub-stream selected by boolean mask, index array or slice."""
+        stamps = None if self.applied_stamp is None else self.applied_stamp[mask_or_index]
+        return replace(
+            self,
+            t=self.t[mask_or_index],
+            position=self.position[mask_or_index],
+            orientation=self.orientation[mask_or_index],
+            applied_stamp=stamps,
+        )
+
+    def shifted(self, offset_ns: int) -> PoseStream:
+        """The same poses with ``offset_ns`` added to every stamp (clock-offset correction)."""
+        return replace(self, t=self.t + np.int64(offset_ns))
+
+    def to_dataframe(self) -> Any:
+        """A pandas DataFrame view for reporting (t in seconds, x y z, qx qy qz qw)."""
+        import pandas as pd
+
+        data = {
+            "t": self.seconds,
+            "x": self.position[:, 0],
+            "y": self.position[:, 1],
+            "z": self.position[:, 2],
+            "qx": self.orientation[:, 0],
+            "qy": self.orientation[:, 1],
+            "qz": self.orientation[:, 2],
+            "qw": self.orientation[:, 3],
+        }
+        if self.applied_stamp is not None:
+            data["applied_stamp"] = self.applied_stamp.astype(np.float64) * 1e-9
+        return pd.DataFrame(data)
+
+
+def _describe(topic: str, source: str) -> str:
+    if topic and source:
+        return f"{source} [{topic}]"
+    return source or topic or "pose stream"

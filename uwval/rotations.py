@@ -1,0 +1,180 @@
+"""Vectorised rotation helpers on (N, 4) quaternions in (x, y, z, w) order.
+
+All functions take and return numpy arrays and loop over nothing in Python, so they serve
+hot paths on millions of poses. Angles are radians unless a name says ``deg``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+F64 = NDArray[np.float64]
+
+
+def matrix_from_quat(q: F64) -> F64:
+    """(N, 4) unit quaternions (x, y, z, w) -> (N, 3, 3) rotation matrices."""
+    q = np.asarray(q, dtype=np.float64)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    xx, yy, zz = x * x, y * y, z * z
+    xy, xz, yz = x * y, x * z, y * z
+    wx, wy, wz = w * x, w * y, w * z
+    m = np.empty(q.shape[:-1] + (3, 3))
+    m[..., 0, 0] = 1 - 2 * (yy + zz)
+    m[..., 0, 1] = 2 * (xy - wz)
+    m[..., 0, 2] = 2 * (xz + wy)
+    m[..., 1, 0] = 2 * (xy + wz)
+    m[..., 1, 1] = 1 - 2 * (xx + zz)
+    m[..., 1, 2] = 2 * (yz - wx)
+    m[..., 2, 0] = 2 * (xz - wy)
+    m[..., 2, 1] = 2 * (yz + wx)
+    m[..., 2, 2] = 1 - 2 * (xx + yy)
+    return m
+
+
+def quat_from_matrix(m: F64) -> F64:
+    """(N, 3, 3) rotation matrices -> (N, 4) unit quaternions (x, y, z, w), w >= 0.
+
+    Uses the numerically stable branch selection of Shepperd's method, vectorised.
+    """
+    m = np.asarray(m, dtype=np.float64)
+    tr = m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]
+    diag = np.stack([m[..., 0, 0], m[..., 1, 1], m[..., 2, 2], tr], axis=-1)
+    k = np.argmax(diag, axis=-1)
+    q = np.empty(m.shape[:-2] + (4,))
+    # candidate for each branch; pick per sample (cheap: 4 vectorised evaluations)
+    cands = np.empty((4,) + q.shape)
+    s = np.sqrt(np.maximum(1 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2], 1e-300)) * 2
+    cands[0] = np.stack(
+        [0.25 * s, (m[..., 0, 1] + m[..., 1, 0]) / s, (m[..., 0, 2] + m[..., 2, 0]) / s,
+         (m[..., 2, 1] - m[..., 1, 2]) / s], axis=-1)
+    s = np.sqrt(np.maximum(1 + m[..., 1, 1] - m[..., 0, 0] - m[..., 2, 2], 1e-300)) * 2
+    cands[1] = np.stack(
+        [(m[..., 0, 1] + m[..., 1, 0]) / s, 0.25 * s, (m[..., 1, 2] + m[..., 2, 1]) / s,
+         (m[..., 0, 2] - m[..., 2, 0]) / s], axis=-1)
+    s = np.sqrt(np.maximum(1 + m[..., 2, 2] - m[..., 0, 0] - m[..., 1, 1], 1e-300)) * 2
+    cands[2] = np.stack(
+        [(m[..., 0, 2] + m[..., 2, 0]) / s, (m[..., 1, 2] + m[..., 2, 1]) / s, 0.25 * s,
+         (m[..., 1, 0] - m[..., 0, 1]) / s], axis=-1)
+    s = np.sqrt(np.maximum(1 + tr, 1e-300)) * 2
+    cands[3] = np.stack(
+        [(m[..., 2, 1] - m[..., 1, 2]) / s, (m[..., 0, 2] - m[..., 2, 0]) / s,
+         (m[..., 1, 0] - m[..., 0, 1]) / s, 0.25 * s], axis=-1)
+    q = np.take_along_axis(np.moveaxis(cands, 0, -2), k[..., None, None], axis=-2)[..., 0, :]
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.where(q[..., 3:4] < 0, -q, q)
+
+
+def quat_multiply(a: F64, b: F64) -> F64:
+    """Hamilton product a * b of (N, 4) quaternions (x, y, z, w)."""
+    ax, ay, az, aw = np.moveaxis(np.asarray(a, dtype=np.float64), -1, 0)
+    bx, by, bz, bw = np.moveaxis(np.asarray(b, dtype=np.float64), -1, 0)
+    return np.stack(
+        [
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+            aw * bw - ax * bx - ay * by - az * bz,
+        ],
+        axis=-1,
+    )
+
+
+def quat_conjugate(q: F64) -> F64:
+    """Inverse of unit quaternions (x, y, z, w)."""
+    out = np.array(q, dtype=np.float64, copy=True)
+    out[..., :3] *= -1
+    return out
+
+
+def rotate_vectors(q: F64, v: F64) -> F64:
+    """Rotate (N, 3) vectors by (N, 4) quaternions: R(q) v."""
+    q = np.asarray(q, dtype=np.float64)
+    u = q[..., :3]
+    w = q[..., 3:4]
+    t = 2.0 * np.cross(u, v)
+    return np.asarray(v + w * t + np.cross(u, t))
+
+
+def rpy_from_quat(q: F64) -> F64:
+    """ROS roll, pitch, yaw (fixed-axis XYZ, R = Rz(yaw) Ry(pitch) Rx(roll)), radians, (N, 3)."""
+    q = np.asarray(q, dtype=np.float64)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    roll = np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    sinp = np.clip(2 * (w * y - z * x), -1.0, 1.0)
+    pitch = np.arcsin(sinp)
+    yaw = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    return np.stack([roll, pitch, yaw], axis=-1)
+
+
+def quat_from_rpy(rpy: F64) -> F64:
+    """Inverse of :func:`rpy_from_quat`: (N, 3) roll, pitch, yaw (rad) -> (N, 4) (x, y, z, w)."""
+    rpy = np.asarray(rpy, dtype=np.float64)
+    hr, hp, hy = rpy[..., 0] / 2, rpy[..., 1] / 2, rpy[..., 2] / 2
+    cr, sr, cp, sp, cy, sy = np.cos(hr), np.sin(hr), np.cos(hp), np.sin(hp), np.cos(hy), np.sin(hy)
+    return np.stack(
+        [
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy,
+            cr * cp * cy + sr * sp * sy,
+        ],
+        axis=-1,
+    )
+
+
+def quat_from_axis_angle(axis: F64, angle: F64) -> F64:
+    """Quaternions (x, y, z, w) for rotations of ``angle`` rad about unit ``axis`` (N, 3)."""
+    axis = np.asarray(axis, dtype=np.float64)
+    half = np.asarray(angle, dtype=np.float64)[..., None] / 2
+    return np.concatenate([axis * np.sin(half), np.cos(half)], axis=-1)
+
+
+def rotation_angle(q: F64) -> F64:
+    """Geodesic angle (rad, in [0, pi]) of each rotation q; sign of q does not matter."""
+    q = np.asarray(q, dtype=np.float64)
+    return np.asarray(
+        2.0 * np.arctan2(np.linalg.norm(q[..., :3], axis=-1), np.abs(q[..., 3]))
+    )
+
+
+def geodesic_angle(a: F64, b: F64) -> F64:
+    """Angle (rad, [0, pi]) of the rotation between orientations a and b, up to quaternion sign."""
+    dot = np.abs(np.sum(np.asarray(a) * np.asarray(b), axis=-1))
+    return np.asarray(2.0 * np.arccos(np.clip(dot, 0.0, 1.0)))
+
+
+def slerp(q0: F64, q1: F64, s: F64) -> F64:
+    """Spherical linear interpolation between (N, 4) q0 and q1 at fractions s in [0, 1].
+
+    Takes the short arc (flips q1 when q0 . q1 < 0); falls back to normalised lerp for
+    nearly equal quaternions, where slerp is numerically ill-conditioned.
+    """
+    q0 = np.asarray(q0, dtype=np.float64)
+    q1 = np.asarray(q1, dtype=np.float64)
+    s = np.asarray(s, dtype=np.float64)[..., None]
+    dot = np.sum(q0 * q1, axis=-1, keepdims=True)
+    q1 = np.where(dot < 0, -q1, q1)
+    dot = np.abs(dot)
+    theta = np.arccos(np.clip(dot, -1.0, 1.0))
+    sin_t = np.sin(theta)
+    small = sin_t < 1e-9
+    safe = np.where(small, 1.0, sin_t)
+    w0 = np.where(small, 1.0 - s, np.sin((1.0 - s) * theta) / safe)
+    w1 = np.where(small, s, np.sin(s * theta) / safe)
+    out = w0 * q0 + w1 * q1
+    return np.asarray(out / np.linalg.norm(out, axis=-1, keepdims=True))
+
+
+def wrap_deg(a: F64) -> F64:
+    """Wrap angles in degrees to (-180, 180]: 359 vs 1 deg differ by -2, not 358."""
+    a = np.asarray(a, dtype=np.float64)
+    w = np.mod(a + 180.0, 360.0) - 180.0
+    return np.asarray(np.where(w == -180.0, 180.0, w))
+
+
+def wrap_rad(a: F64) -> F64:
+    """Wrap angles in radians to (-pi, pi]."""
+    a = np.asarray(a, dtype=np.float64)
+    w = np.mod(a + np.pi, 2 * np.pi) - np.pi
+    return np.asarray(np.where(w == -np.pi, np.pi, w))
