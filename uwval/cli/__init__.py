@@ -33,6 +33,8 @@ COMMAND_MODULES = (
     "uwval.cli.bridge_cmd",
     "uwval.cli.report_cmd",
     "uwval.cli.demo_cmd",
+    "uwval.cli.teleop_cmd",
+    "uwval.cli.bench_cmd",
 )
 
 
