@@ -1,0 +1,21 @@
+"""Shared test fixtures: paths to the read-only shared data."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+TESTS = Path(__file__).resolve().parent
+sys.path.insert(0, str(TESTS))  # module-level task helpers importable by worker processes
+
+SHARED_DATA = TESTS.parents[1] / "shared" / "data"
+
+
+@pytest.fixture
+def shared_data() -> Path:
+    """../shared/data (read-only: copy before modifying); skips when absent."""
+    if not SHARED_DATA.exists():
+        pytest.skip("shared data folder not present")
+    return SHARED_DATA

@@ -1,0 +1,42 @@
+"""Module-level task functions for the executor tests (pickled to worker processes)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from uwval.errors import ConfigError
+
+
+def seeded_sum(seed: int) -> float:
+    """A deterministic numeric task: same seed, same number on any worker."""
+    return float(np.random.default_rng(seed).normal(size=1000).sum())
+
+
+def fail_on_three(x: int) -> int:
+    """Fails deterministically (a uwval error) for x == 3."""
+    if x == 3:
+        raise ConfigError(f"run {x}: bad parameter 'xDotU'")
+    return x * x
+
+
+def die_once(args: tuple[int, str]) -> int:
+    """Kills its worker process the first time it sees x == 2 (marker file), then succeeds."""
+    x, marker_dir = args
+    marker = Path(marker_dir) / f"died-{x}"
+    if x == 2 and not marker.exists():
+        marker.write_text("x")
+        os._exit(17)
+    return x + 100
+
+
+def flaky_once(args: tuple[int, str]) -> int:
+    """Raises a transient OSError the first time for each x, then succeeds."""
+    x, marker_dir = args
+    marker = Path(marker_dir) / f"flaky-{x}"
+    if not marker.exists():
+        marker.write_text("x")
+        raise OSError(f"transient failure for {x}")
+    return x

@@ -1,0 +1,213 @@
+"""Run many independent tasks (one run, or one log, each) locally or on Dask distributed.
+
+``run_tasks`` is the one entry point: the local executor is a process pool (default); the
+``dask`` executor submits the same function to a ``dask.distributed`` cluster (an existing
+scheduler by address, or a LocalCluster it starts). Dask is imported only when asked for.
+A failing task is reported with its key and cause while the others complete; failures that
+are not uwval's own deterministic errors (a worker killed, a broken pool, an OS error) are
+retried a bounded number of times.
+"""
+
+from __future__ import annotations
+
+import os
+import traceback
+from collections.abc import Callable, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+from multiprocessing import get_context
+from typing import Any, Generic, TypeVar
+
+from uwval.errors import UwvalError
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+EXECUTORS = ("local", "dask", "inline")
+
+
+@dataclass
+class TaskOutcome(Generic[R]):
+    """What became of one task: its value, or the cause of its failure."""
+
+    key: str
+    ok: bool
+    value: R | None = None
+    error: str = ""
+    attempts: int = 1
+
+
+def _describe_exc(exc: BaseException) -> str:
+    if isinstance(exc, UwvalError):
+        return str(exc)
+    tb = traceback.format_exception_only(type(exc), exc)
+    return "".join(tb).strip()
+
+
+def _is_transient(exc: BaseException) -> bool:
+    """uwval's own errors are deterministic (bad input): retrying cannot help."""
+    return not isinstance(exc, UwvalError | ValueError | TypeError | KeyError)
+
+
+class _Progress:
+    """A rich progress bar, or nothing when progress is off."""
+
+    def __init__(self, total: int, description: str, enabled: bool) -> None:
+        self._bar: Any = None
+        if enabled and total:
+            from rich.progress import (
+                BarColumn,
+                MofNCompleteColumn,
+                Progress,
+                TextColumn,
+                TimeElapsedColumn,
+            )
+
+            self._bar = Progress(
+                TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                TimeElapsedColumn(), transient=False,
+            )
+            self._bar.start()
+            self._task = self._bar.add_task(description, total=total)
+
+    def advance(self) -> None:
+        if self._bar is not None:
+            self._bar.advance(self._task)
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.stop()
+
+
+def run_tasks(
+    fn: Callable[[T], R],
+    items: Sequence[T],
+    keys: Sequence[str],
+    *,
+    executor: str = "local",
+    workers: int | None = None,
+    scheduler: str | None = None,
+    retries: int = 2,
+    progress: bool = True,
+    description: str = "tasks",
+) -> list[TaskOutcome[R]]:
+    """Apply ``fn`` to every item; outcomes come back in the order of ``items``.
+
+    ``fn`` must be a module-level function (it is pickled to worker processes).
+    ``executor``: ``local`` (process pool of ``workers``, default all cores), ``dask``
+    (``scheduler`` address, or a LocalCluster of ``workers`` processes), or ``inline``
+    (this process, for debugging). ``retries`` bounds re-runs of transient failures.
+    """
+    if len(items) != len(keys):
+        raise ValueError("items and keys differ in length")
+    if len(set(keys)) != len(keys):
+        raise ValueError("task keys must be unique")
+    bar = _Progress(len(items), description, progress)
+    try:
+        if executor == "inline":
+            return _run_inline(fn, items, keys, retries, bar)
+        if executor == "local":
+            return _run_local(fn, items, keys, workers, retries, bar)
+        if executor == "dask":
+            return _run_dask(fn, items, keys, workers, scheduler, retries, bar)
+    finally:
+        bar.close()
+    raise UwvalError(f"unknown executor {executor!r}; choose one of {', '.join(EXECUTORS)}")
+
+
+def _run_inline(fn: Callable[[T], R], items: Sequence[T], keys: Sequence[str], retries: int,
+                bar: _Progress) -> list[TaskOutcome[R]]:
+    out: list[TaskOutcome[R]] = []
+    for item, key in zip(items, keys, strict=True):
+        attempt = 0
+        while True:
+            attempt += 1
+            try:
+                out.append(TaskOutcome(key, True, fn(item), attempts=attempt))
+                break
+            except Exception as exc:
+                if attempt <= retries and _is_transient(exc):
+                    continue
+                out.append(TaskOutcome(key, False, error=_describe_exc(exc), attempts=attempt))
+                break
+        bar.advance()
+    return out
+
+
+def _run_local(fn: Callable[[T], R], items: Sequence[T], keys: Sequence[str],
+               workers: int | None, retries: int, bar: _Progress) -> list[TaskOutcome[R]]:
+    n_workers = max(1, min(workers or os.cpu_count() or 1, len(items) or 1))
+    results: dict[int, TaskOutcome[R]] = {}
+    attempts = dict.fromkeys(range(len(items)), 0)
+    pending = list(range(len(items)))
+    while pending:
+        # a killed worker breaks the whole pool: start a new one for what is left
+        with ProcessPoolExecutor(n_workers, mp_context=get_context("spawn")) as pool:
+            futures: dict[Future[R], int] = {}
+            for i in pending:
+                attempts[i] += 1
+                futures[pool.submit(fn, items[i])] = i
+            pending = []
+            not_done = set(futures)
+            while not_done:
+                done, not_done = wait(not_done, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    i = futures[fut]
+                    try:
+                        results[i] = TaskOutcome(keys[i], True, fut.result(), attempts=attempts[i])
+                        bar.advance()
+                    except Exception as exc:
+                        broken = isinstance(exc, BrokenProcessPool)
+                        if (broken or _is_transient(exc)) and attempts[i] <= retries:
+                            pending.append(i)
+                        else:
+                            results[i] = TaskOutcome(
+                                keys[i], False, error=_describe_exc(exc), attempts=attempts[i]
+                            )
+                            bar.advance()
+    return [results[i] for i in range(len(items))]
+
+
+def _run_dask(fn: Callable[[T], R], items: Sequence[T], keys: Sequence[str],
+              workers: int | None, scheduler: str | None, retries: int,
+              bar: _Progress) -> list[TaskOutcome[R]]:
+    try:
+        from dask.distributed import Client, LocalCluster, as_completed
+    except ImportError as exc:
+        raise UwvalError(
+            "the dask executor needs dask.distributed: pip install 'uwval[dask]'"
+        ) from exc
+    cluster = None
+    if scheduler:
+        client = Client(scheduler, timeout="30s")
+    else:
+        cluster = LocalCluster(
+            n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+            dashboard_address=None, silence_logs=40,
+        )
+        client = Client(cluster)
+    try:
+        # one Dask key per task, named after the run/log so failures are traceable
+        futs = [
+            client.submit(fn, item, key=f"uwval-{key}", retries=retries, pure=False)
+            for item, key in zip(items, keys, strict=True)
+        ]
+        index = {f.key: i for i, f in enumerate(futs)}
+        results: dict[int, TaskOutcome[R]] = {}
+        for fut in as_completed(futs):
+            i = index[fut.key]
+            if fut.status == "finished":
+                results[i] = TaskOutcome(keys[i], True, fut.result())
+            else:
+                failure = fut.exception()
+                results[i] = TaskOutcome(
+                    keys[i], False, error=_describe_exc(failure) if failure else fut.status,
+                    attempts=retries + 1,
+                )
+            bar.advance()
+        return [results[i] for i in range(len(items))]
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
