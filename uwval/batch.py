@@ -1,0 +1,115 @@
+"""Batch compare: every log of an experiment directory (or manifest) into one results table.
+
+A task is one whole log, so a batch runs on any executor of :mod:`uwval.executors` (process
+pool or Dask distributed) and gives the same table either way. A log that fails to compare
+is reported with its run name and cause while the others complete.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from uwval.errors import ConfigError
+from uwval.executors import run_tasks
+
+LOG_SUFFIXES = (".mcap", ".bag", ".db3")
+
+
+@dataclass(frozen=True)
+class BatchItem:
+    """One log to compare, with the factor levels of its run."""
+
+    name: str
+    log: str
+    factors: dict[str, Any] = field(default_factory=dict)
+    options: dict[str, Any] = field(default_factory=dict)
+    bridge: dict[str, Any] = field(default_factory=dict)
+
+
+def items_from(source: Path, options: dict[str, Any] | None = None) -> list[BatchItem]:
+    """Batch items from a manifest.json, a directory holding one, or a directory of logs."""
+    opts = dict(options or {})
+    manifest = source if source.is_file() else source / "manifest.json"
+    if manifest.is_file():
+        try:
+            data = json.loads(manifest.read_text())
+        except json.JSONDecodeError as exc:
+            raise ConfigError(f"{manifest}: not valid JSON: line {exc.lineno}: {exc.msg}") from exc
+        base = manifest.parent
+        runs = data.get("runs")
+        if not isinstance(runs, list):
+            raise ConfigError(f"{manifest}: no 'runs' list")
+        items = []
+        for i, r in enumerate(runs):
+            if "name" not in r or "log" not in r:
+                raise ConfigError(f"{manifest}: run {i} lacks 'name' or 'log'")
+            log = Path(r["log"])
+            items.append(BatchItem(r["name"], str(log if log.is_absolute() else base / log),
+                                   dict(r.get("factors", {})), opts, dict(r.get("bridge", {}))))
+        return items
+    if source.is_dir():
+        logs = sorted(
+            p for p in source.rglob("*")
+            if (p.is_file() and p.suffix in LOG_SUFFIXES and p.parent.suffix == "")
+            and not (p.parent / "metadata.yaml").exists()
+        )
+        bag_dirs = sorted(p.parent for p in source.rglob("metadata.yaml"))
+        found = logs + bag_dirs
+        if not found:
+            raise ConfigError(f"{source}: no manifest.json and no logs (.mcap, .bag, rosbag2)")
+        return [BatchItem(p.stem if p.is_file() else p.name, str(p), {}, opts) for p in found]
+    raise ConfigError(f"{source}: no such manifest or directory")
+
+
+def compare_item(item: BatchItem) -> dict[str, Any]:
+    """Compare one log (vehicle and camera topics); module-level for worker processes."""
+    from uwval.comparison import compare_logs
+
+    result = compare_logs(item.log, **item.options)
+    return {"name": item.name, "log": item.log, "factors": item.factors,
+            "bridge": item.bridge, "comparison": result.to_json()}
+
+
+@dataclass
+class BatchResult:
+    """Per-run comparison JSON, the failures, and the tidy results table built from them."""
+
+    runs: list[dict[str, Any]]
+    failed: list[dict[str, Any]]
+    table: Any  # uwval.results.ResultsTable
+
+    def save(self, out_dir: Path) -> list[Path]:
+        """Write comparisons.json and the results table (CSV, JSON, Parquet if available)."""
+        out_dir.mkdir(parents=True, exist_ok=True)
+        comp = out_dir / "comparisons.json"
+        comp.write_text(json.dumps({"runs": self.runs, "failed": self.failed}, indent=1))
+        written = [comp]
+        written += list(self.table.save(out_dir))
+        return written
+
+
+def compare_batch(
+    source: Path,
+    *,
+    executor: str = "local",
+    workers: int | None = None,
+    scheduler: str | None = None,
+    options: dict[str, Any] | None = None,
+    progress: bool = True,
+) -> BatchResult:
+    """Compare every log of ``source``; gather the results into one table."""
+    from uwval.results import ResultsTable
+
+    items = items_from(source, options)
+    outcomes = run_tasks(compare_item, items, [i.name for i in items], executor=executor,
+                         workers=workers, scheduler=scheduler, progress=progress,
+                         description=f"compare {len(items)} logs")
+    runs = [o.value for o in outcomes if o.ok and o.value is not None]
+    failed = [{"name": o.key, "error": o.error} for o in outcomes if not o.ok]
+    table = ResultsTable.from_comparisons(
+        [(r["name"], r["factors"], r["comparison"]) for r in runs]
+    )
+    return BatchResult(runs, failed, table)

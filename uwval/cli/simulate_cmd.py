@@ -1,0 +1,169 @@
+"""``uwval simulate``: one run, or a whole factorial experiment, into logs.
+
+One run: ``uwval simulate --force 10,0,0 --duration 20 -o run.mcap``.
+An experiment: ``uwval simulate data/experiments/default.toml -o DIR`` writes one log per run
+under ``DIR/runs/`` and ``DIR/manifest.json`` (runs, factor levels, bridge statistics).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+
+from uwval.cli import app
+from uwval.cli.pipeline import FORMAT_SUFFIX, RunJob, SessionOptions, log_path_for, run_one
+from uwval.errors import ConfigError, UwvalError
+from uwval.executors import run_tasks
+
+console = Console()
+
+
+def parse_vector(text: str, what: str) -> tuple[float, float, float]:
+    """``"10,0,0"`` -> (10.0, 0.0, 0.0); a single number means the first axis."""
+    try:
+        parts = [float(p) for p in text.replace(" ", "").split(",") if p != ""]
+    except ValueError:
+        raise ConfigError(f"--{what}: expected three numbers like 10,0,0, got {text!r}") from None
+    if len(parts) == 1:
+        parts += [0.0, 0.0]
+    if len(parts) != 3:
+        raise ConfigError(f"--{what}: expected three numbers like 10,0,0, got {text!r}")
+    return parts[0], parts[1], parts[2]
+
+
+def run_experiment(
+    experiment: Path,
+    out_dir: Path,
+    session: SessionOptions,
+    *,
+    executor: str = "local",
+    workers: int | None = None,
+    scheduler: str | None = None,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Run every run of an experiment file; write and return the manifest."""
+    from simulator import load_experiment
+
+    exp = load_experiment(experiment)
+    specs = exp.runs()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    jobs = [
+        RunJob(spec, str(log_path_for(out_dir, spec.name, session.log_format)), session)
+        for spec in specs
+    ]
+    t0 = time.perf_counter()
+    outcomes = run_tasks(run_one, jobs, [s.name for s in specs], executor=executor,
+                         workers=workers, scheduler=scheduler, progress=progress,
+                         description=f"simulate {len(specs)} runs")
+    runs = []
+    for o in outcomes:
+        if o.ok and o.value is not None:
+            rec = dict(o.value)
+            rec["log"] = str(Path(rec["log"]).relative_to(out_dir))
+            runs.append(rec)
+    failed = [{"name": o.key, "error": o.error, "attempts": o.attempts}
+              for o in outcomes if not o.ok]
+    manifest = {
+        "uwval_manifest": 1,
+        "experiment": {"path": str(experiment), **_describe_experiment(exp)},
+        "executor": executor,
+        "wall_time_s": round(time.perf_counter() - t0, 3),
+        "runs": runs,
+        "failed": failed,
+    }
+    (out_dir / "manifest.json").write_text(json.dumps(manifest, indent=2))
+    return manifest
+
+
+def _describe_experiment(exp: Any) -> dict[str, Any]:
+    if hasattr(exp, "describe"):
+        return dict(exp.describe())
+    return {"name": getattr(exp, "name", "")}
+
+
+@app.command()
+def simulate(
+    experiment: Annotated[
+        Path | None, typer.Argument(help="Experiment TOML (factors x levels); omit for one run.")
+    ] = None,
+    output: Annotated[Path, typer.Option("-o", "--output",
+                                         help="Log file (one run) or directory (experiment).")
+                      ] = Path("run.mcap"),
+    force: Annotated[str, typer.Option(help="Body force FX,FY,FZ in N.")] = "0,0,0",
+    torque: Annotated[str, typer.Option(help="Body torque TX,TY,TZ in N m.")] = "0,0,0",
+    current: Annotated[str, typer.Option(help="Water current CX,CY,CZ in m/s (world ENU).")
+                       ] = "0,0,0",
+    duration: Annotated[float, typer.Option(help="Run length in seconds of sim time.")] = 20.0,
+    vehicle: Annotated[str, typer.Option(help="Preset name, MODEL.sdf or VEHICLE.toml.")
+                       ] = "tethys",
+    log_format: Annotated[str, typer.Option("--format",
+                                            help="mcap, rosbag2, rosbag2-sqlite3 or rosbag1.")
+                          ] = "mcap",
+    publish_rate: Annotated[float, typer.Option(help="Gazebo pose publish rate, Hz.")] = 50.0,
+    frame_rate: Annotated[float, typer.Option(help="Unity render loop rate, Hz.")] = 60.0,
+    unity_map: Annotated[str, typer.Option(help="ROS-TCP-Connector map: unity-flu or unity-enu.")
+                         ] = "unity-flu",
+    latency: Annotated[float, typer.Option(help="Injected one-way latency, s.")] = 0.0,
+    jitter: Annotated[float, typer.Option(help="Render-frame jitter (std), s.")] = 0.0,
+    drop: Annotated[float, typer.Option(help="Probability of dropping a pose message.")] = 0.0,
+    unity_clock_offset: Annotated[float, typer.Option(help="Unity clock minus sim clock, s.")
+                                  ] = 0.0,
+    seed: Annotated[int, typer.Option(help="Seed for jitter/drops (and the experiment).")] = 0,
+    realtime: Annotated[bool, typer.Option(help="Pace the virtual clock to the wall clock.")
+                        ] = False,
+    executor: Annotated[str, typer.Option(help="local (process pool), dask or inline.")
+                        ] = "local",
+    workers: Annotated[int | None, typer.Option(help="Worker processes (default: all cores).")
+                       ] = None,
+    scheduler: Annotated[str | None, typer.Option(help="Dask scheduler address (tcp://...).")
+                         ] = None,
+) -> None:
+    """Simulate, bridge over TCP and record paired Gazebo/Unity pose logs."""
+    session = SessionOptions(
+        unity_map=unity_map, frame_rate=frame_rate, latency_s=latency, jitter_s=jitter,
+        drop_prob=drop, unity_clock_offset_s=unity_clock_offset, realtime=realtime,
+        log_format=log_format,
+    )
+    if log_format not in FORMAT_SUFFIX:
+        raise ConfigError(f"--format {log_format!r}: choose one of {', '.join(FORMAT_SUFFIX)}")
+    if experiment is not None:
+        if output.suffix in (".mcap", ".bag", ".db3"):
+            output = output.with_suffix("")
+        manifest = run_experiment(experiment, output, session, executor=executor,
+                                  workers=workers, scheduler=scheduler)
+        console.print(
+            f"[green]{len(manifest['runs'])} runs[/] written to {output}/runs, manifest "
+            f"{output / 'manifest.json'} ({manifest['wall_time_s']:.1f} s)"
+        )
+        for f in manifest["failed"]:
+            console.print(f"[red]run {f['name']} failed:[/] {f['error']}")
+        if manifest["failed"]:
+            raise typer.Exit(1)
+        return
+    from simulator import RunSpec, constant_inputs, load_vehicle
+
+    if duration <= 0:
+        raise ConfigError(f"--duration must be positive, got {duration}")
+    f, tq, c = (parse_vector(force, "force"), parse_vector(torque, "torque"),
+                parse_vector(current, "current"))
+    spec = RunSpec(
+        name=output.stem, factors={"force": f[0], "torque": tq[2], "current": c[0]},
+        vehicle=load_vehicle(vehicle), inputs=constant_inputs(f, tq, c),
+        duration_s=duration, seed=seed, publish_rate=publish_rate,
+    )
+    t0 = time.perf_counter()
+    with console.status(f"simulating {duration:g} s and bridging over TCP..."):
+        try:
+            record = run_one(RunJob(spec, str(output), session))
+        except UwvalError:
+            raise
+    b = record["bridge"]
+    console.print(
+        f"[green]wrote[/] {output} in {time.perf_counter() - t0:.2f} s: "
+        + ", ".join(f"{k} {v}" for k, v in b.items() if isinstance(v, int | float))
+    )
