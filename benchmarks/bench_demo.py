@@ -1,0 +1,26 @@
+"""Wall time of ``uwval demo`` as a user runs it (whole command, fresh process). Target <= 60 s."""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+from benchmarks.common import BenchRow, median, python_cmd, run_command
+
+
+def run(quick: bool = False) -> list[BenchRow]:
+    walls, rss = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        for i in range(1 if quick else 2):
+            wall, mem = run_command(python_cmd("-m", "uwval", "demo", "-o",
+                                               str(Path(tmp) / f"demo{i}")))
+            walls.append(wall)
+            rss.append(mem)
+    w = median(walls)
+    return [BenchRow("uwval demo, whole command", w, "s", target="<= 60 s", met=w <= 60,
+                     notes=f"peak RSS of the parent {max(rss):.0f} MiB")]
+
+
+if __name__ == "__main__":
+    for row in run(quick=True):
+        print(row.as_dict())

@@ -1,0 +1,69 @@
+"""Sweep on Dask LocalCluster vs the local process pool (same cores), and a scale-out estimate.
+
+Runs the default experiment (simulate -> bridge -> MCAP, 8 runs) with each executor, alternating,
+and the batch compare of the resulting logs. Reports the wall times, the Dask overhead, the
+measured cost of one run on one core, and from that the estimated wall time of 10,000 runs on 16
+and on 128 workers (cost x runs / workers + measured per-task scheduling overhead).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from pathlib import Path
+
+from benchmarks.common import BenchRow, median
+
+
+def _sweep(executor: str, out: Path, workers: int) -> float:
+    from uwval.cli.pipeline import SessionOptions
+    from uwval.cli.simulate_cmd import run_experiment
+    from uwval.resources import data_path
+
+    t0 = time.perf_counter()
+    manifest = run_experiment(data_path("experiments", "default.toml"), out, SessionOptions(),
+                              executor=executor, workers=workers, progress=False)
+    if manifest["failed"]:
+        raise RuntimeError(f"sweep failed: {manifest['failed']}")
+    return time.perf_counter() - t0
+
+
+def run(quick: bool = False) -> list[BenchRow]:
+    from uwval.executors import run_tasks
+
+    workers = os.cpu_count() or 2
+    reps = 1 if quick else 3
+    local_t, dask_t = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        for i in range(reps):
+            local_t.append(_sweep("local", Path(tmp) / f"local{i}", workers))
+            dask_t.append(_sweep("dask", Path(tmp) / f"dask{i}", workers))
+        # cost of one run on one core, in this process (no pool start-up)
+        t0 = time.perf_counter()
+        _sweep("inline", Path(tmp) / "inline", 1)
+        inline = time.perf_counter() - t0
+    n_runs = 8
+    per_run = inline / n_runs
+    # per-task scheduling overhead of Dask: trivial tasks on a LocalCluster
+    t0 = time.perf_counter()
+    run_tasks(abs, list(range(200)), [f"t{i}" for i in range(200)], executor="dask",
+              workers=workers, progress=False)
+    dask_trivial = time.perf_counter() - t0
+    est = {w: 10_000 * per_run / w for w in (16, 128)}
+    lm, dm = median(local_t), median(dask_t)
+    return [
+        BenchRow("sweep default experiment (8 runs), wall", dm, "s", peer=lm,
+                 peer_name="process pool", target="report Dask overhead",
+                 notes=f"dask/local = {dm / lm:.2f}; {workers} workers"),
+        BenchRow("one run (20 s sim + bridge + MCAP), one core", per_run, "s",
+                 target="for scale-out estimate"),
+        BenchRow("200 trivial tasks on LocalCluster (incl. cluster start)", dask_trivial, "s"),
+        BenchRow("est. 10,000 runs on 16 workers", est[16], "s"),
+        BenchRow("est. 10,000 runs on 128 workers", est[128], "s"),
+    ]
+
+
+if __name__ == "__main__":
+    for row in run(quick=True):
+        print(row.as_dict())
