@@ -1,0 +1,97 @@
+"""The Gazebo side of the bridge: pose ticks and a publisher that feeds the endpoint.
+
+In a real setup ros_gz_bridge turns Gazebo's ``/model/<name>/pose`` into ROS
+``geometry_msgs/PoseStamped`` topics stamped with sim time, and ROS-TCP-Endpoint forwards
+them to Unity. :class:`GazeboPublisher` plays that part in-process: each tick's poses (ENU
+world, FLU body) become PoseStamped bodies (``frame_id`` ``"world"``) published on
+``model_rov_pose`` and ``gui_camera_pose``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from bridge import protocol as wire
+from bridge.server import BridgeServer
+from uwval.errors import BridgeError
+from uwval.frames import convert_arrays, get_convention
+from uwval.posestream import PoseStream
+
+F64 = NDArray[np.float64]
+#: One publish tick: (sim time ns, {topic name: (position (3,), quaternion xyzw (4,))}).
+Tick = tuple[int, dict[str, tuple[F64, F64]]]
+
+VEHICLE_TOPIC = "model_rov_pose"
+CAMERA_TOPIC = "gui_camera_pose"
+DEFAULT_TOPICS = (VEHICLE_TOPIC, CAMERA_TOPIC)
+
+
+class GazeboPublisher:
+    """Publish pose ticks into a :class:`BridgeServer` as ros_gz_bridge would."""
+
+    def __init__(self, server: BridgeServer, *, topics: Sequence[str] = DEFAULT_TOPICS,
+                 frame_id: str = "world") -> None:
+        self.server = server
+        self.protocol = server.protocol
+        self.frame_id = frame_id
+        self.topics = list(topics)
+        self.seq = 0
+        for t in self.topics:
+            server.advertise(t, wire.POSE_STAMPED)
+
+    def encode(self, t_ns: int, position: F64, quat: F64) -> bytes:
+        """One PoseStamped body in the server's protocol."""
+        return wire.encode_pose_stamped(t_ns, position, quat, self.frame_id, self.protocol,
+                                     seq=self.seq)
+
+    def publish(self, topic: str, t_ns: int, position: F64, quat: F64) -> int:
+        """Publish one pose; returns how many clients it was queued to."""
+        self.seq += 1
+        return self.server.publish(topic, self.encode(t_ns, position, quat))
+
+    def publish_tick(self, tick: Tick) -> dict[str, int]:
+        """Publish every pose of a tick; returns clients reached per topic."""
+        t_ns, poses = tick
+        return {name: self.publish(name, t_ns, p, q) for name, (p, q) in poses.items()}
+
+
+def ticks_from_streams(*streams: PoseStream, names: Sequence[str] | None = None
+                       ) -> Iterator[Tick]:
+    """Turn simulator PoseStreams (vehicle, camera, ...) into publish ticks, in time order.
+
+    ``names`` default to ``model_rov_pose``, ``gui_camera_pose`` for the first two streams
+    (or the stream's topic basename beyond those). Streams in another convention are
+    converted to ENU/FLU first. A tick holds every stream that has a sample at that stamp.
+    """
+    if not streams:
+        raise BridgeError("ticks_from_streams needs at least one pose stream")
+    if names is None:
+        names = [DEFAULT_TOPICS[i] if i < len(DEFAULT_TOPICS)
+                 else (s.topic.strip("/").split("/")[-1] or f"pose_{i}")
+                 for i, s in enumerate(streams)]
+    if len(names) != len(streams):
+        raise BridgeError(f"{len(names)} names for {len(streams)} streams")
+    enu = []
+    for s in streams:
+        if get_convention(s.frame).name != "enu":
+            pos, quat = convert_arrays(s.position, s.orientation, s.frame, "enu")
+            enu.append((s.t, pos, quat))
+        else:
+            enu.append((s.t, s.position, s.orientation))
+    times = np.unique(np.concatenate([e[0] for e in enu]))
+    # index of each stream's sample at each tick time, or -1
+    idx = []
+    for t, _, _ in enu:
+        i = np.searchsorted(t, times)
+        ok = (i < len(t)) & (t[np.minimum(i, len(t) - 1)] == times)
+        idx.append(np.where(ok, i, -1))
+    for k in range(len(times)):
+        poses = {}
+        for name, (_, pos, quat), ii in zip(names, enu, idx, strict=True):
+            j = int(ii[k])
+            if j >= 0:
+                poses[name] = (pos[j], quat[j])
+        yield int(times[k]), poses

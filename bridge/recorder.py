@@ -1,0 +1,133 @@
+"""Record both sides of a bridged run into one log, incrementally.
+
+Topics (DESIGN.md section 4, issue 2 item 6):
+
+- ``/gazebo/model_rov_pose``, ``/gazebo/gui_camera_pose``: PoseStamped in ENU world / FLU
+  body, ``frame_id`` ``"world"``, header stamp = sim time.
+- ``/unity/model_rov_pose``, ``/unity/gui_camera_pose``: PoseStamped in Unity axes; the
+  header ``frame_id`` is the convention name (``unity-flu`` / ``unity-enu``) so readers know
+  the map; header stamp = Unity's clock.
+- ``/unity/<name>/applied_stamp``: std_msgs/Header per Unity frame whose stamp is the Gazebo
+  header stamp that frame applied (``uwval.io.read_stream`` attaches it as ``applied_stamp``).
+
+The writer is anything with the interface of :class:`uwval.io.mcap_io.McapPoseWriter`.
+The recorder flushes every ``flush_every`` messages and every ``flush_interval_s`` wall
+seconds, so a SIGKILL loses at most what came after the last flush; :meth:`close` writes
+everything (a clean stop loses nothing).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from uwval.frames import get_convention
+from uwval.io.ros import APPLIED_SUFFIX
+
+F64 = NDArray[np.float64]
+
+GAZEBO_PREFIX = "/gazebo"
+UNITY_PREFIX = "/unity"
+GAZEBO_FRAME_ID = "world"
+
+
+class PoseWriter(Protocol):
+    """What the recorder needs from a log writer (McapPoseWriter's interface)."""
+
+    def write_pose(self, topic: str, t_ns: int, position: F64, quat: F64, frame_id: str,
+                   log_time: int | None = None) -> None: ...
+
+    def write_header(self, topic: str, stamp_ns: int, log_time: int,
+                     frame_id: str = "") -> None: ...
+
+    def close(self) -> None: ...
+
+
+class BridgeRecorder:
+    """Write Gazebo-side and Unity-side poses of one run through ``writer``.
+
+    Args:
+        writer: a :class:`PoseWriter`; its ``flush()`` (when present) is called at each flush.
+        unity_map: the ROS-TCP-Connector map of the Unity poses (goes into frame_id).
+        flush_every: flush after this many messages (0: only by time and at close).
+        flush_interval_s: flush when this many wall seconds passed since the last flush.
+    """
+
+    def __init__(self, writer: PoseWriter, *, unity_map: str = "unity-flu",
+                 flush_every: int = 1000, flush_interval_s: float = 0.5) -> None:
+        self.writer = writer
+        self.unity_map = get_convention(unity_map).name
+        self.flush_every = int(flush_every)
+        self.flush_interval_s = float(flush_interval_s)
+        #: Messages written per topic (applied_stamp companions included).
+        self.written: dict[str, int] = {}
+        #: Messages per topic as of the last flush (what survives a SIGKILL).
+        self.flushed: dict[str, int] = {}
+        self._since_flush = 0
+        self._last_flush = time.monotonic()
+        self.closed = False
+
+    def _count(self, topic: str) -> None:
+        self.written[topic] = self.written.get(topic, 0) + 1
+        self._since_flush += 1
+        if (self.flush_every and self._since_flush >= self.flush_every) or (
+                time.monotonic() - self._last_flush >= self.flush_interval_s):
+            self.flush()
+
+    def gazebo_pose(self, name: str, t_ns: int, position: F64, quat: F64,
+                    log_time: int | None = None) -> None:
+        """One Gazebo pose (ENU/FLU, sim-time stamp ``t_ns``) on ``/gazebo/<name>``."""
+        topic = f"{GAZEBO_PREFIX}/{name}"
+        self.writer.write_pose(topic, int(t_ns), position, quat, GAZEBO_FRAME_ID,
+                               int(t_ns) if log_time is None else int(log_time))
+        self._count(topic)
+
+    def unity_pose(self, name: str, unity_t_ns: int, position: F64, quat: F64,
+                   applied_stamp_ns: int) -> None:
+        """One Unity frame's transform (Unity axes, Unity clock) and its applied stamp."""
+        topic = f"{UNITY_PREFIX}/{name}"
+        self.writer.write_pose(topic, int(unity_t_ns), position, quat, self.unity_map,
+                               int(unity_t_ns))
+        self._count(topic)
+        self.writer.write_header(topic + APPLIED_SUFFIX, int(applied_stamp_ns),
+                                 int(unity_t_ns), GAZEBO_FRAME_ID)
+        self._count(topic + APPLIED_SUFFIX)
+
+    def flush(self) -> None:
+        """Push everything written so far to the file (finishing the open MCAP chunk)."""
+        flush = getattr(self.writer, "flush", None)
+        if flush is not None:
+            flush()
+        self.flushed = dict(self.written)
+        self._since_flush = 0
+        self._last_flush = time.monotonic()
+
+    def close(self) -> None:
+        """Flush and close the writer (idempotent)."""
+        if not self.closed:
+            self.flush()
+            self.writer.close()
+            self.closed = True
+
+
+def open_mcap_writer(path: str | Path, *, metadata: dict[str, str] | None = None,
+                     chunk_size: int = 64 * 1024) -> Any:
+    """An :class:`~uwval.io.mcap_io.McapPoseWriter` whose ``flush()`` really flushes.
+
+    McapPoseWriter.flush pushes closed chunks only; a crash-safe recorder needs the open
+    chunk finished too, which the mcap library's ``Writer.flush`` does (mcap >= 1.2).
+    """
+    from uwval.io.mcap_io import McapPoseWriter
+
+    class _FlushingWriter(McapPoseWriter):
+        def flush(self) -> None:
+            inner = getattr(self, "_writer", None)
+            if inner is not None and hasattr(inner, "flush"):
+                inner.flush()
+            super().flush()
+
+    return _FlushingWriter(path, metadata=metadata, chunk_size=chunk_size)

@@ -1,0 +1,451 @@
+"""The ROS-TCP endpoint: a TCP server that Unity (ROS-TCP-Connector v0.7) connects to.
+
+It plays ROS-TCP-Endpoint's role. The "ROS side" is in-process: a Gazebo-side publisher
+calls :meth:`BridgeServer.publish` as ros_gz_bridge's topics would reach the endpoint's
+subscribers, and local callbacks receive what Unity publishes.
+
+Robustness rules (issue 6):
+- several clients at once, each with a reader thread and a writer thread;
+- per-client bounded outgoing queue: when full the oldest item is dropped and counted
+  (ROS-TCP-Endpoint's queues are unbounded, so overload there shows as growing lag);
+- a frame-size cap; a malformed frame closes only that client, with a logged reason;
+- a frame is queued atomically (a ``__response`` and its body travel as one item) so a drop
+  never splits a pair.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import logging
+import socket
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from bridge import protocol as wire
+from uwval.errors import BridgeError
+
+log = logging.getLogger("uwval.bridge.server")
+
+#: Callback for messages Unity publishes: (topic, body bytes, client id).
+TopicCallback = Callable[[str, bytes, int], None]
+#: ROS service handler: request body -> response body.
+ServiceHandler = Callable[[bytes], bytes]
+
+
+@dataclass
+class ClientStats:
+    """Counters of one connection (frames and bytes each way, drops, why it closed)."""
+
+    client_id: int
+    address: str
+    frames_in: int = 0
+    frames_out: int = 0
+    bytes_in: int = 0
+    bytes_out: int = 0
+    dropped: int = 0
+    subscriptions: tuple[str, ...] = ()
+    closed_reason: str = ""
+
+
+@dataclass
+class _Client:
+    sock: socket.socket
+    client_id: int
+    address: str
+    max_queue: int
+    queue: deque[bytes] = field(default_factory=deque)
+    cond: threading.Condition = field(default_factory=threading.Condition)
+    closed: bool = False
+    stats: ClientStats | None = None
+    subscriptions: dict[str, str] = field(default_factory=dict)  # topic -> message name
+    publications: dict[str, str] = field(default_factory=dict)
+    unity_services: dict[str, str] = field(default_factory=dict)
+    ros_services: dict[str, str] = field(default_factory=dict)
+    pending_srv: tuple[int, bool] | None = None  # (srv_id, is_request) for the next frame
+    nul: bool = False  # peer appends NULs (ROS 2 Unity): answer the same way
+    threads: list[threading.Thread] = field(default_factory=list)
+
+    def enqueue(self, item: bytes) -> bool:
+        """Queue one atomic item; drop the oldest when full. False if the client is closed."""
+        with self.cond:
+            if self.closed:
+                return False
+            if len(self.queue) >= self.max_queue:
+                self.queue.popleft()
+                assert self.stats is not None
+                self.stats.dropped += 1
+            self.queue.append(item)
+            self.cond.notify()
+        return True
+
+
+class BridgeServer:
+    """ROS-TCP-Endpoint-compatible server (default 127.0.0.1:10000).
+
+    Args:
+        host, port: where to listen (``port=0`` picks a free port; see :attr:`address`).
+        protocol: ``"ROS2"`` (CDR bodies) or ``"ROS1"``, announced in the handshake.
+        queue_size: bound of each client's outgoing queue (items).
+        max_frame: cap on one incoming frame's payload, bytes.
+    """
+
+    def __init__(self, host: str = wire.DEFAULT_HOST, port: int = wire.DEFAULT_PORT, *,
+                 protocol: wire.Protocol = "ROS2", queue_size: int = 1024,
+                 max_frame: int = wire.MAX_FRAME_BYTES) -> None:
+        self.host = host
+        self.port = port
+        self.protocol = wire.check_protocol(protocol)
+        self.queue_size = int(queue_size)
+        self.max_frame = int(max_frame)
+        self._listener: socket.socket | None = None
+        self._accept_thread: threading.Thread | None = None
+        self._stopping = threading.Event()
+        self._lock = threading.RLock()
+        self._clients: dict[int, _Client] = {}
+        self._closed_stats: list[ClientStats] = []
+        self._ids = itertools.count(1)
+        self._srv_ids = itertools.count(1001)
+        self._advertised: dict[str, str] = {}  # ROS-side topics -> pkg/Type
+        self._callbacks: dict[str, list[TopicCallback]] = {}
+        self._services: dict[str, ServiceHandler] = {}
+        self._waiting: dict[int, tuple[threading.Event, list[bytes]]] = {}
+        self._sub_cond = threading.Condition(self._lock)
+        #: Human-readable events (connects, registrations, closes with reasons), newest last.
+        self.events: deque[str] = deque(maxlen=1000)
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> BridgeServer:
+        """Bind, listen and start accepting clients in a background thread."""
+        sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            sock.bind((self.host, self.port))
+        except OSError as exc:
+            sock.close()
+            raise BridgeError(f"cannot listen on {self.host}:{self.port}: {exc}") from exc
+        sock.listen(16)
+        sock.settimeout(0.1)
+        self._listener = sock
+        self.port = sock.getsockname()[1]
+        self._accept_thread = threading.Thread(target=self._accept_loop, daemon=True,
+                                               name=f"bridge-accept-{self.port}")
+        self._accept_thread.start()
+        self._event(f"listening on {self.host}:{self.port} ({self.protocol})")
+        return self
+
+    @property
+    def address(self) -> tuple[str, int]:
+        """(host, port) actually bound."""
+        return self.host, self.port
+
+    def stop(self) -> None:
+        """Stop accepting, close every client and join the threads."""
+        self._stopping.set()
+        if self._accept_thread is not None:
+            self._accept_thread.join(timeout=2)
+        if self._listener is not None:
+            self._listener.close()
+        with self._lock:
+            clients = list(self._clients.values())
+        for c in clients:
+            self._close(c, "server stopping")
+        for c in clients:
+            for t in c.threads:
+                if t is not threading.current_thread():
+                    t.join(timeout=2)
+
+    def __enter__(self) -> BridgeServer:
+        return self.start() if self._listener is None else self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # ------------------------------------------------------------------ ROS side API
+    def advertise(self, topic: str, msg_name: str) -> None:
+        """Declare a ROS-side topic (listed in ``__topic_list`` replies)."""
+        with self._lock:
+            self._advertised[topic] = wire.message_name(msg_name)
+
+    def publish(self, topic: str, body: bytes) -> int:
+        """Send one message body on ``topic`` to every client subscribed to it.
+
+        The frame is encoded once and queued per client. Returns the number of clients
+        it was queued to (0 when nobody subscribes, as a ROS publisher with no peers).
+        """
+        with self._lock:
+            targets = [c for c in self._clients.values() if topic in c.subscriptions]
+        if not targets:
+            return 0
+        frame = wire.encode_frame(topic, body)
+        return sum(c.enqueue(frame) for c in targets)
+
+    def on_topic(self, topic: str, callback: TopicCallback) -> None:
+        """Call ``callback(topic, body, client_id)`` for each message Unity publishes there."""
+        with self._lock:
+            self._callbacks.setdefault(topic, []).append(callback)
+
+    def add_service(self, name: str, handler: ServiceHandler) -> None:
+        """Serve a ROS service that Unity calls (after it sent ``__ros_service``)."""
+        with self._lock:
+            self._services[name] = handler
+
+    def call_unity_service(self, name: str, request: bytes, timeout: float = 5.0) -> bytes:
+        """Call a service that a Unity client registered with ``__unity_service``."""
+        with self._lock:
+            client = next((c for c in self._clients.values() if name in c.unity_services),
+                          None)
+            if client is None:
+                raise BridgeError(f"no connected client offers Unity service {name!r}")
+            srv_id = next(self._srv_ids)
+            done = threading.Event()
+            box: list[bytes] = []
+            self._waiting[srv_id] = (done, box)
+        client.enqueue(wire.encode_command(wire.REQUEST, {"srv_id": srv_id})
+                       + wire.encode_frame(name, request))
+        if not done.wait(timeout):
+            with self._lock:
+                self._waiting.pop(srv_id, None)
+            raise BridgeError(f"Unity service {name!r} (srv_id {srv_id}) timed out after "
+                              f"{timeout} s")
+        return box[0]
+
+    def send_log(self, level: str, text: str) -> None:
+        """Send ``__log`` / ``__warn`` / ``__error`` text to every client."""
+        cmd = {"info": wire.LOG, "log": wire.LOG, "warn": wire.WARN, "error": wire.ERROR}[level]
+        with self._lock:
+            clients = list(self._clients.values())
+        for c in clients:
+            c.enqueue(wire.encode_command(cmd, {"text": text}))
+
+    def wait_for_subscribers(self, topic: str, count: int = 1, timeout: float = 5.0) -> None:
+        """Block until ``count`` connected clients subscribe to ``topic``."""
+        deadline = time.monotonic() + timeout
+        with self._sub_cond:
+            while self.subscriber_count(topic) < count:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise BridgeError(f"timed out after {timeout} s waiting for {count} "
+                                      f"subscriber(s) on {topic!r}")
+                self._sub_cond.wait(left)
+
+    def subscriber_count(self, topic: str) -> int:
+        """How many connected clients subscribe to ``topic``."""
+        with self._lock:
+            return sum(topic in c.subscriptions for c in self._clients.values())
+
+    def clients(self) -> list[ClientStats]:
+        """Stats of connected clients."""
+        with self._lock:
+            out = []
+            for c in self._clients.values():
+                assert c.stats is not None
+                c.stats.subscriptions = tuple(sorted(c.subscriptions))
+                out.append(c.stats)
+            return out
+
+    def closed_clients(self) -> list[ClientStats]:
+        """Stats of clients that have disconnected, with the reason."""
+        with self._lock:
+            return list(self._closed_stats)
+
+    # ------------------------------------------------------------------ internals
+    def _event(self, text: str, level: int = logging.INFO) -> None:
+        self.events.append(text)
+        log.log(level, text)
+
+    def _accept_loop(self) -> None:
+        assert self._listener is not None
+        while not self._stopping.is_set():
+            try:
+                conn, addr = self._listener.accept()
+            except TimeoutError:
+                continue
+            except OSError:
+                break
+            conn.settimeout(None)
+            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            cid = next(self._ids)
+            address = f"{addr[0]}:{addr[1]}"
+            client = _Client(conn, cid, address, self.queue_size)
+            client.stats = ClientStats(cid, address)
+            # The endpoint's first frame is the handshake (version + protocol).
+            client.queue.append(wire.handshake_frame(self.protocol))
+            with self._lock:
+                self._clients[cid] = client
+            reader = threading.Thread(target=self._read_loop, args=(client,), daemon=True,
+                                      name=f"bridge-read-{cid}")
+            writer = threading.Thread(target=self._write_loop, args=(client,), daemon=True,
+                                      name=f"bridge-write-{cid}")
+            client.threads = [reader, writer]
+            self._event(f"client {cid} connected from {address}")
+            writer.start()
+            reader.start()
+
+    def _write_loop(self, c: _Client) -> None:
+        assert c.stats is not None
+        while True:
+            with c.cond:
+                while not c.queue and not c.closed:
+                    c.cond.wait()
+                if c.closed:
+                    return
+                items = list(c.queue)
+                c.queue.clear()
+            data = b"".join(items)
+            try:
+                c.sock.sendall(data)
+            except OSError as exc:
+                self._close(c, f"send failed: {exc}")
+                return
+            c.stats.frames_out += len(items)
+            c.stats.bytes_out += len(data)
+
+    def _read_loop(self, c: _Client) -> None:
+        assert c.stats is not None
+        parser = wire.FrameParser(max_frame=self.max_frame)
+        reason = "peer closed the connection"
+        try:
+            while not c.closed:
+                try:
+                    data = c.sock.recv(1 << 16)
+                except OSError as exc:
+                    reason = f"receive failed: {exc}"
+                    break
+                if not data:
+                    if parser.buffered:
+                        reason = (f"peer closed mid-frame: {parser.buffered} bytes of an "
+                                  f"incomplete frame at byte {parser.offset}")
+                    break
+                c.stats.bytes_in += len(data)
+                for frame in parser.feed(data):
+                    c.stats.frames_in += 1
+                    self._dispatch(c, frame)
+        except wire.ProtocolError as exc:
+            reason = f"protocol error: {exc}"
+            self._event(f"client {c.client_id} ({c.address}): {reason}", logging.WARNING)
+        except Exception as exc:  # a bug must not kill the server; close this client only
+            reason = f"internal error: {type(exc).__name__}: {exc}"
+            self._event(f"client {c.client_id} ({c.address}): {reason}", logging.ERROR)
+        self._close(c, reason)
+
+    def _close(self, c: _Client, reason: str) -> None:
+        with c.cond:
+            if c.closed:
+                return
+            c.closed = True
+            c.cond.notify_all()
+        with contextlib.suppress(OSError):
+            c.sock.shutdown(socket.SHUT_RDWR)
+        c.sock.close()
+        with self._lock:
+            self._clients.pop(c.client_id, None)
+            assert c.stats is not None
+            c.stats.closed_reason = reason
+            c.stats.subscriptions = tuple(sorted(c.subscriptions))
+            self._closed_stats.append(c.stats)
+            self._sub_cond.notify_all()
+        self._event(f"client {c.client_id} ({c.address}) closed: {reason}")
+
+    def _reply(self, c: _Client, command: str, params: dict[str, Any]) -> None:
+        c.enqueue(wire.encode_command(command, params, nul=c.nul))
+
+    def _dispatch(self, c: _Client, frame: wire.Frame) -> None:
+        if c.pending_srv is not None:
+            srv_id, is_request = c.pending_srv
+            c.pending_srv = None
+            if is_request:
+                self._serve_request(c, srv_id, frame)
+            else:
+                with self._lock:
+                    waiting = self._waiting.pop(srv_id, None)
+                if waiting is None:
+                    self._reply(c, wire.ERROR, {"text": f"unexpected __response srv_id {srv_id}"})
+                else:
+                    waiting[1].append(frame.payload)
+                    waiting[0].set()
+            return
+        if frame.is_keepalive:
+            return
+        if frame.is_command:
+            if frame.payload.endswith(b"\x00"):
+                c.nul = True
+            self._command(c, frame)
+            return
+        topic = frame.destination
+        if topic not in c.publications:
+            self._reply(c, wire.ERROR, {"text": f"Not registered to publish topic '{topic}'! "
+                                             f"Valid publish topics are: "
+                                             f"{sorted(c.publications)}"})
+            return
+        with self._lock:
+            callbacks = list(self._callbacks.get(topic, ()))
+            others = [o for o in self._clients.values()
+                      if o is not c and topic in o.subscriptions]
+        for cb in callbacks:
+            cb(topic, frame.payload, c.client_id)
+        if others:
+            data = wire.encode_frame(topic, frame.payload)
+            for o in others:
+                o.enqueue(data)
+
+    def _serve_request(self, c: _Client, srv_id: int, frame: wire.Frame) -> None:
+        name = frame.destination
+        with self._lock:
+            handler = self._services.get(name)
+        if handler is None:
+            self._reply(c, wire.ERROR, {"text": f"Service destination '{name}' is not "
+                                             f"registered! Known services are: "
+                                             f"{sorted(self._services)}"})
+            return
+        try:
+            response = handler(frame.payload)
+        except Exception as exc:
+            self._reply(c, wire.ERROR, {"text": f"service {name!r} failed: {exc}"})
+            return
+        c.enqueue(wire.encode_command(wire.RESPONSE, {"srv_id": srv_id}, nul=c.nul)
+                  + wire.encode_frame(name, response, nul=c.nul))
+
+    def _command(self, c: _Client, frame: wire.Frame) -> None:
+        cmd = frame.destination
+        params = frame.json()
+        where = f"client {c.client_id}: {cmd}"
+        if cmd in (wire.SUBSCRIBE, wire.PUBLISH, wire.ROS_SERVICE, wire.UNITY_SERVICE):
+            topic = str(params.get("topic", ""))
+            name = str(params.get("message_name", ""))
+            if not topic:
+                self._reply(c, wire.ERROR, {"text": f"{cmd}: can't register a blank topic name"})
+                return
+            table = {wire.SUBSCRIBE: c.subscriptions, wire.PUBLISH: c.publications,
+                     wire.ROS_SERVICE: c.ros_services, wire.UNITY_SERVICE: c.unity_services}[cmd]
+            with self._lock:
+                table[topic] = name
+                self._sub_cond.notify_all()
+            self._event(f"{where} {topic} ({name})")
+        elif cmd in (wire.REQUEST, wire.RESPONSE):
+            try:
+                srv_id = int(params["srv_id"])
+            except (KeyError, TypeError, ValueError):
+                raise wire.ProtocolError(f"{cmd} at byte {frame.offset} lacks an integer srv_id"
+                                      ) from None
+            c.pending_srv = (srv_id, cmd == wire.REQUEST)
+        elif cmd == wire.TOPIC_LIST:
+            with self._lock:
+                topics = dict(self._advertised)
+                for o in self._clients.values():
+                    for t, n in o.publications.items():
+                        topics.setdefault(t, n)
+            names = sorted(topics)
+            self._reply(c, wire.TOPIC_LIST, {"topics": names, "types": [topics[t] for t in names]})
+        elif cmd in (wire.LOG, wire.WARN, wire.ERROR):
+            level = {wire.LOG: logging.INFO, wire.WARN: logging.WARNING,
+                     wire.ERROR: logging.ERROR}[cmd]
+            self._event(f"{where}: {params.get('text', '')}", level)
+        elif cmd == wire.HANDSHAKE:
+            pass  # a client echoing a handshake is harmless
+        else:
+            self._reply(c, wire.ERROR, {"text": f"Don't understand SysCommand.'{cmd}'"})

@@ -1,0 +1,425 @@
+"""A Unity-like ROS-TCP-Connector client: connection, faults and render loop.
+
+Three parts, so the same behaviour runs on a virtual clock (``run_session``) or the wall
+clock (:meth:`UnityClient.run_realtime`, e.g. against ``uwval bridge replay``):
+
+- :class:`UnityConnection` is the socket side of Unity's ``ROSConnection``: it connects,
+  checks the endpoint's ``__handshake`` (version v0.7.*), sends a keepalive, registers its
+  subscriptions (``__subscribe``, with Unity's trailing NULs in ROS 2 mode), receives frames
+  and sends keepalives when idle. It re-registers everything on each (re)connect.
+- :class:`FaultModel` turns each received message into a (virtual) arrival time with
+  latency, optional latency jitter and random drops, seeded; TCP keeps arrivals in order.
+- :class:`RenderLoop` is the scene: at each render frame it applies, per topic, the latest
+  pose that has arrived, converted from ROS (ENU world / FLU body) into Unity axes with the
+  configured ROS-TCP-Connector map, and reports an :class:`AppliedTransform` stamped with
+  Unity's own clock (frame time + clock offset) and the header stamp it applied.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import socket
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from bridge import protocol as wire
+from uwval.errors import BridgeError
+from uwval.frames import convert_arrays, get_convention
+
+F64 = NDArray[np.float64]
+
+#: Unity's ROSConnection sends a keepalive after this long without sending anything.
+KEEPALIVE_INTERVAL_S = 1.0
+#: ROSConnection waits this long before reconnecting.
+RECONNECT_DELAY_S = 1.0
+
+
+@dataclass(frozen=True)
+class ReceivedPose:
+    """A PoseStamped as received: header stamp (ns), ROS-frame pose, receive wall time (ns)."""
+
+    topic: str
+    stamp_ns: int
+    position: F64
+    orientation: F64
+    frame_id: str
+    recv_wall_ns: int
+
+
+@dataclass(frozen=True)
+class AppliedTransform:
+    """One Unity frame's transform of one object.
+
+    ``unity_t_ns`` is Unity's clock (virtual frame time + offset); ``position`` and
+    ``orientation`` are in Unity axes under ``unity_map``; ``applied_stamp_ns`` is the
+    Gazebo header stamp of the pose shown; ``frame_t_ns`` is the frame's virtual time.
+    """
+
+    topic: str
+    unity_t_ns: int
+    frame_t_ns: int
+    position: F64
+    orientation: F64
+    applied_stamp_ns: int
+
+
+class UnityConnection:
+    """Client side of ROS-TCP-Connector v0.7 on a real socket.
+
+    Args:
+        host, port: the endpoint.
+        subscriptions: topic -> ``pkg/Type`` to register with ``__subscribe``.
+        publications: topic -> ``pkg/Type`` to register with ``__publish``.
+        protocol: the protocol this "Unity project" was built for; a mismatch with the
+            endpoint's handshake raises :class:`BridgeError` (Unity logs an error there).
+        nul: append Unity's trailing NUL to destinations and JSON (ROS 2 Unity does).
+    """
+
+    def __init__(self, host: str = wire.DEFAULT_HOST, port: int = wire.DEFAULT_PORT, *,
+                 subscriptions: dict[str, str] | None = None,
+                 publications: dict[str, str] | None = None,
+                 protocol: wire.Protocol = "ROS2", nul: bool | None = None,
+                 max_frame: int = wire.MAX_FRAME_BYTES) -> None:
+        self.host = host
+        self.port = port
+        self.subscriptions = dict(subscriptions or {})
+        self.publications = dict(publications or {})
+        self.protocol = wire.check_protocol(protocol)
+        self.nul = (protocol == "ROS2") if nul is None else nul
+        self.max_frame = max_frame
+        self.sock: socket.socket | None = None
+        self._parser = wire.FrameParser(max_frame)
+        self._pending: list[wire.Frame] = []
+        self._last_send = 0.0
+        self.server_version = ""
+        self.connects = 0
+        #: ``__log`` / ``__warn`` / ``__error`` texts received from the endpoint.
+        self.messages: list[tuple[str, str]] = []
+        #: Other system commands received (e.g. ``__topic_list`` replies), in order.
+        self.commands: list[wire.Frame] = []
+
+    @property
+    def connected(self) -> bool:
+        return self.sock is not None
+
+    def connect(self, timeout: float = 5.0) -> None:
+        """Connect, read and check the handshake, send a keepalive, register topics."""
+        self.close()
+        try:
+            sock = socket.create_connection((self.host, self.port), timeout=timeout)
+        except OSError as exc:
+            raise BridgeError(f"cannot connect to {self.host}:{self.port}: {exc}") from exc
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self.sock = sock
+        self._parser = wire.FrameParser(self.max_frame)
+        self._pending = []
+        try:
+            first = self._next_frame(timeout)
+            while first.is_keepalive:  # older endpoints send a keepalive before the handshake
+                first = self._next_frame(timeout)
+            self.server_version, server_protocol = wire.parse_handshake(first)
+            if server_protocol != self.protocol:
+                raise BridgeError(f"endpoint {self.host}:{self.port} speaks {server_protocol}, "
+                                  f"this client was built for {self.protocol}")
+            out = [wire.KEEPALIVE]
+            for topic, name in self.subscriptions.items():
+                out.append(wire.encode_command(wire.SUBSCRIBE, {"topic": topic,
+                                                          "message_name": name}, nul=self.nul))
+            for topic, name in self.publications.items():
+                out.append(wire.encode_command(wire.PUBLISH, {
+                    "topic": topic, "message_name": name, "queue_size": 10, "latch": False,
+                }, nul=self.nul))
+            self._send(b"".join(out))
+        except BaseException:
+            self.close()
+            raise
+        sock.settimeout(None)
+        self.connects += 1
+
+    def close(self) -> None:
+        """Close the socket (no goodbye: the protocol has none)."""
+        if self.sock is not None:
+            with contextlib.suppress(OSError):
+                self.sock.shutdown(socket.SHUT_RDWR)
+            self.sock.close()
+            self.sock = None
+
+    def _send(self, data: bytes) -> None:
+        if self.sock is None:
+            raise BridgeError("not connected")
+        try:
+            self.sock.sendall(data)
+        except OSError as exc:
+            self.close()
+            raise BridgeError(f"send to {self.host}:{self.port} failed: {exc}") from exc
+        self._last_send = time.monotonic()
+
+    def send_command(self, command: str, params: dict[str, object] | None = None) -> None:
+        """Send one system command (JSON payload)."""
+        self._send(wire.encode_command(command, dict(params or {}), nul=self.nul))
+
+    def publish(self, topic: str, body: bytes) -> None:
+        """Send a message on a topic registered with ``__publish``."""
+        self._send(wire.encode_frame(topic, body, nul=self.nul))
+
+    def keepalive_if_idle(self, interval: float = KEEPALIVE_INTERVAL_S) -> None:
+        """Send 8 zero bytes when nothing was sent for ``interval`` seconds, as Unity does."""
+        if self.sock is not None and time.monotonic() - self._last_send >= interval:
+            self._send(wire.KEEPALIVE)
+
+    def _recv_into_parser(self, timeout: float | None) -> bool:
+        """Read once from the socket; False on timeout. Raises BridgeError on EOF."""
+        assert self.sock is not None
+        self.sock.settimeout(timeout)
+        try:
+            data = self.sock.recv(1 << 16)
+        except (TimeoutError, BlockingIOError):
+            return False
+        except OSError as exc:
+            self.close()
+            raise BridgeError(f"connection to {self.host}:{self.port} lost: {exc}") from exc
+        if not data:
+            self.close()
+            raise BridgeError(f"endpoint {self.host}:{self.port} closed the connection")
+        self._pending.extend(self._parser.feed(data))
+        return True
+
+    def _next_frame(self, timeout: float) -> wire.Frame:
+        deadline = time.monotonic() + timeout
+        while not self._pending:
+            left = deadline - time.monotonic()
+            if left <= 0 or not self._recv_into_parser(left):
+                raise BridgeError(f"no frame from {self.host}:{self.port} within {timeout} s")
+        return self._pending.pop(0)
+
+    def poll(self, timeout: float | None = 0.0) -> list[wire.Frame]:
+        """Topic frames received so far (waiting up to ``timeout`` s for the first bytes).
+
+        System commands are handled here (logs kept in :attr:`messages`, others in
+        :attr:`commands`); keepalives are dropped. ``timeout=None`` blocks.
+        """
+        if self.sock is None:
+            raise BridgeError("not connected")
+        if not self._pending:
+            self._recv_into_parser(timeout)
+        frames, self._pending = self._pending, []
+        out = []
+        for f in frames:
+            if f.is_keepalive:
+                continue
+            if f.is_command:
+                if f.destination in (wire.LOG, wire.WARN, wire.ERROR):
+                    self.messages.append((f.destination, str(f.json().get("text", ""))))
+                else:
+                    self.commands.append(f)
+                continue
+            out.append(f)
+        return out
+
+
+@dataclass
+class FaultModel:
+    """Faults injected on the Unity side, on the virtual clock, seeded.
+
+    ``latency_s`` is added to every message's send time, ``latency_jitter_s`` adds a
+    uniform [0, jitter) delay per message; arrivals stay in send order as TCP keeps them.
+    ``drop_prob`` drops a received message before the scene sees it.
+    ``disconnects`` lists virtual times (s from the start of the run) at which the
+    connection drops: the socket is really closed, and Unity reconnects and re-registers
+    after ``reconnect_delay_s``; messages in flight or sent meanwhile are lost.
+    """
+
+    latency_s: float = 0.0
+    latency_jitter_s: float = 0.0
+    drop_prob: float = 0.0
+    disconnects: Sequence[float] = ()
+    reconnect_delay_s: float = RECONNECT_DELAY_S
+    seed: int = 0
+    _rng: np.random.Generator = field(init=False, repr=False)
+    _last_arrival_ns: int = field(default=-(2**62), init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.latency_s < 0 or self.latency_jitter_s < 0:
+            raise BridgeError("latency and latency jitter must be >= 0 s")
+        if not 0.0 <= self.drop_prob <= 1.0:
+            raise BridgeError(f"drop probability must be in [0, 1], got {self.drop_prob}")
+        if self.reconnect_delay_s <= 0:
+            raise BridgeError("reconnect delay must be > 0 s")
+        self._rng = np.random.default_rng(self.seed)
+
+    def arrival_ns(self, send_ns: int) -> int | None:
+        """Virtual arrival time of a message sent at ``send_ns``, or None when dropped."""
+        # Draw both numbers for every message so a change of drop_prob keeps latencies.
+        u_drop, u_jit = self._rng.random(2)
+        delay = self.latency_s + self.latency_jitter_s * float(u_jit)
+        arrival = max(self._last_arrival_ns, int(send_ns + round(delay * 1e9)))
+        self._last_arrival_ns = arrival
+        if u_drop < self.drop_prob:
+            return None
+        return arrival
+
+    def reset_connection(self) -> None:
+        """A new TCP connection: ordering restarts."""
+        self._last_arrival_ns = -(2**62)
+
+
+class RenderLoop:
+    """Unity's scene: latest arrived pose per topic, applied once per render frame.
+
+    Args:
+        topics: topic names rendered (e.g. ``model_rov_pose``, ``gui_camera_pose``).
+        unity_map: ROS-TCP-Connector map, ``unity-flu`` (default) or ``unity-enu``.
+        frame_rate: render frames per second.
+        frame_jitter_s: std of Gaussian jitter on each frame time (clipped to +-0.45 of a
+            period, so frame times stay increasing).
+        clock_offset_s: Unity clock minus virtual (sim) clock, seconds.
+        seed: seed of the frame jitter.
+    """
+
+    def __init__(self, topics: Sequence[str], *, unity_map: str = "unity-flu",
+                 frame_rate: float = 60.0, frame_jitter_s: float = 0.0,
+                 clock_offset_s: float = 0.0, seed: int = 0) -> None:
+        if frame_rate <= 0:
+            raise BridgeError(f"frame rate must be positive, got {frame_rate}")
+        if frame_jitter_s < 0:
+            raise BridgeError(f"frame jitter must be >= 0 s, got {frame_jitter_s}")
+        conv = get_convention(unity_map)
+        if not conv.name.startswith("unity"):
+            raise BridgeError(f"{unity_map!r} is not a Unity map; use unity-flu or unity-enu")
+        self.unity_map = conv.name
+        self.topics = list(topics)
+        self.frame_rate = float(frame_rate)
+        self.frame_jitter_s = float(frame_jitter_s)
+        self.offset_ns = round(clock_offset_s * 1e9)
+        self._rng = np.random.default_rng([seed, 1])
+        # Per topic: pending (arrival_ns, stamp, pos_u, quat_u) in arrival order, and current.
+        self._pending: dict[str, list[tuple[int, int, F64, F64]]] = {t: [] for t in topics}
+        self._current: dict[str, tuple[int, F64, F64]] = {}
+
+    def frame_times(self, start_ns: int, end_ns: int) -> Iterator[int]:
+        """Virtual render-frame times in [start_ns, end_ns], with jitter."""
+        period = 1.0 / self.frame_rate
+        k = 0
+        while True:
+            nominal = start_ns + round(k * period * 1e9)
+            if nominal > end_ns:
+                return
+            jit = 0.0
+            if self.frame_jitter_s > 0:
+                jit = float(np.clip(self._rng.normal(0.0, self.frame_jitter_s),
+                                    -0.45 * period, 0.45 * period))
+            yield max(start_ns, nominal + round(jit * 1e9))
+            k += 1
+
+    def arrive(self, pose: ReceivedPose, arrival_ns: int) -> None:
+        """A pose reached Unity (virtual ``arrival_ns``): convert it into Unity axes now."""
+        pos_u, quat_u = convert_arrays(pose.position[None, :], pose.orientation[None, :],
+                                       "enu", self.unity_map)
+        self._pending.setdefault(pose.topic, []).append(
+            (arrival_ns, pose.stamp_ns, pos_u[0], quat_u[0]))
+
+    def discard_after(self, t_ns: int) -> int:
+        """Forget poses arriving after ``t_ns`` (in flight when the connection dropped)."""
+        lost = 0
+        for pending in self._pending.values():
+            keep = [p for p in pending if p[0] <= t_ns]
+            lost += len(pending) - len(keep)
+            pending[:] = keep
+        return lost
+
+    def render(self, frame_ns: int) -> list[AppliedTransform]:
+        """Apply, per topic, the latest pose arrived by ``frame_ns``; one transform each."""
+        out = []
+        for topic in self.topics:
+            pending = self._pending.get(topic, [])
+            n = 0
+            while n < len(pending) and pending[n][0] <= frame_ns:
+                n += 1
+            if n:
+                _, stamp, pos, quat = pending[n - 1]
+                self._current[topic] = (stamp, pos, quat)
+                del pending[:n]
+            cur = self._current.get(topic)
+            if cur is None:
+                continue  # nothing received yet: Unity shows the scene's initial pose
+            out.append(AppliedTransform(topic, frame_ns + self.offset_ns, frame_ns, cur[1],
+                                        cur[2], cur[0]))
+        return out
+
+
+def decode_pose_frame(frame: wire.Frame, protocol: wire.Protocol) -> ReceivedPose:
+    """A received topic frame holding a PoseStamped -> :class:`ReceivedPose`."""
+    t_ns, pos, quat, fid = wire.decode_pose_stamped(frame.payload, protocol)
+    return ReceivedPose(frame.destination, t_ns, pos, quat, fid, time.monotonic_ns())
+
+
+class UnityClient:
+    """A Unity-like client on the wall clock: connect, render at a frame rate, reconnect.
+
+    Used against a live endpoint (``uwval bridge serve`` or ``replay``). Each frame it
+    drains the socket, applies the latest pose per topic and hands every
+    :class:`AppliedTransform` to ``on_frame``; on a lost connection it waits
+    ``reconnect_delay_s`` and reconnects, re-registering its subscriptions as Unity does.
+    Latency and drops come from ``faults`` (on the wall clock since connect).
+    """
+
+    def __init__(self, host: str = wire.DEFAULT_HOST, port: int = wire.DEFAULT_PORT, *,
+                 topics: Sequence[str] = ("model_rov_pose", "gui_camera_pose"),
+                 unity_map: str = "unity-flu", frame_rate: float = 60.0,
+                 frame_jitter_s: float = 0.0, clock_offset_s: float = 0.0,
+                 protocol: wire.Protocol = "ROS2", faults: FaultModel | None = None,
+                 reconnect_delay_s: float = RECONNECT_DELAY_S, seed: int = 0) -> None:
+        self.connection = UnityConnection(
+            host, port, subscriptions={t: wire.POSE_STAMPED for t in topics}, protocol=protocol)
+        self.scene = RenderLoop(topics, unity_map=unity_map, frame_rate=frame_rate,
+                                frame_jitter_s=frame_jitter_s, clock_offset_s=clock_offset_s,
+                                seed=seed)
+        self.faults = faults or FaultModel(seed=seed)
+        self.protocol = protocol
+        self.reconnect_delay_s = reconnect_delay_s
+        self.received = 0
+        self.dropped = 0
+        self.disconnects = 0
+
+    def run_realtime(self, duration_s: float,
+                     on_frame: Callable[[AppliedTransform], None] | None = None,
+                     connect_timeout: float = 5.0) -> list[AppliedTransform]:
+        """Run the render loop for ``duration_s`` wall seconds; returns applied transforms."""
+        applied: list[AppliedTransform] = []
+        t0 = time.monotonic_ns()
+        end = t0 + int(duration_s * 1e9)
+        next_connect = t0
+        for frame_ns in self.scene.frame_times(t0, end):
+            now = time.monotonic_ns()
+            if frame_ns > now:
+                time.sleep((frame_ns - now) * 1e-9)
+            if not self.connection.connected and time.monotonic_ns() >= next_connect:
+                try:
+                    self.connection.connect(connect_timeout)
+                    self.faults.reset_connection()
+                except BridgeError:
+                    next_connect = time.monotonic_ns() + int(self.reconnect_delay_s * 1e9)
+            if self.connection.connected:
+                try:
+                    for f in self.connection.poll(0.0):
+                        self.received += 1
+                        pose = decode_pose_frame(f, self.protocol)
+                        arr = self.faults.arrival_ns(pose.recv_wall_ns)
+                        if arr is None:
+                            self.dropped += 1
+                        else:
+                            self.scene.arrive(pose, arr)
+                    self.connection.keepalive_if_idle()
+                except BridgeError:
+                    self.disconnects += 1
+                    next_connect = time.monotonic_ns() + int(self.reconnect_delay_s * 1e9)
+            for tr in self.scene.render(time.monotonic_ns()):
+                applied.append(tr)
+                if on_frame is not None:
+                    on_frame(tr)
+        self.connection.close()
+        return applied
