@@ -1,0 +1,165 @@
+"""``uwval compare`` and ``uwval doctor``: a thin CLI layer over :mod:`uwval.comparison`.
+
+Imports of the engine happen inside the commands, so registering them costs nothing at
+start-up, and the TUM ``--sync nearest`` path loads no pandas, scipy or matplotlib.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from uwval.cli import app
+from uwval.errors import ConfigError
+
+FRAME_HELP = ("Convention of the second (Unity) stream: unity-flu, unity-enu, ned, enu or auto "
+              "(default: from the log's frame_id; enu for TUM files)")
+
+
+def _parse_offset(value: str) -> float | str:
+    if value.strip().lower() == "auto":
+        return "auto"
+    try:
+        return float(value)
+    except ValueError:
+        raise ConfigError(f"--offset must be seconds or 'auto', got {value!r}") from None
+
+
+def _fmt(v: Any, digits: int = 4) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, float):
+        return f"{v:.{digits}g}"
+    return str(v)
+
+
+def _print_table(doc: dict[str, Any], title: str) -> None:
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.table import Table
+
+    console = Console()
+    table = Table(title=title, title_justify="left")
+    for col in ("axis", "unit", "MAE", "RMSE", "max", "p95", "bias", "Pearson r"):
+        table.add_column(col, justify="right" if col not in ("axis", "unit") else "left")
+    for ax, s in doc["axes"].items():
+        r = _fmt(s.get("pearson_r")) if s.get("pearson_r") is not None else "n/a (constant)"
+        table.add_row(ax, s.get("unit", ""), _fmt(s["mae"]), _fmt(s["rmse"]), _fmt(s["max"]),
+                      _fmt(s["p95"]), _fmt(s["bias"]), r)
+    console.print(table)
+    pn, rot, counts = doc["position_error_norm"], doc["rotation_error_deg"], doc["counts"]
+    console.print(
+        f"samples {doc['n_samples']} (matched {counts['matched']}, masked {counts['masked']}, "
+        f"dropped {counts['dropped']}); sync {doc['sync']['method']}; frame "
+        f"{doc['frame']['configured']}; align {doc['alignment']['mode']}"
+    )
+    console.print(
+        f"position error norm [m]: rmse {_fmt(pn['rmse'])} mean {_fmt(pn['mean'])} "
+        f"median {_fmt(pn['median'])} max {_fmt(pn['max'])}; rotation [deg]: rmse "
+        f"{_fmt(rot['rmse'])} max {_fmt(rot['max'])}",
+        markup=False,
+    )
+    off = doc["offset"]
+    line = f"clock offset {_fmt(off['applied_s'], 6)} s"
+    if off.get("estimate"):
+        line += f" (estimated, +/- {_fmt(off['estimate']['uncertainty_s'], 3)} s)"
+    if doc.get("latency"):
+        lat = doc["latency"]
+        line += f"; latency {_fmt(lat['mean_ms'])} ms mean, {_fmt(lat['p95_ms'])} ms p95"
+    console.print(line)
+    for w in doc.get("warnings", []):
+        console.print(f"[yellow]warning:[/] {escape(w)}", highlight=False)
+
+
+@app.command("compare")
+def compare_command(
+    log_a: Annotated[Path, typer.Argument(help="Log (both sides) or the reference file")],
+    log_b: Annotated[Path | None, typer.Argument(help="Second file: the Unity side")] = None,
+    gazebo_topic: Annotated[str | None, typer.Option(help="Reference topic")] = None,
+    unity_topic: Annotated[str | None, typer.Option(help="Other (Unity) topic")] = None,
+    fmt: Annotated[str | None, typer.Option("--format", help="Input format: tum, or a log "
+                                            "format read by uwval.io (default: by suffix)")] = None,
+    frame: Annotated[str | None, typer.Option(help=FRAME_HELP)] = None,
+    sync: Annotated[str, typer.Option(help="interp (lerp+slerp at reference stamps) or "
+                                      "nearest (evo's association)")] = "interp",
+    max_gap: Annotated[float | None, typer.Option(help="interp: mask samples in gaps longer "
+                                                  "than this (s; default 5 periods)")] = None,
+    max_diff: Annotated[float, typer.Option(help="nearest: max stamp difference (s)")] = 0.01,
+    offset: Annotated[str, typer.Option(help="Clock offset added to the second stream's "
+                                        "stamps (s), or 'auto' to estimate it")] = "0",
+    max_offset: Annotated[float | None, typer.Option(help="Bound for --offset auto (s)")] = None,
+    align: Annotated[str, typer.Option(help="none, se3, sim3 (Umeyama) or origin")] = "none",
+    as_json: Annotated[bool, typer.Option("--json", help="Print the JSON result")] = False,
+    output: Annotated[Path | None, typer.Option("-o", "--output",
+                                                help="Also write the JSON result here")] = None,
+) -> None:
+    """Compare the Gazebo and Unity pose streams: per-axis errors, Pearson r, evo's APE stats."""
+    from uwval.comparison.logs import compare_logs
+
+    result = compare_logs(
+        log_a, log_b, gazebo_topic=gazebo_topic, unity_topic=unity_topic, fmt=fmt, frame=frame,
+        sync=sync, max_gap=max_gap, max_diff=max_diff, offset=_parse_offset(offset),
+        max_offset=max_offset, align=align,
+    )
+    doc = result.to_json()
+    text = json.dumps(doc, indent=1, allow_nan=False)
+    if output is not None:
+        output.write_text(text + "\n")
+    if as_json:
+        sys.stdout.write(text + "\n")
+        return
+    for name, res in result.results.items():
+        _print_table(res.to_json(), f"{name}: {res.other.describe()} vs {res.reference.describe()}")
+
+
+@app.command("doctor")
+def doctor_command(
+    log_a: Annotated[Path, typer.Argument(help="Log holding both streams, or the reference file")],
+    log_b: Annotated[Path | None, typer.Argument(help="Second file (the Unity side)")] = None,
+    gazebo_topic: Annotated[str | None, typer.Option(help="Reference topic")] = None,
+    unity_topic: Annotated[str | None, typer.Option(help="Other (Unity) topic")] = None,
+    fmt: Annotated[str | None, typer.Option("--format", help="Input format (tum, ...)")] = None,
+    frame: Annotated[str | None, typer.Option(help="The configured convention to check "
+                                              "(default: from the log)")] = None,
+    offset: Annotated[str, typer.Option(help="Clock offset (s) or 'auto'")] = "0",
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON")] = False,
+) -> None:
+    """Name the frame convention the Unity stream is really in (tries every signed axis map)."""
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.table import Table
+
+    from uwval.comparison.logs import compare_logs
+
+    result = compare_logs(log_a, log_b, gazebo_topic=gazebo_topic, unity_topic=unity_topic,
+                          fmt=fmt, frame=frame, offset=_parse_offset(offset), check_frame=True)
+    report = {name: (res.diagnosis.to_json() if res.diagnosis else None)
+              for name, res in result.results.items()}
+    if as_json:
+        sys.stdout.write(json.dumps(report, indent=1, allow_nan=False) + "\n")
+        return
+    console = Console()
+    for name, diag in report.items():
+        if diag is None:
+            console.print(f"{name}: too few overlapping samples to diagnose")
+            continue
+        table = Table(title=f"{name}: configured {diag['configured']}", title_justify="left")
+        for col in ("convention", "position RMS (m)", "rotation RMS (deg)", ""):
+            table.add_column(col)
+        for conv, sc in diag["scores"].items():
+            mark = "best" if conv == diag["best"] else ""
+            mark += " configured" if conv == diag["configured"] else ""
+            table.add_row(conv, f"{sc['position_rms_m']:.4g}", f"{sc['rotation_rms_deg']:.4g}",
+                          mark.strip())
+        console.print(table)
+        console.print(f"fitted world map: {diag['fitted_world_map']}")
+        console.print(f"fitted body map:  {diag['fitted_body_map']}")
+        if diag["best"]:
+            console.print(f"the Unity stream is in [bold]{diag['best']}[/]: "
+                          f"{escape(diag['best_description'])}")
+        if diag["warning"]:
+            console.print(f"[yellow]warning:[/] {escape(diag['warning'])}", highlight=False)

@@ -1,0 +1,158 @@
+"""Frame doctor: which pose convention is the other (Unity) stream really in?
+
+Given time-aligned samples of the reference (canonical ENU/FLU) and of the other stream as
+recorded, it searches all 48 signed axis permutations for the world map A_w (from the
+demeaned positions, so a shifted scene origin does not matter; from orientations when the
+body does not translate) and then the body map A_b (the signed permutation nearest to the
+mean of R_other^T A_w R_ref, same determinant as A_w), names the known convention that
+matches (ROS-TCP-Connector FLU, ENU-north, NED), scores every named convention by its
+position and rotation error, and warns when the configured one fits worse than another.
+This catches the commonest integration bug: the wrong To<...>() map in the Unity script.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from uwval.frames import CONVENTIONS, convert_arrays, get_convention
+from uwval.rotations import geodesic_angle, matrix_from_quat
+
+F64 = NDArray[np.float64]
+
+_AXES = "xyz"
+
+
+def signed_permutations() -> list[F64]:
+    """All 48 signed 3x3 permutation matrices (24 proper, 24 improper)."""
+    out = []
+    for perm in itertools.permutations(range(3)):
+        for signs in itertools.product((1.0, -1.0), repeat=3):
+            m = np.zeros((3, 3))
+            for row, (col, sgn) in enumerate(zip(perm, signs, strict=True)):
+                m[row, col] = sgn
+            out.append(m)
+    return out
+
+
+def describe_map(m: F64, src: str = "ros", dst: str = "other") -> str:
+    """Human text of a signed permutation: 'other x = -ros y, other y = ros z, ...'."""
+    parts = []
+    for row in range(3):
+        col = int(np.argmax(np.abs(m[row])))
+        sign = "-" if m[row, col] < 0 else ""
+        parts.append(f"{dst} {_AXES[row]} = {sign}{src} {_AXES[col]}")
+    return ", ".join(parts)
+
+
+@dataclass
+class FrameDiagnosis:
+    """Result of the frame doctor."""
+
+    best: str | None  # name of the best-fitting known convention (None: no known one fits)
+    configured: str
+    world_axes: F64  # fitted A_w (reference/canonical -> other)
+    body_axes: F64  # fitted A_b
+    scores: dict[str, dict[str, float]] = field(default_factory=dict)  # per convention
+    warning: str | None = None
+    n_samples: int = 0
+
+    @property
+    def matches_known(self) -> bool:
+        return self.best is not None
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "best": self.best,
+            "best_description": CONVENTIONS[self.best].description if self.best else None,
+            "configured": self.configured,
+            "fitted_world_axes": self.world_axes.tolist(),
+            "fitted_body_axes": self.body_axes.tolist(),
+            "fitted_world_map": describe_map(self.world_axes),
+            "fitted_body_map": describe_map(self.body_axes),
+            "scores": self.scores,
+            "warning": self.warning,
+            "n_samples": self.n_samples,
+        }
+
+
+def _fit_world(ref_pos: F64, oth_pos: F64, ref_rot: F64, oth_rot: F64) -> F64:
+    cands = signed_permutations()
+    rc = ref_pos - ref_pos.mean(axis=0)
+    oc = oth_pos - oth_pos.mean(axis=0)
+    spread = float(np.sqrt(np.einsum("ij,ij->", rc, rc) / max(1, rc.shape[0])))
+    if spread > 1e-6:
+        # cost |oc - rc A^T|^2 = const - 2 tr(A^T (oc^T rc)) -> maximise <A, C>
+        c = oc.T @ rc
+        scores = [float(np.sum(a * c)) for a in cands]
+        return cands[int(np.argmax(scores))]
+    # no translation: a world map A_w with some body map A_b must satisfy
+    # R_oth = A_w R_ref A_b^T for all samples; pick the pair with the smallest residual
+    best, best_cost = cands[0], np.inf
+    for aw in cands:
+        m = np.einsum("nji,jk,nkl->il", oth_rot, aw, ref_rot) / ref_rot.shape[0]
+        ab = _nearest_perm(m, np.linalg.det(aw))
+        resid = oth_rot - aw @ ref_rot @ ab.T
+        cost = float(np.einsum("nij,nij->", resid, resid))
+        if cost < best_cost:
+            best, best_cost = aw, cost
+    return best
+
+
+def _nearest_perm(m: F64, det_sign: float) -> F64:
+    cands = [a for a in signed_permutations() if np.sign(np.linalg.det(a)) == np.sign(det_sign)]
+    scores = [float(np.sum(a * m)) for a in cands]
+    return cands[int(np.argmax(scores))]
+
+
+def diagnose(ref_pos: F64, ref_quat: F64, oth_pos: F64, oth_quat: F64,
+             configured: str = "enu") -> FrameDiagnosis:
+    """Find the convention of the other stream from time-aligned samples of both streams.
+
+    ``ref_*`` are canonical ENU/FLU poses; ``oth_*`` the other stream's raw poses (in its own
+    unknown convention) at the same instants. Scores are RMS position error (m, after removing
+    the mean difference) and RMS geodesic angle (deg) after converting with each convention.
+    """
+    n = ref_pos.shape[0]
+    step = max(1, n // 20_000)  # the fit needs a few thousand samples, not millions
+    rp, rq, op, oq = ref_pos[::step], ref_quat[::step], oth_pos[::step], oth_quat[::step]
+    r_ref = matrix_from_quat(rq)
+    r_oth = matrix_from_quat(oq)
+    aw = _fit_world(rp, op, r_ref, r_oth)
+    m = np.einsum("nji,jk,nkl->il", r_oth, aw, r_ref) / r_ref.shape[0]
+    ab = _nearest_perm(m, np.linalg.det(aw))
+
+    scores: dict[str, dict[str, float]] = {}
+    for name in CONVENTIONS:
+        pos, quat = convert_arrays(op, oq, name, "enu")
+        d = pos - rp
+        d -= d.mean(axis=0)
+        pos_rms = float(np.sqrt(np.einsum("ij,ij->", d, d) / max(1, d.shape[0])))
+        ang = np.degrees(geodesic_angle(quat, rq))
+        scores[name] = {"position_rms_m": pos_rms,
+                        "rotation_rms_deg": float(np.sqrt(np.mean(ang ** 2)))}
+
+    best = None
+    for name, conv in CONVENTIONS.items():
+        if np.array_equal(conv.world_axes, aw) and np.array_equal(conv.body_axes, ab):
+            best = name
+    configured_name = get_convention(configured).name
+    warning = None
+    if best is None:
+        warning = (
+            "the other stream matches no known convention: fitted world map "
+            f"[{describe_map(aw)}], body map [{describe_map(ab)}]"
+        )
+    elif best != configured_name:
+        cfg, bst = scores[configured_name], scores[best]
+        warning = (
+            f"configured frame {configured_name!r} fits worse than {best!r} "
+            f"({CONVENTIONS[best].description}): rotation RMS {cfg['rotation_rms_deg']:.3g} deg "
+            f"vs {bst['rotation_rms_deg']:.3g} deg, position RMS {cfg['position_rms_m']:.3g} m "
+            f"vs {bst['position_rms_m']:.3g} m"
+        )
+    return FrameDiagnosis(best, configured_name, aw, ab, scores, warning, int(rp.shape[0]))

@@ -1,0 +1,300 @@
+"""The compare engine: two pose streams in, aligned samples, per-axis errors and statistics out.
+
+Pipeline (DESIGN.md sections 3 and 7, issue 3): frame conversion of both streams into the
+canonical ENU/FLU convention (``frame='auto'`` asks the frame doctor) -> clock offset (given
+or estimated from the motion) -> time association (``interp``: lerp/slerp of the other stream
+at the reference stamps, never extrapolated, gaps masked; ``nearest``: evo's association) ->
+optional spatial alignment (evo's Umeyama / origin) -> signed errors other - reference per
+axis, position-error norm, geodesic angle -> statistics and the JSON contract.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from uwval.comparison.align import Alignment, estimate_alignment
+from uwval.comparison.doctor import FrameDiagnosis, diagnose
+from uwval.comparison.offset import OffsetEstimate, estimate_offset, latency_stats
+from uwval.comparison.stats import axis_stats, norm_stats
+from uwval.comparison.sync import associate_nearest, interpolate_at, nominal_period_ns
+from uwval.errors import AlignmentError
+from uwval.frames import convert_stream, get_convention
+from uwval.posestream import PoseStream
+from uwval.rotations import geodesic_angle, rpy_from_quat, wrap_deg
+
+F64 = NDArray[np.float64]
+I64 = NDArray[np.int64]
+
+AXES = ("x", "y", "z", "roll", "pitch", "yaw")
+SYNC_METHODS = ("interp", "nearest")
+JSON_SCHEMA_VERSION = 1
+
+
+@dataclass
+class ComparisonResult:
+    """Everything one comparison found.
+
+    Attributes:
+        t: (M,) int64 aligned stamps (ns, reference clock): the reference stamps for
+            ``interp``; the driving (shorter) stream's stamps for ``nearest``, as evo.
+        reference, other: aligned PoseStreams on ``t``, both ENU world / FLU body; ``other``
+            has the offset, frame conversion and spatial alignment applied.
+        errors: signed per-axis errors other - reference: x y z (m), roll pitch yaw (deg,
+            wrapped to (-180, 180]); plus ``position_norm`` (m) and ``rotation_angle`` (deg).
+        stats: the JSON-ready statistics (see :meth:`to_json`).
+    """
+
+    t: I64
+    reference: PoseStream
+    other: PoseStream
+    errors: dict[str, F64]
+    stats: dict[str, Any]
+    alignment: Alignment
+    offset_s: float
+    offset_estimate: OffsetEstimate | None = None
+    diagnosis: FrameDiagnosis | None = None
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.t.shape[0])
+
+    def to_json(self) -> dict[str, Any]:
+        """The JSON contract of ``uwval compare --json`` (plain dicts, lists, floats, None)."""
+        return _json_clean(self.stats)
+
+    def to_dataframe(self) -> Any:
+        """A pandas DataFrame: t (s), reference/other poses and every error series."""
+        import pandas as pd
+
+        data: dict[str, Any] = {"t": self.t.astype(np.float64) * 1e-9}
+        ref_rpy = np.degrees(rpy_from_quat(self.reference.orientation))
+        oth_rpy = np.degrees(rpy_from_quat(self.other.orientation))
+        for j, ax in enumerate("xyz"):
+            data[f"ref_{ax}"] = self.reference.position[:, j]
+            data[f"other_{ax}"] = self.other.position[:, j]
+        for j, ax in enumerate(("roll", "pitch", "yaw")):
+            data[f"ref_{ax}"] = ref_rpy[:, j]
+            data[f"other_{ax}"] = oth_rpy[:, j]
+        for name, series in self.errors.items():
+            data[f"err_{name}"] = series
+        return pd.DataFrame(data)
+
+
+def _json_clean(obj: Any) -> Any:
+    """NaN/inf -> None (JSON has no NaN), numpy scalars -> Python numbers."""
+    if isinstance(obj, dict):
+        return {str(k): _json_clean(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_json_clean(v) for v in obj]
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def _stream_info(s: PoseStream) -> dict[str, Any]:
+    return {"topic": s.topic, "source": s.source, "frame": s.frame, "n": len(s),
+            "start_s": float(s.t[0]) * 1e-9 if len(s) else None,
+            "duration_s": s.duration, "repairs": dict(s.repairs)}
+
+
+def _to_canonical(stream: PoseStream) -> PoseStream:
+    return convert_stream(stream, "enu")
+
+
+def _offset_ns(offset_s: float) -> int:
+    return round(offset_s * 1e9)
+
+
+def compare(
+    reference: PoseStream,
+    other: PoseStream,
+    *,
+    frame: str | None = None,
+    sync: str = "interp",
+    max_gap: float | None = None,
+    max_diff: float = 0.01,
+    offset: float | str = 0.0,
+    max_offset: float | None = None,
+    align: str = "none",
+    min_samples: int = 2,
+    check_frame: bool | None = None,
+) -> ComparisonResult:
+    """Compare ``other`` (e.g. Unity) against ``reference`` (Gazebo, the truth).
+
+    Args:
+        reference: the reference stream (its ``frame`` is honoured; normally ``enu``).
+        other: the stream under test, in the convention ``frame`` (default: ``other.frame``,
+            read from the log); ``"auto"`` lets the frame doctor pick it.
+        sync: ``"interp"`` (lerp + slerp of other at the reference stamps, no extrapolation,
+            samples in gaps longer than ``max_gap`` seconds masked; default 5 nominal periods)
+            or ``"nearest"`` (evo's association within ``max_diff`` seconds).
+        offset: seconds added to the other stream's stamps (evo's ``offset_2`` sign), or
+            ``"auto"`` to estimate it from the motion (bounded by ``max_offset`` if given).
+        align: ``none``, ``se3``, ``sim3`` (Umeyama, as evo) or ``origin``.
+        min_samples: fewer aligned samples than this is an :class:`AlignmentError`.
+        check_frame: run the frame doctor (cheap, subsampled) and warn when the configured
+            convention fits worse than another one; default: when the other stream is in a
+            Unity (left-handed) convention, where a wrong To<...>() map is the common bug.
+    """
+    if sync not in SYNC_METHODS:
+        raise AlignmentError(
+            f"unknown sync method {sync!r}; choose one of {', '.join(SYNC_METHODS)}"
+        )
+    if len(reference) < 1 or len(other) < 1:
+        raise AlignmentError("cannot compare an empty stream")
+    warnings: list[str] = []
+    frame_source = "argument" if frame not in (None, "auto") else ("auto" if frame else "stream")
+    configured = other.frame if frame in (None, "auto") else get_convention(frame).name
+    ref_c = _to_canonical(reference)
+    raw_other = other.with_(frame=configured) if configured != other.frame else other
+
+    # ---- clock offset (coarse stage is frame-invariant; redone after a frame change)
+    estimate: OffsetEstimate | None = None
+    if isinstance(offset, str) and offset != "auto":
+        try:
+            offset = float(offset)
+        except ValueError:
+            raise AlignmentError(f"offset must be seconds or 'auto', got {offset!r}") from None
+    if offset == "auto":
+        estimate = estimate_offset(ref_c, _to_canonical(raw_other), max_offset=max_offset)
+        offset_s = estimate.offset
+    else:
+        offset_s = float(offset)
+
+    # ---- frame doctor on interpolated raw samples
+    diagnosis: FrameDiagnosis | None = None
+    if check_frame is None:
+        check_frame = get_convention(configured).left_handed
+    if (frame == "auto" or check_frame) and len(other) >= 2 and len(ref_c) >= 2:
+        diagnosis = _diagnose(ref_c, raw_other, offset_s, configured)
+        if diagnosis is not None:
+            if frame == "auto" and diagnosis.best is not None:
+                configured = diagnosis.best
+                raw_other = other.with_(frame=configured)
+                if estimate is not None:
+                    estimate = estimate_offset(ref_c, _to_canonical(raw_other),
+                                               max_offset=max_offset)
+                    offset_s = estimate.offset
+            elif diagnosis.warning:
+                warnings.append(diagnosis.warning)
+    oth_c = _to_canonical(raw_other)
+
+    # ---- time association
+    sync_info: dict[str, Any] = {"method": sync, "n_reference": len(ref_c), "n_other": len(oth_c)}
+    if sync == "interp":
+        max_gap_ns = None if max_gap is None else round(max_gap * 1e9)
+        interp = interpolate_at(oth_c, ref_c.t, max_gap_ns=max_gap_ns,
+                                offset_ns=-_offset_ns(offset_s))
+        valid = interp.valid
+        t = ref_c.t[valid]
+        ref_pos, ref_quat = ref_c.position[valid], ref_c.orientation[valid]
+        oth_pos, oth_quat = interp.position[valid], interp.orientation[valid]
+        sync_info.update(matched=int(valid.sum()), masked=interp.in_gap, dropped=interp.outside,
+                         max_gap_s=interp.max_gap_ns * 1e-9,
+                         other_nominal_period_s=nominal_period_ns(oth_c.t) * 1e-9)
+        if interp.in_gap:
+            warnings.append(f"{interp.in_gap} reference samples fall in gaps of the other stream "
+                            f"longer than {interp.max_gap_ns * 1e-9:.6g} s and were masked")
+    else:
+        match = associate_nearest(ref_c, oth_c, max_diff=max_diff, offset=offset_s)
+        if match.reference_drives:
+            t = ref_c.t[match.ref_idx]
+        else:
+            t = oth_c.t[match.other_idx] + np.int64(_offset_ns(offset_s))
+        ref_pos, ref_quat = ref_c.position[match.ref_idx], ref_c.orientation[match.ref_idx]
+        oth_pos, oth_quat = oth_c.position[match.other_idx], oth_c.orientation[match.other_idx]
+        matched = int(match.ref_idx.size)
+        sync_info.update(matched=matched, masked=0, dropped=match.n_candidates - matched,
+                         max_diff_s=max_diff,
+                         driving_stream="reference" if match.reference_drives else "other",
+                         reused_reference=int(matched - np.unique(match.ref_idx).size),
+                         reused_other=int(matched - np.unique(match.other_idx).size))
+    n = int(t.shape[0])
+    if n < max(1, min_samples):
+        raise AlignmentError(
+            f"only {n} aligned samples between {reference.describe()} and {other.describe()} "
+            f"(need {min_samples}): do the streams overlap in time? "
+            f"(offset {offset_s:g} s, sync {sync})"
+        )
+
+    # ---- spatial alignment
+    alignment = estimate_alignment(align, ref_pos, ref_quat, oth_pos, oth_quat)
+    oth_pos, oth_quat = alignment.apply(oth_pos, oth_quat)
+
+    # ---- errors
+    errors, axes = _errors_and_axes(ref_pos, ref_quat, oth_pos, oth_quat)
+    position_norm = errors["position_norm"]
+    rotation = errors["rotation_angle"]
+
+    aligned_ref = PoseStream(t=t, position=ref_pos, orientation=ref_quat, frame="enu",
+                             topic=reference.topic, source=reference.source)
+    aligned_oth = PoseStream(t=t, position=oth_pos, orientation=oth_quat, frame="enu",
+                             topic=other.topic, source=other.source)
+    latency = latency_stats(other, offset_s)
+    stats: dict[str, Any] = {
+        "schema": JSON_SCHEMA_VERSION,
+        "n_samples": n,
+        "reference": _stream_info(reference),
+        "other": _stream_info(other),
+        "frame": {"configured": configured, "source": frame_source,
+                  "reference": get_convention(reference.frame).name, "compared_in": "enu"},
+        "frame_doctor": diagnosis.to_json() if diagnosis else None,
+        "sync": sync_info,
+        "counts": {"matched": sync_info["matched"], "masked": sync_info["masked"],
+                   "dropped": sync_info["dropped"]},
+        "offset": {"applied_s": offset_s, "source": "auto" if estimate else "argument",
+                   "estimate": estimate.to_json() if estimate else None},
+        "latency": latency,
+        "alignment": alignment.to_json(),
+        "axes": axes,
+        "position_error_norm": norm_stats(position_norm),
+        "rotation_error_deg": norm_stats(rotation),
+        "warnings": warnings,
+    }
+    return ComparisonResult(t=t, reference=aligned_ref, other=aligned_oth, errors=errors,
+                            stats=stats, alignment=alignment, offset_s=offset_s,
+                            offset_estimate=estimate, diagnosis=diagnosis, warnings=warnings)
+
+
+def _errors_and_axes(ref_pos: F64, ref_quat: F64, oth_pos: F64,
+                     oth_quat: F64) -> tuple[dict[str, F64], dict[str, Any]]:
+    """Signed errors per axis, norms, and the per-axis statistics (Pearson on the series)."""
+    dpos = oth_pos - ref_pos
+    ref_rpy = np.degrees(rpy_from_quat(ref_quat))
+    oth_rpy = np.degrees(rpy_from_quat(oth_quat))
+    drpy = wrap_deg(oth_rpy - ref_rpy)
+    errors: dict[str, F64] = {}
+    axes: dict[str, Any] = {}
+    for j, ax in enumerate("xyz"):
+        errors[ax] = np.ascontiguousarray(dpos[:, j])
+        axes[ax] = axis_stats(errors[ax], ref_pos[:, j], oth_pos[:, j]) | {"unit": "m"}
+    for j, ax in enumerate(("roll", "pitch", "yaw")):
+        errors[ax] = np.ascontiguousarray(drpy[:, j])
+        # correlate continuous series: unwrap the reference, other = reference + wrapped error,
+        # so a 179 -> -179 deg crossing is not a 358 deg jump in either series
+        ref_series = np.unwrap(ref_rpy[:, j], period=360.0)
+        axes[ax] = axis_stats(errors[ax], ref_series, ref_series + errors[ax]) | {"unit": "deg"}
+    errors["position_norm"] = np.sqrt(np.einsum("ij,ij->i", dpos, dpos))
+    errors["rotation_angle"] = np.degrees(geodesic_angle(oth_quat, ref_quat))
+    return errors, axes
+
+
+def _diagnose(ref_c: PoseStream, raw_other: PoseStream, offset_s: float,
+              configured: str) -> FrameDiagnosis | None:
+    """Run the frame doctor on up to ~20k reference stamps with the other stream interpolated."""
+    step = max(1, len(ref_c) // 20_000)
+    sub = ref_c.slice(slice(None, None, step))
+    interp = interpolate_at(raw_other, sub.t, offset_ns=-_offset_ns(offset_s))
+    ok = interp.valid
+    if int(ok.sum()) < 3:
+        return None
+    return diagnose(sub.position[ok], sub.orientation[ok], interp.position[ok],
+                    interp.orientation[ok], configured)

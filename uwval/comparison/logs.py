@@ -1,0 +1,150 @@
+"""Compare logs: pick the streams (two topics of one log, or one stream from each of two files),
+run :func:`uwval.comparison.compare` per topic pair (vehicle and camera), collect the results.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from uwval.comparison.engine import ComparisonResult, compare
+from uwval.errors import LogReadError
+from uwval.posestream import PoseStream
+
+VEHICLE = "model_rov_pose"
+CAMERA = "gui_camera_pose"
+GAZEBO_PREFIX = "/gazebo/"
+UNITY_PREFIX = "/unity/"
+DEFAULT_GAZEBO_TOPIC = GAZEBO_PREFIX + VEHICLE
+DEFAULT_UNITY_TOPIC = UNITY_PREFIX + VEHICLE
+
+
+@dataclass
+class LogComparison:
+    """Per-topic comparisons of one run; ``primary`` names the vehicle (top-level) section."""
+
+    results: dict[str, ComparisonResult]
+    primary: str
+    sources: list[str] = field(default_factory=list)
+
+    @property
+    def vehicle(self) -> ComparisonResult:
+        return self.results[self.primary]
+
+    def to_json(self) -> dict[str, Any]:
+        """Top level = the vehicle topic's JSON; ``topics`` holds every topic's section."""
+        top = dict(self.vehicle.to_json())
+        top["primary_topic"] = self.primary
+        top["sources"] = list(self.sources)
+        top["topics"] = {name: res.to_json() for name, res in self.results.items()}
+        return top
+
+
+def is_tum(path: str | Path, fmt: str | None = None) -> bool:
+    """TUM text when ``fmt == 'tum'`` or, with no format given, by suffix .tum/.txt."""
+    if fmt is not None:
+        return fmt.lower() == "tum"
+    from uwval.io.tum import TUM_SUFFIXES
+
+    return Path(path).suffix.lower() in TUM_SUFFIXES
+
+
+def read_pose_stream(path: str | Path, topic: str | None = None, *, fmt: str | None = None,
+                     frame: str | None = None) -> PoseStream:
+    """One stream from a file: TUM text, or ``topic`` of a log via :func:`uwval.io.read_stream`.
+
+    With no topic, a log holding exactly one pose topic gives that one.
+    """
+    if is_tum(path, fmt):
+        from uwval.io.tum import read_tum
+
+        return read_tum(path, frame=frame or "enu", topic=topic or "")
+    from uwval.io import list_topics, read_stream
+
+    if topic is None:
+        topics = [t.name for t in list_topics(path)]
+        candidates = [t for t in topics if not t.endswith("/applied_stamp")]
+        if len(candidates) != 1:
+            raise LogReadError(f"{path}: name the topic to compare (--gazebo-topic / "
+                               f"--unity-topic); topics: {', '.join(sorted(topics))}")
+        topic = candidates[0]
+    return read_stream(path, topic, frame=frame)
+
+
+def _topics_of(path: str | Path) -> set[str]:
+    from uwval.io import list_topics
+
+    return {"/" + t.name.strip("/") for t in list_topics(path)}
+
+
+def compare_logs(
+    path_a: str | Path,
+    path_b: str | Path | None = None,
+    *,
+    gazebo_topic: str | None = None,
+    unity_topic: str | None = None,
+    fmt: str | None = None,
+    frame: str | None = None,
+    **options: Any,
+) -> LogComparison:
+    """Compare the Gazebo (reference) and Unity streams of one log, or of two files.
+
+    One log: with no topics given, the vehicle pair ``/gazebo/model_rov_pose`` vs
+    ``/unity/model_rov_pose`` and, when present, the camera pair ``.../gui_camera_pose``.
+    Two files: the reference is read from ``path_a`` (``gazebo_topic``), the other from
+    ``path_b`` (``unity_topic``); TUM text by ``fmt='tum'`` or suffix. ``frame`` states the
+    other stream's convention (default: from the log; ``enu`` for TUM); other ``options`` go
+    to :func:`compare`.
+    """
+    results: dict[str, ComparisonResult] = {}
+    if path_b is None:
+        if is_tum(path_a, fmt):
+            raise LogReadError(f"{path_a}: a TUM file holds one trajectory; give two files")
+        pairs: list[tuple[str, str, str]]
+        if gazebo_topic or unity_topic:
+            g = gazebo_topic or DEFAULT_GAZEBO_TOPIC
+            u = unity_topic or DEFAULT_UNITY_TOPIC
+            pairs = [(g.strip("/").split("/")[-1], g, u)]
+        else:
+            present = _topics_of(path_a)
+            pairs = [(name, GAZEBO_PREFIX + name, UNITY_PREFIX + name) for name in (VEHICLE, CAMERA)
+                     if GAZEBO_PREFIX + name in present and UNITY_PREFIX + name in present]
+            if not pairs:
+                raise LogReadError(
+                    f"{path_a}: no Gazebo/Unity topic pair ({DEFAULT_GAZEBO_TOPIC} and "
+                    f"{DEFAULT_UNITY_TOPIC}); topics: {', '.join(sorted(present))}; "
+                    "choose with --gazebo-topic / --unity-topic"
+                )
+        for name, g, u in pairs:
+            ref = read_pose_stream(path_a, g)
+            oth = read_pose_stream(path_a, u, frame=None if frame == "auto" else frame)
+            results[name] = compare(ref, oth, frame=frame, **options)
+        return LogComparison(results, pairs[0][0], [str(path_a)])
+
+    ref, oth = _read_pair(path_a, path_b, gazebo_topic, unity_topic, fmt,
+                          None if frame == "auto" else frame)
+    name = (gazebo_topic or unity_topic or VEHICLE).strip("/").split("/")[-1]
+    if is_tum(path_a, fmt) and not gazebo_topic:
+        name = "trajectory"
+    results[name] = compare(ref, oth, frame=frame, **options)
+    return LogComparison(results, name, [str(path_a), str(path_b)])
+
+
+def _read_pair(path_a: str | Path, path_b: str | Path, gazebo_topic: str | None,
+               unity_topic: str | None, fmt: str | None,
+               frame: str | None) -> tuple[PoseStream, PoseStream]:
+    """Read the two files; two TUM files are parsed concurrently when that pays off."""
+    if is_tum(path_a, fmt) and is_tum(path_b, fmt):
+        from uwval.io.tum import read_tum
+
+        return (read_tum(path_a, topic=gazebo_topic or ""),
+                read_tum(path_b, frame=frame or "enu", topic=unity_topic or ""))
+    ga = gazebo_topic
+    ub = unity_topic
+    if ga is None and not is_tum(path_a, fmt) and DEFAULT_GAZEBO_TOPIC in _topics_of(path_a):
+        ga = DEFAULT_GAZEBO_TOPIC
+    if ub is None and not is_tum(path_b, fmt) and DEFAULT_UNITY_TOPIC in _topics_of(path_b):
+        ub = DEFAULT_UNITY_TOPIC
+    return (read_pose_stream(path_a, ga, fmt=fmt),
+            read_pose_stream(path_b, ub, fmt=fmt, frame=frame))

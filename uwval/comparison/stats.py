@@ -1,0 +1,149 @@
+"""Error statistics: per-axis metrics, evo-named norm statistics, Pearson r with p and CI.
+
+Pure numpy plus ``math`` (no scipy at import or run time: the compare command's start-up
+must stay lean). The Pearson p-value uses the exact null distribution of r (a Beta law,
+as scipy.stats.pearsonr does) through a continued-fraction incomplete beta function; the
+95 % confidence interval uses Fisher's z transform (scipy's default method).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+F64 = NDArray[np.float64]
+
+#: Two-sided 95 % quantile of the standard normal distribution.
+Z_975 = 1.959963984540054
+
+
+def norm_stats(err: F64) -> dict[str, float]:
+    """Statistics of a non-negative error series named and computed exactly as evo does.
+
+    mean, median, std (population, ddof = 0), min, max, rmse = sqrt(mean(e^2)), sse = sum(e^2).
+    """
+    e = np.asarray(err, dtype=np.float64)
+    if e.size == 0:
+        return {k: math.nan for k in ("mean", "median", "std", "min", "max", "rmse", "sse")}
+    sq = np.power(e, 2)
+    return {
+        "mean": float(np.mean(e)),
+        "median": float(np.median(e)),
+        "std": float(np.std(e)),
+        "min": float(np.min(e)),
+        "max": float(np.max(e)),
+        "rmse": math.sqrt(float(np.mean(sq))),
+        "sse": float(np.sum(sq)),
+    }
+
+
+def _betacf(a: float, b: float, x: float) -> float:
+    """Continued fraction of the incomplete beta function (modified Lentz's method)."""
+    tiny = 1e-300
+    qab, qap, qam = a + b, a + 1.0, a - 1.0
+    c, d = 1.0, 1.0 - qab * x / qap
+    d = 1.0 / (d if abs(d) > tiny else tiny)
+    h = d
+    for m in range(1, 10_000):
+        m2 = 2 * m
+        aa = m * (b - m) * x / ((qam + m2) * (a + m2))
+        d = 1.0 + aa * d
+        d = 1.0 / (d if abs(d) > tiny else tiny)
+        c = 1.0 + aa / c
+        c = c if abs(c) > tiny else tiny
+        h *= d * c
+        aa = -(a + m) * (qab + m) * x / ((a + m2) * (qap + m2))
+        d = 1.0 + aa * d
+        d = 1.0 / (d if abs(d) > tiny else tiny)
+        c = 1.0 + aa / c
+        c = c if abs(c) > tiny else tiny
+        delta = d * c
+        h *= delta
+        if abs(delta - 1.0) < 1e-15:
+            break
+    return h
+
+
+def betainc_regularized(a: float, b: float, x: float) -> float:
+    """Regularised incomplete beta I_x(a, b) for a, b > 0 and 0 <= x <= 1."""
+    if x <= 0.0:
+        return 0.0
+    if x >= 1.0:
+        return 1.0
+    log_front = (math.lgamma(a + b) - math.lgamma(a) - math.lgamma(b)
+                 + a * math.log(x) + b * math.log1p(-x))
+    if x < (a + 1.0) / (a + b + 2.0):
+        return math.exp(log_front) * _betacf(a, b, x) / a
+    return 1.0 - math.exp(log_front) * _betacf(b, a, 1.0 - x) / b
+
+
+def pearson(a: F64, b: F64) -> dict[str, Any]:
+    """Pearson r of two series with two-sided p-value and 95 % CI (Fisher z).
+
+    Undefined (``r`` None with a ``reason``) for fewer than 3 samples or a constant series,
+    instead of a division by zero. The p-value is P(|R| >= |r|) under independence, where R
+    follows Beta(n/2 - 1, n/2 - 1) on [-1, 1] (identical to the t-test with n - 2 dof).
+    """
+    x = np.asarray(a, dtype=np.float64)
+    y = np.asarray(b, dtype=np.float64)
+    n = int(x.size)
+    out: dict[str, Any] = {"pearson_r": None, "pearson_p": None, "pearson_ci": None,
+                           "pearson_n": n, "pearson_reason": None}
+    if n < 3:
+        out["pearson_reason"] = f"undefined: need at least 3 samples, got {n}"
+        return out
+    xm = x - x.mean()
+    ym = y - y.mean()
+    sx = float(np.sqrt(np.dot(xm, xm)))
+    sy = float(np.sqrt(np.dot(ym, ym)))
+    # a series is constant when its spread is at rounding level relative to its magnitude
+    scale_x = max(float(np.abs(x).max()), 1e-300)
+    scale_y = max(float(np.abs(y).max()), 1e-300)
+    const = [name for name, s, sc in (("reference", sx, scale_x), ("other", sy, scale_y))
+             if s <= 1e-12 * sc * math.sqrt(n)]
+    if const:
+        out["pearson_reason"] = f"undefined: {' and '.join(const)} series is constant"
+        return out
+    r = float(np.dot(xm / sx, ym / sy))
+    r = max(-1.0, min(1.0, r))
+    ab = n / 2.0 - 1.0
+    # two-sided: 2 * P(R <= -|r|) with (R + 1) / 2 ~ Beta(ab, ab)
+    p = 2.0 * betainc_regularized(ab, ab, (1.0 - abs(r)) / 2.0) if abs(r) < 1.0 else 0.0
+    out["pearson_r"] = r
+    out["pearson_p"] = min(1.0, max(0.0, p))
+    if n > 3 and abs(r) < 1.0:
+        z = math.atanh(r)
+        se = 1.0 / math.sqrt(n - 3)
+        out["pearson_ci"] = [math.tanh(z - Z_975 * se), math.tanh(z + Z_975 * se)]
+    elif abs(r) >= 1.0:
+        out["pearson_ci"] = [r, r]
+    return out
+
+
+def axis_stats(signed_err: F64, reference: F64, other: F64) -> dict[str, Any]:
+    """Metrics of one axis: MAE, RMSE, max, p95 of |e|, bias (mean e), std of e, Pearson.
+
+    ``signed_err`` is other - reference (angles already wrapped); ``reference`` and ``other``
+    are the two series the correlation is computed on.
+    """
+    e = np.asarray(signed_err, dtype=np.float64)
+    if e.size == 0:
+        stats: dict[str, Any] = {k: None for k in ("mae", "rmse", "max", "p95", "bias", "std",
+                                                     "median")}
+        stats.update(pearson(e, e))
+        return stats
+    ae = np.abs(e)
+    stats = {
+        "mae": float(ae.mean()),
+        "rmse": math.sqrt(float(np.dot(e, e)) / e.size),
+        "max": float(ae.max()),
+        "p95": float(np.percentile(ae, 95)),
+        "median": float(np.median(ae)),
+        "bias": float(e.mean()),
+        "std": float(e.std()),
+    }
+    stats.update(pearson(reference, other))
+    return stats

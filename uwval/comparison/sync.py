@@ -1,0 +1,154 @@
+"""Time association of two pose streams: evo's nearest-stamp matching and interpolation.
+
+Both are vectorised (``searchsorted`` over the whole stream, no per-pose loop).
+
+* :func:`associate_nearest` reproduces ``evo.core.sync.associate_trajectories`` with
+  ``SyncMethod.nearest_time`` decision for decision: the stream with fewer poses drives,
+  each of its stamps takes the nearest stamp of the other within ``max_diff`` seconds, ties
+  go to the earlier sample, poses of the longer stream may be reused. Comparisons are done
+  on float seconds exactly as evo computes them (see :func:`uwval.io.tum.seconds_from_ns`).
+* :func:`interpolate_at` evaluates a stream at given stamps by lerp (position) and slerp
+  (orientation), never extrapolating, and masks stamps that fall in gaps longer than a limit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from uwval.errors import AlignmentError
+from uwval.io.tum import seconds_from_ns
+from uwval.posestream import PoseStream
+from uwval.rotations import slerp
+
+F64 = NDArray[np.float64]
+I64 = NDArray[np.int64]
+BOOL = NDArray[np.bool_]
+
+
+@dataclass(frozen=True)
+class NearestMatch:
+    """Index pairs from nearest-stamp association: ``reference[ref_idx] <-> other[other_idx]``."""
+
+    ref_idx: I64
+    other_idx: I64
+    n_candidates: int  # poses of the driving (shorter) stream
+    reference_drives: bool  # True when the reference had fewer (or, as in evo, not more) poses
+
+
+def match_time_indices(stamps_1: F64, stamps_2: F64, max_diff: float,
+                       offset_2: float = 0.0) -> tuple[I64, I64]:
+    """Vectorised ``evo.core.sync.matching_time_indices`` for sorted ``stamps_2`` (seconds).
+
+    Returns index arrays (into stamps_1, into stamps_2) of the accepted matches, in the order
+    of stamps_1, with the same float arithmetic and the same tie rules as evo.
+    """
+    s1 = np.asarray(stamps_1, dtype=np.float64)
+    s2 = np.asarray(stamps_2, dtype=np.float64)
+    if offset_2 != 0.0:
+        s2 = s2 + offset_2
+    n2 = s2.shape[0]
+    if n2 == 0 or s1.shape[0] == 0:
+        empty = np.zeros(0, dtype=np.int64)
+        return empty, empty
+    inside = (s1 >= s2[0] - max_diff) & (s1 <= s2[-1] + max_diff)
+    idx = np.searchsorted(s2, s1, side="right")
+    np.minimum(idx, n2 - 1, out=idx)
+    diff_ub = s2[idx] - s1
+    prev = np.maximum(idx - 1, 0)
+    diff_lb = np.where(idx > 0, s1 - s2[prev], np.inf)
+    take_ub = (diff_ub <= max_diff) & (diff_ub < diff_lb)
+    take_lb = ~take_ub & (diff_lb <= max_diff) & (diff_lb <= diff_ub)
+    ok = inside & (take_ub | take_lb)
+    best = np.where(take_ub, idx, idx - 1)
+    i1 = np.flatnonzero(ok).astype(np.int64)
+    return i1, best[ok].astype(np.int64)
+
+
+def associate_nearest(reference: PoseStream, other: PoseStream, *, max_diff: float = 0.01,
+                      offset: float = 0.0) -> NearestMatch:
+    """evo's ``associate_trajectories(ref, est, nearest_time, max_diff, offset_2)``.
+
+    ``offset`` (seconds) is added to the other stream's stamps for matching only, as evo's
+    ``offset_2``. Raises :class:`AlignmentError` when nothing matches.
+    """
+    second_longer = len(other) > len(reference)
+    s_ref = seconds_from_ns(reference.t)
+    s_oth = seconds_from_ns(other.t)
+    if second_longer:
+        i_short, i_long = match_time_indices(s_ref, s_oth, max_diff, offset)
+        ref_idx, oth_idx = i_short, i_long
+        n_candidates = len(reference)
+    else:
+        i_short, i_long = match_time_indices(s_oth, s_ref, max_diff, -offset)
+        ref_idx, oth_idx = i_long, i_short
+        n_candidates = len(other)
+    if ref_idx.size == 0:
+        raise AlignmentError(
+            f"found no matching timestamps between {reference.describe()} and "
+            f"{other.describe()} with max. time diff {max_diff} (s) and time offset "
+            f"{offset} (s); reference spans [{s_ref[0]:.6f}, {s_ref[-1]:.6f}] s, other "
+            f"[{s_oth[0]:.6f}, {s_oth[-1]:.6f}] s"
+        )
+    return NearestMatch(ref_idx, oth_idx, n_candidates, not second_longer)
+
+
+def nominal_period_ns(t: I64) -> int:
+    """Median stamp spacing (ns): the stream's nominal period, robust to a few gaps."""
+    if t.shape[0] < 2:
+        return 0
+    return int(np.median(np.diff(t)))
+
+
+@dataclass(frozen=True)
+class Interpolated:
+    """Other stream evaluated at reference stamps: ``valid`` marks usable samples.
+
+    ``outside`` counts stamps outside the other stream's span (no extrapolation); ``in_gap``
+    counts stamps inside a gap of the other stream longer than ``max_gap_ns``.
+    """
+
+    position: F64
+    orientation: F64
+    valid: BOOL
+    outside: int
+    in_gap: int
+    max_gap_ns: int
+
+
+def interpolate_at(stream: PoseStream, t_query: I64, *, max_gap_ns: int | None = None,
+                   offset_ns: int = 0) -> Interpolated:
+    """Evaluate ``stream`` (stamps shifted by ``-offset_ns``) at ``t_query`` (ns).
+
+    Lerp for position, slerp for orientation between the two bracketing samples; stamps
+    before the first or after the last sample are invalid (never extrapolated); stamps whose
+    bracketing samples are more than ``max_gap_ns`` apart are invalid (default: 5 nominal
+    periods of ``stream``).
+    """
+    t = stream.t - np.int64(offset_ns) if offset_ns else stream.t
+    n = t.shape[0]
+    if n < 2:
+        raise AlignmentError(f"{stream.describe()}: need at least 2 poses to interpolate, got {n}")
+    if max_gap_ns is None:
+        max_gap_ns = 5 * nominal_period_ns(t)
+    q = np.asarray(t_query, dtype=np.int64)
+    hi = np.searchsorted(t, q, side="left")  # t[hi-1] < q <= t[hi]
+    outside_mask = (q < t[0]) | (q > t[-1])
+    hi = np.clip(hi, 1, n - 1)
+    lo = hi - 1
+    span = t[hi] - t[lo]
+    gap_mask = ~outside_mask & (span > max_gap_ns)
+    # exact hits on a sample are always valid, even next to a long gap
+    exact = (t[hi] == q) | (t[lo] == q)
+    gap_mask &= ~exact
+    valid = ~outside_mask & ~gap_mask
+    # fraction from int64 differences: no precision lost on epoch-scale stamps
+    frac = (q - t[lo]).astype(np.float64) / span.astype(np.float64)
+    np.clip(frac, 0.0, 1.0, out=frac)
+    p0 = stream.position[lo]
+    pos = p0 + frac[:, None] * (stream.position[hi] - p0)
+    quat = slerp(stream.orientation[lo], stream.orientation[hi], frac)
+    return Interpolated(pos, quat, valid, int(outside_mask.sum()), int(gap_mask.sum()),
+                        int(max_gap_ns))
