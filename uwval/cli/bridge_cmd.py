@@ -1,0 +1,159 @@
+"""``uwval bridge ...``: the ROS-TCP endpoint, log replay and a Unity-like client.
+
+- ``uwval bridge serve``: a ROS-TCP-Endpoint-compatible server (default 127.0.0.1:10000)
+  that Unity projects (ROS-TCP-Connector v0.7) connect to.
+- ``uwval bridge replay LOG``: serve a recorded Gazebo-side log to connecting Unity
+  clients at recorded or scaled speed.
+- ``uwval bridge unity``: a Unity-like client that connects to an endpoint, renders the
+  received poses at a frame rate and records its transforms (and applied stamps) to a log.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated
+
+import typer
+from rich.console import Console
+from rich.logging import RichHandler
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+from uwval.cli import app
+from uwval.errors import BridgeError
+
+if TYPE_CHECKING:
+    from bridge.protocol import Protocol
+
+bridge_app = typer.Typer(help="ROS-TCP bridge: endpoint server, log replay, Unity-like client.",
+                         no_args_is_help=True)
+app.add_typer(bridge_app, name="bridge")
+console = Console(stderr=True)
+
+HostOpt = Annotated[str, typer.Option(help="Address to bind/connect (loopback by default).")]
+PortOpt = Annotated[int, typer.Option(help="TCP port (ROS-TCP-Endpoint's default 10000).")]
+ProtocolOpt = Annotated[str, typer.Option(help="ROS2 (CDR bodies) or ROS1.")]
+
+
+def _logging(verbose: bool) -> None:
+    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(message)s",
+                        handlers=[RichHandler(console=console, show_path=False)], force=True)
+
+
+def _protocol(name: str) -> Protocol:
+    from bridge.protocol import ProtocolError, check_protocol
+
+    try:
+        return check_protocol(name.upper())
+    except ProtocolError as exc:
+        raise BridgeError(f"--protocol: {exc}") from None
+
+
+@bridge_app.command("serve")
+def serve(
+    host: HostOpt = "127.0.0.1",
+    port: PortOpt = 10000,
+    protocol: ProtocolOpt = "ROS2",
+    queue_size: Annotated[int, typer.Option(help="Per-client outgoing queue bound.")] = 1024,
+    max_frame: Annotated[int, typer.Option(help="Largest accepted frame payload, bytes.")
+                         ] = 16 * 1024 * 1024,
+    duration: Annotated[float, typer.Option(help="Stop after this many seconds (0: run "
+                                                 "until Ctrl-C).")] = 0.0,
+    verbose: Annotated[bool, typer.Option("--verbose/--quiet",
+                                          help="Log connections and registrations.")] = True,
+) -> None:
+    """Run the ROS-TCP endpoint that Unity's ROS-TCP-Connector connects to."""
+    from bridge.server import BridgeServer
+
+    _logging(verbose)
+    server = BridgeServer(host, port, protocol=_protocol(protocol),
+                          queue_size=queue_size, max_frame=max_frame).start()
+    console.print(f"[green]ROS-TCP endpoint[/] listening on {host}:{server.port} "
+                  f"({server.protocol}); Ctrl-C to stop")
+    t_end = time.monotonic() + duration if duration > 0 else float("inf")
+    try:
+        while time.monotonic() < t_end:
+            time.sleep(0.1)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.stop()
+    for c in server.closed_clients():
+        console.print(f"client {c.client_id} {c.address}: in {c.frames_in} out {c.frames_out} "
+                      f"dropped {c.dropped} ({c.closed_reason})")
+
+
+@bridge_app.command("replay")
+def replay(
+    log: Annotated[Path, typer.Argument(help="Log with the Gazebo-side topics.")],
+    host: HostOpt = "127.0.0.1",
+    port: PortOpt = 10000,
+    protocol: ProtocolOpt = "ROS2",
+    speed: Annotated[float, typer.Option(help="Playback speed factor (0: as fast as "
+                                              "possible).")] = 1.0,
+    loops: Annotated[int, typer.Option(help="Passes over the log (0: until Ctrl-C).")] = 1,
+    wait: Annotated[float, typer.Option(help="Seconds to wait for a subscriber first.")
+                    ] = 60.0,
+    topic: Annotated[list[str] | None, typer.Option(
+        help="Log topic to replay (repeatable; default the two /gazebo topics).")] = None,
+    verbose: Annotated[bool, typer.Option("--verbose/--quiet")] = False,
+) -> None:
+    """Serve a recorded Gazebo-side log to connecting Unity clients."""
+    from bridge.replay import DEFAULT_REPLAY_TOPICS, replay_log
+    from bridge.server import BridgeServer
+
+    _logging(verbose)
+    topics = tuple(topic) if topic else DEFAULT_REPLAY_TOPICS
+    if not log.exists():
+        raise BridgeError(f"{log}: no such file or directory")
+    with BridgeServer(host, port, protocol=_protocol(protocol)) as server:
+        console.print(f"replaying {log} on {host}:{server.port} ({server.protocol}) at "
+                      f"{speed:g}x; waiting up to {wait:g} s for a Unity client")
+        with Progress(TextColumn("{task.description}"), BarColumn(),
+                      TextColumn("{task.completed}/{task.total} ticks"), TimeElapsedColumn(),
+                      console=console) as progress:
+            task = progress.add_task("replay", total=None)
+
+            def on_progress(done: int, total: int) -> None:
+                progress.update(task, completed=done, total=total)
+
+            try:
+                stats = replay_log(log, server, topics=topics, speed=speed, loops=loops,
+                                   wait_for_subscriber_s=wait if wait > 0 else None,
+                                   progress=on_progress)
+            except KeyboardInterrupt:
+                console.print("[yellow]replay interrupted[/]")
+                return
+    console.print(f"[green]replayed[/] {stats.ticks} ticks, {stats.published} messages "
+                  f"({stats.delivered} deliveries) in {stats.wall_time_s:.2f} s")
+
+
+@bridge_app.command("unity")
+def unity(
+    output: Annotated[Path, typer.Option("-o", "--output", help="MCAP log to write.")],
+    host: HostOpt = "127.0.0.1",
+    port: PortOpt = 10000,
+    protocol: ProtocolOpt = "ROS2",
+    duration: Annotated[float, typer.Option(help="Seconds to run.")] = 10.0,
+    frame_rate: Annotated[float, typer.Option(help="Render loop rate, Hz.")] = 60.0,
+    unity_map: Annotated[str, typer.Option(help="unity-flu or unity-enu.")] = "unity-flu",
+    clock_offset: Annotated[float, typer.Option(help="Unity clock offset, s.")] = 0.0,
+) -> None:
+    """Run a Unity-like client against an endpoint and record what it renders."""
+    from bridge.recorder import BridgeRecorder, open_mcap_writer
+    from bridge.unity_client import UnityClient
+
+    client = UnityClient(host, port, unity_map=unity_map, frame_rate=frame_rate,
+                         clock_offset_s=clock_offset,
+                         protocol=_protocol(protocol))
+    recorder = BridgeRecorder(open_mcap_writer(output), unity_map=unity_map)
+    try:
+        applied = client.run_realtime(
+            duration, on_frame=lambda tr: recorder.unity_pose(
+                tr.topic, tr.unity_t_ns, tr.position, tr.orientation, tr.applied_stamp_ns))
+    finally:
+        recorder.close()
+    console.print(f"[green]wrote[/] {output}: {len(applied)} transforms, "
+                  f"{client.received} messages received, {client.connection.connects} "
+                  f"connection(s)")
