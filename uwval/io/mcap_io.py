@@ -86,10 +86,13 @@ class McapPoseWriter:
 
     def write_poses(self, topic: str, t: I64, position: F64, orientation: F64, frame_id: str,
                     log_time: Iterable[int] | None = None) -> None:
-        """Write a whole array of poses (per-message encode; for bulk use the fast writer)."""
-        lt = t if log_time is None else np.asarray(list(log_time), dtype=np.int64)
-        for i in range(len(t)):
-            self.write_pose(topic, int(t[i]), position[i], orientation[i], frame_id, int(lt[i]))
+        """Write a whole array of poses (vectorised encode, see :mod:`uwval.io.encode`)."""
+        from uwval.io.encode import encode_pose_stamped
+
+        lt = np.asarray(t if log_time is None else list(log_time), dtype=np.int64)
+        rows = encode_pose_stamped(t, position, orientation, frame_id, "cdr")
+        for i in range(rows.shape[0]):
+            self.write_raw(topic, POSE_STAMPED, rows[i].tobytes(), int(lt[i]))
 
     def add_metadata(self, name: str, data: dict[str, Any]) -> None:
         """Add an MCAP metadata record (values stored as strings; dicts as JSON)."""
@@ -97,9 +100,15 @@ class McapPoseWriter:
             name, {k: v if isinstance(v, str) else json.dumps(v) for k, v in data.items()}
         )
 
+    #: Payload encoding of ``write_raw`` data (ROS 2 CDR).
+    encoding = "cdr"
+
     def flush(self) -> None:
-        """Push buffered bytes to the OS (closed chunks only; the open chunk stays buffered)."""
-        self._fh.flush()
+        """Finish the open chunk and push everything to the OS (a later crash loses nothing
+        written before this call; the scanner in :mod:`uwval.io.mcap_raw` recovers it)."""
+        if not self._fh.closed:
+            self._writer.flush()
+            self._fh.flush()
 
     def close(self) -> None:
         """Finish the MCAP (summary, footer) and close the file."""

@@ -1,34 +1,42 @@
 """Read pose streams from logs: the entry point that every command uses.
 
-``read_stream(path, topic)`` returns a :class:`PoseStream`; ``list_topics(path)`` lists what a
-log holds. The format is chosen from the path (MCAP here; more formats plug in by suffix).
+``read_stream(path, topic)`` returns a :class:`PoseStream`; ``read_streams`` reads several
+topics in one pass; ``list_topics(path)`` lists what a log holds. The format is chosen from
+the path: ``.mcap``, ``.bag`` (ROS 1), rosbag2 directories (sqlite3 / MCAP), ``.db3``,
+``.csv`` (Unity exports, see :mod:`uwval.io.csv_io`) and TUM ``.txt`` / ``.tum``.
+
+Stamps are header stamps (``time="header"``, the default) or the log's receive times
+(``time="log"``; always the case for ``geometry_msgs/Pose``, which has no header).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
-from uwval.errors import LogReadError
+from uwval.errors import LogReadError, PoseStreamError
 from uwval.frames import CONVENTIONS
-from uwval.io.ros import APPLIED_SUFFIX, normalize_type_name
+from uwval.io.containers import log_kind, scan_log
+from uwval.io.decode import TF_TYPES, decode_poses, decode_tf
+from uwval.io.fastdecode import Decoded
+from uwval.io.raw import RawLog, RawTopic, TopicInfo, norm_topic
+from uwval.io.ros import APPLIED_SUFFIX
 from uwval.posestream import PoseStream
+from uwval.rotations import quat_multiply, rotate_vectors
+
+__all__ = ["TopicInfo", "list_topics", "read_stream", "read_streams"]
+
+F64 = NDArray[np.float64]
+I64 = NDArray[np.int64]
+
+_TEXT_KINDS = ("csv", "tum")
 
 
-@dataclass(frozen=True)
-class TopicInfo:
-    """One topic of a log: name, ROS type (pkg/msg/Type), message count, span (ns)."""
-
-    name: str
-    type: str
-    count: int
-    start_ns: int
-    end_ns: int
-
-
-def _check_file(path: Path) -> None:
+def _check_path(path: Path) -> None:
     if not path.exists():
         raise LogReadError(f"{path}: no such file or directory")
     if path.is_file() and path.stat().st_size == 0:
@@ -36,82 +44,250 @@ def _check_file(path: Path) -> None:
 
 
 def list_topics(path: str | Path) -> list[TopicInfo]:
-    """Topics of an MCAP log, from its summary."""
+    """Topics of a ROS log (MCAP, ROS 1 bag, rosbag2, .db3): name, type, count, span (ns)."""
     p = Path(path)
-    _check_file(p)
-    from mcap.reader import make_reader
+    _check_path(p)
+    if log_kind(p) in _TEXT_KINDS:
+        s = read_stream(p, "")
+        return [TopicInfo(s.topic or p.stem, "text/" + log_kind(p), len(s), int(s.t[0]),
+                          int(s.t[-1]))]
+    log = scan_log(p, [], times_only=True)
+    log.warn_lost()
+    return sorted(log.topics, key=lambda i: i.name)
 
-    with open(p, "rb") as fh:
+
+def topic_times(path: str | Path) -> tuple[list[TopicInfo], dict[str, I64]]:
+    """Topics and every message's log time (ns) per topic, for ``uwval inspect``."""
+    p = Path(path)
+    _check_path(p)
+    log = scan_log(p, None, times_only=True)
+    log.warn_lost()
+    return sorted(log.topics, key=lambda i: i.name), {
+        n: np.sort(r.log_time) for n, r in log.raw.items()
+    }
+
+
+def read_stream(path: str | Path, topic: str, *, frame: str | None = None,
+                child_frame: str | None = None, parent_frame: str | None = None,
+                **opts: Any) -> PoseStream:
+    """Read one pose topic of a log into a PoseStream.
+
+    Args:
+        path: log file or rosbag2 directory; CSV and TUM text files too (``topic`` ignored).
+        topic: topic name, with or without the leading slash.
+        frame: pose convention of the result; by default the header frame_id when it names a
+            uwval convention (``unity-flu``, ``unity-enu``, ``ned``, ``enu``), else ``enu``.
+        child_frame / parent_frame: for TFMessage topics (``/tf``), the transform to extract;
+            for Odometry / TransformStamped topics, filter on child / header frame.
+        opts: ``time="header"|"log"`` (which stamp becomes ``t``), ``tf_static=True`` to chain
+            static transforms from ``/tf_static`` up to ``parent_frame`` (and below
+            ``child_frame``); CSV options are passed to :func:`uwval.io.csv_io.read_csv`.
+
+    The companion ``<topic>/applied_stamp`` topic, when present, fills ``applied_stamp``.
+    Raises :class:`LogReadError` naming the file and the cause (missing topic: lists those
+    that exist).
+    """
+    p = Path(path)
+    _check_path(p)
+    kind = log_kind(p)
+    if kind == "csv":
+        from uwval.io.csv_io import read_csv
+
+        return read_csv(p, frame=frame, **opts)
+    if kind == "tum":
+        from uwval.io.tum import read_tum
+
+        return read_tum(p, frame=frame or "enu", topic=topic)
+    return read_streams(p, [topic], frame=frame, child_frame=child_frame,
+                        parent_frame=parent_frame, **opts)[topic]
+
+
+def read_streams(path: str | Path, topics: Sequence[str], *, frame: str | None = None,
+                 child_frame: str | None = None, parent_frame: str | None = None,
+                 **opts: Any) -> dict[str, PoseStream]:
+    """Read several topics in one pass over the log; keys are the names as given."""
+    p = Path(path)
+    _check_path(p)
+    time_src = str(opts.pop("time", "header"))
+    tf_static = bool(opts.pop("tf_static", False))
+    fast = bool(opts.pop("fast", True))
+    if opts:
+        raise LogReadError(f"{p}: unknown read option(s): {', '.join(sorted(opts))}")
+    if time_src not in ("header", "log"):
+        raise LogReadError(f"{p}: time must be 'header' or 'log', not {time_src!r}")
+    wanted = {norm_topic(t) for t in topics}
+    extra = {t + APPLIED_SUFFIX for t in wanted}
+    if tf_static:
+        extra.add("/tf_static")
+    log = scan_log(p, sorted(wanted | extra))
+    log.warn_lost()
+    out: dict[str, PoseStream] = {}
+    for t in topics:
+        name = norm_topic(t)
+        raw = log.raw.get(name)
+        if raw is None:
+            raise LogReadError(_missing(p, t, log))
+        if len(raw) == 0:
+            raise LogReadError(f"{p}: topic {name!r} ({raw.msgtype}) has no messages")
         try:
-            summary = make_reader(fh).get_summary()
-        except Exception as exc:
-            raise LogReadError(f"{p}: not a readable MCAP file: {exc}") from exc
-    if summary is None:
-        raise LogReadError(f"{p}: MCAP has no summary section")
-    counts = summary.statistics.channel_message_counts if summary.statistics else {}
-    out = []
-    for cid, ch in summary.channels.items():
-        schema = summary.schemas.get(ch.schema_id)
-        typ = normalize_type_name(schema.name) if schema else ""
-        start = summary.statistics.message_start_time if summary.statistics else 0
-        end = summary.statistics.message_end_time if summary.statistics else 0
-        out.append(TopicInfo(ch.topic, typ, int(counts.get(cid, 0)), int(start), int(end)))
+            out[t] = _to_stream(p, raw, log, frame=frame, child=child_frame,
+                                parent=parent_frame, time_src=time_src, tf_static=tf_static,
+                                fast=fast)
+        except PoseStreamError as exc:
+            raise LogReadError(f"{p}: topic {name!r}: {exc}") from exc
     return out
 
 
-def _norm_topic(name: str) -> str:
-    return "/" + name.strip("/")
+def _missing(p: Path, topic: str, log: RawLog) -> str:
+    names = ", ".join(f"{i.name} ({i.type}, {i.count})" for i in sorted(
+        log.topics, key=lambda i: i.name))
+    if not log.topics:
+        return f"{p}: no topic {topic!r}: the log has no topics (no messages)"
+    return f"{p}: no topic {topic!r}; topics in this log: {names}"
 
 
-def read_stream(path: str | Path, topic: str, *, frame: str | None = None) -> PoseStream:
-    """Read one PoseStamped topic of an MCAP log into a PoseStream.
-
-    ``frame`` overrides the convention; by default it is read from the header frame_id when
-    that names a uwval convention (``unity-flu``, ``unity-enu``, ``ned``), else ``enu``.
-    The companion ``<topic>/applied_stamp`` topic, when present, fills ``applied_stamp``.
-    """
-    p = Path(path)
-    _check_file(p)
-    from mcap.reader import make_reader
-
-    ts = _typestore()
-    want = _norm_topic(topic)
-    tt, pp, qq, frame_ids = [], [], [], set()
-    applied: list[int] = []
-    found = False
-    with open(p, "rb") as fh:
-        reader = make_reader(fh)
-        try:
-            for schema, channel, message in reader.iter_messages():
-                name = _norm_topic(channel.topic)
-                if name == want:
-                    found = True
-                    msg = ts.deserialize_cdr(message.data, normalize_type_name(schema.name))
-                    h = msg.header
-                    tt.append(h.stamp.sec * 1_000_000_000 + h.stamp.nanosec)
-                    po = msg.pose.position
-                    qo = msg.pose.orientation
-                    pp.append((po.x, po.y, po.z))
-                    qq.append((qo.x, qo.y, qo.z, qo.w))
-                    frame_ids.add(h.frame_id)
-                elif name == want + APPLIED_SUFFIX:
-                    msg = ts.deserialize_cdr(message.data, normalize_type_name(schema.name))
-                    applied.append(msg.stamp.sec * 1_000_000_000 + msg.stamp.nanosec)
-        except Exception as exc:
-            raise LogReadError(f"{p}: cannot read MCAP: {exc}") from exc
-    if not found:
-        names = ", ".join(sorted(t.name for t in list_topics(p)))
-        raise LogReadError(f"{p}: no topic {topic!r}; topics: {names}")
+def _to_stream(p: Path, raw: RawTopic, log: RawLog, *, frame: str | None, child: str | None,
+               parent: str | None, time_src: str, tf_static: bool, fast: bool) -> PoseStream:
+    if raw.msgtype in TF_TYPES:
+        stamps, pose, frame_id = _tf_pose(p, raw, log, child, parent, tf_static)
+        log_time = None
+    else:
+        dec = decode_poses(raw, fast=fast)
+        if raw.msgtype.endswith("/Header"):
+            raise LogReadError(f"{p}: topic {raw.name!r} is std_msgs/Header: it has no pose")
+        keep = np.ones(len(raw), dtype=bool)
+        if child is not None and (dec.child_code >= 0).any():
+            keep &= _code_is(dec, dec.child_code, child)
+        if parent is not None and (dec.frame_code >= 0).any():
+            keep &= _code_is(dec, dec.frame_code, parent)
+        if not keep.any():
+            raise LogReadError(_no_pair(p, raw.name, dec, dec.frame_code, dec.child_code,
+                                        parent, child))
+        stamps = dec.stamp[keep]
+        log_time = raw.log_time[keep]
+        if time_src == "log" or (stamps < 0).all():
+            stamps = log_time
+        pose = dec.pose[keep]
+        codes = np.unique(dec.frame_code[keep])
+        frame_id = [dec.names[int(c)] for c in codes if c >= 0]
     if frame is None:
-        frame = next((f for f in frame_ids if f in CONVENTIONS), "enu")
-    stamps = np.asarray(applied, dtype=np.int64) if len(applied) == len(tt) else None
+        frame = next((f for f in frame_id if f in CONVENTIONS), "enu")
+    applied = None
+    comp = log.raw.get(raw.name + APPLIED_SUFFIX)
+    if comp is not None and len(comp) and log_time is not None:
+        applied = _applied(comp, log_time)
     return PoseStream.from_arrays(
-        np.asarray(tt, dtype=np.int64), np.asarray(pp), np.asarray(qq),
-        frame=frame, topic=want, source=str(p), applied_stamp=stamps,
+        stamps, pose[:, :3], pose[:, 3:], frame=frame, topic=raw.name, source=str(p),
+        applied_stamp=applied,
     )
 
 
-def _typestore():  # type: ignore[no-untyped-def]
-    from uwval.io.ros import typestore
+def _applied(comp: RawTopic, log_time: I64) -> I64 | None:
+    """Applied Gazebo stamps for each pose, matched on the log (receive) time."""
+    hdr = decode_poses(comp)
+    order = np.argsort(comp.log_time, kind="stable")
+    ct = comp.log_time[order]
+    cs = hdr.stamp[order]
+    idx = np.searchsorted(ct, log_time)
+    idx_c = np.minimum(idx, len(ct) - 1)
+    if (ct[idx_c] == log_time).all():
+        return cs[idx_c]
+    if len(ct) == len(log_time):
+        return cs[np.argsort(np.argsort(log_time, kind="stable"), kind="stable")]
+    return None
 
-    return typestore(2)
+
+def _code_is(dec: Decoded, codes: I64, name: str) -> NDArray[np.bool_]:
+    want = [i for i, n in enumerate(dec.names) if n.strip("/") == name.strip("/")]
+    return np.isin(codes, want)
+
+
+def _no_pair(p: Path, topic: str, dec: Decoded, parents: I64, children: I64,
+             parent: str | None, child: str | None) -> str:
+    pairs = sorted({(dec.names[int(a)] if a >= 0 else "", dec.names[int(b)] if b >= 0 else "")
+                    for a, b in zip(parents, children, strict=True)})
+    listed = ", ".join(f"{a}->{b}" for a, b in pairs[:30])
+    return (f"{p}: topic {topic!r} has no transform {parent or '*'}->{child or '*'}; "
+            f"parent->child pairs present: {listed}")
+
+
+# ---------------------------------------------------------------- tf
+def _edges(dec: Decoded) -> list[tuple[str, str]]:
+    return sorted({(dec.names[int(a)], dec.names[int(b)])
+                   for a, b in zip(dec.frame_code, dec.child_code, strict=True)})
+
+
+def _compose(a_pose: F64, b_pose: F64) -> F64:
+    """T_a * T_b for (N, 7) or (7,) poses (position, quaternion xyzw); broadcasts."""
+    a = np.atleast_2d(a_pose)
+    b = np.atleast_2d(b_pose)
+    n = max(len(a), len(b))
+    a = np.broadcast_to(a, (n, 7))
+    b = np.broadcast_to(b, (n, 7))
+    q = quat_multiply(a[:, 3:], b[:, 3:])
+    t = a[:, :3] + rotate_vectors(a[:, 3:], b[:, :3])
+    return np.concatenate([t, q], axis=1)
+
+
+def _tf_pose(p: Path, raw: RawTopic, log: RawLog, child: str | None, parent: str | None,
+             tf_static: bool) -> tuple[I64, F64, list[str]]:
+    """Pose of ``child`` in ``parent`` from a TFMessage topic (+ /tf_static when asked)."""
+    dec = decode_tf(raw)
+    if len(dec.stamp) == 0:
+        raise LogReadError(f"{p}: topic {raw.name!r} holds no transforms")
+    edges = _edges(dec)
+    static: dict[str, tuple[str, F64]] = {}  # child -> (parent, pose)
+    if tf_static:
+        st = log.raw.get("/tf_static")
+        if st is None or len(st) == 0:
+            raise LogReadError(f"{p}: tf_static=True but the log has no /tf_static messages")
+        sd = decode_tf(st)
+        for a, b, pose in zip(sd.frame_code, sd.child_code, sd.pose, strict=True):
+            static[sd.names[int(b)]] = (sd.names[int(a)], pose)
+    child_n = child.strip("/") if child else None
+    parent_n = parent.strip("/") if parent else None
+    if child_n is None:
+        kids = sorted({c for _, c in edges if parent_n is None or _ == parent_n})
+        if len(kids) != 1:
+            raise LogReadError(
+                f"{p}: topic {raw.name!r} carries several transforms; choose child_frame "
+                f"(parent->child pairs: {', '.join(f'{a}->{b}' for a, b in edges)})"
+            )
+        child_n = kids[0]
+    # Walk up from the child through static transforms to a dynamically published frame.
+    suffix = np.array([0, 0, 0, 0, 0, 0, 1.0])
+    cur = child_n
+    dyn_children = {c for _, c in edges}
+    while cur not in dyn_children and cur in static:
+        par, pose = static[cur]
+        suffix = _compose(pose, suffix)[0]
+        cur = par
+    cands = [(a, b) for a, b in edges if b == cur]
+    if parent_n is not None and not tf_static:
+        cands = [(a, b) for a, b in cands if a == parent_n]
+    if not cands:
+        raise LogReadError(_no_pair(p, raw.name, dec, dec.frame_code, dec.child_code,
+                                    parent, child))
+    dyn_parent, dyn_child = cands[0]
+    codes_p = [i for i, n in enumerate(dec.names) if n == dyn_parent]
+    codes_c = [i for i, n in enumerate(dec.names) if n == dyn_child]
+    rows = np.isin(dec.frame_code, codes_p) & np.isin(dec.child_code, codes_c)
+    pose = dec.pose[rows]
+    stamps = dec.stamp[rows]
+    prefix = np.array([0, 0, 0, 0, 0, 0, 1.0])
+    top = dyn_parent
+    if parent_n is not None and parent_n != dyn_parent:
+        while top != parent_n and top in static:
+            par, sp = static[top]
+            prefix = _compose(sp, prefix)[0]
+            top = par
+        if top != parent_n:
+            raise LogReadError(
+                f"{p}: no chain from {parent_n!r} to {child_n!r}: {raw.name} has "
+                f"{dyn_parent}->{dyn_child}"
+                + (f", static chain reaches {top!r}" if tf_static else
+                   "; pass tf_static=True to chain /tf_static transforms")
+            )
+    if child_n != dyn_child or top != dyn_parent:
+        pose = _compose(_compose(prefix, pose), suffix)
+    return stamps, pose, [top]

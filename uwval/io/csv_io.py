@@ -1,0 +1,162 @@
+"""CSV pose logs exported from Unity scripts.
+
+A Unity script typically writes one row per frame: a time column, ``transform.position``
+(x, y, z in Unity's left-handed Y-up axes) and ``transform.rotation`` as a quaternion or
+``transform.eulerAngles`` in degrees. Columns are found by common names or mapped by options
+or a small mapping file (YAML or JSON with the same keys as :func:`read_csv`'s options)::
+
+    time: frame_time          # column name
+    time_unit: s              # s | ms | us | ns
+    position: [px, py, pz]
+    quaternion: [qx, qy, qz, qw]     # or
+    euler: [ex, ey, ez]              # Unity eulerAngles, degrees (applied Z, X, Y)
+    length_unit: m            # m | cm | mm
+    frame: unity-flu          # uwval convention of the values (unity-flu, unity-enu, enu, ned)
+
+Positions are converted to metres and the result carries ``frame``; no axis change is made
+here (``uwval.frames.convert_stream`` does that).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from uwval.errors import LogReadError
+from uwval.frames import CONVENTIONS, quat_from_unity_euler
+from uwval.posestream import PoseStream
+
+TIME_NAMES = ("t", "time", "timestamp", "stamp", "time_s", "unity_time", "frame_time", "sec")
+POS_NAMES = (("x", "y", "z"), ("pos_x", "pos_y", "pos_z"), ("px", "py", "pz"),
+             ("position_x", "position_y", "position_z"), ("position.x", "position.y",
+                                                          "position.z"))
+QUAT_NAMES = (("qx", "qy", "qz", "qw"), ("rot_x", "rot_y", "rot_z", "rot_w"),
+              ("rotation_x", "rotation_y", "rotation_z", "rotation_w"),
+              ("rotation.x", "rotation.y", "rotation.z", "rotation.w"))
+EULER_NAMES = (("ex", "ey", "ez"), ("euler_x", "euler_y", "euler_z"), ("rx", "ry", "rz"),
+               ("eulerangles.x", "eulerangles.y", "eulerangles.z"))
+TIME_UNITS = {"s": 1e9, "ms": 1e6, "us": 1e3, "ns": 1.0}
+LENGTH_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+
+
+def load_mapping(path: str | Path) -> dict[str, Any]:
+    """A column-mapping file (YAML or JSON) as a dict of :func:`read_csv` options."""
+    p = Path(path)
+    try:
+        text = p.read_text()
+        if p.suffix.lower() == ".json":
+            doc = json.loads(text)
+        else:
+            import yaml
+
+            doc = yaml.safe_load(text)
+    except Exception as exc:
+        raise LogReadError(f"{p}: cannot read CSV mapping file: {exc}") from exc
+    if not isinstance(doc, dict):
+        raise LogReadError(f"{p}: CSV mapping must be a mapping of option: value")
+    known = {"time", "time_unit", "position", "quaternion", "euler", "length_unit", "frame",
+             "delimiter", "topic"}
+    unknown = set(doc) - known
+    if unknown:
+        raise LogReadError(f"{p}: unknown mapping keys {sorted(unknown)}; known: {sorted(known)}")
+    return doc
+
+
+def _find(cols: list[str], options: tuple[tuple[str, ...], ...]) -> list[str] | None:
+    low = {c.strip().lower(): c for c in cols}
+    for names in options:
+        if all(n in low for n in names):
+            return [low[n] for n in names]
+    return None
+
+
+def read_csv(path: str | Path, *, time: str | None = None, time_unit: str = "s",
+             position: list[str] | None = None, quaternion: list[str] | None = None,
+             euler: list[str] | None = None, length_unit: str = "m",
+             frame: str | None = None, mapping: str | Path | None = None,
+             delimiter: str | None = None, topic: str = "") -> PoseStream:
+    """Read a Unity CSV export into a PoseStream in convention ``frame`` (default unity-flu).
+
+    Options given here win over the mapping file's. Raises :class:`LogReadError` naming the
+    file, and the column or line at fault.
+    """
+    p = Path(path)
+    opts: dict[str, Any] = load_mapping(mapping) if mapping is not None else {}
+    given = {"time": time, "position": position, "quaternion": quaternion, "euler": euler,
+             "frame": frame, "delimiter": delimiter}
+    opts.update({k: v for k, v in given.items() if v is not None})
+    if time_unit != "s" or "time_unit" not in opts:
+        opts["time_unit"] = time_unit
+    if length_unit != "m" or "length_unit" not in opts:
+        opts["length_unit"] = length_unit
+    frame_name = str(opts.get("frame", "unity-flu"))
+    if frame_name not in CONVENTIONS:
+        raise LogReadError(f"{p}: unknown frame {frame_name!r}; known: {sorted(CONVENTIONS)}")
+    tu, lu = str(opts["time_unit"]), str(opts["length_unit"])
+    if tu not in TIME_UNITS:
+        raise LogReadError(f"{p}: time_unit must be one of {list(TIME_UNITS)}, not {tu!r}")
+    if lu not in LENGTH_UNITS:
+        raise LogReadError(f"{p}: length_unit must be one of {list(LENGTH_UNITS)}, not {lu!r}")
+    import pandas as pd
+
+    try:
+        df = pd.read_csv(p, sep=opts.get("delimiter", ","), comment="#", skipinitialspace=True)
+    except Exception as exc:
+        raise LogReadError(f"{p}: cannot parse CSV: {exc}") from exc
+    cols = [str(c) for c in df.columns]
+    df.columns = cols
+    if df.empty:
+        raise LogReadError(f"{p}: CSV has a header but no rows")
+
+    def pick(key: str, defaults: tuple[tuple[str, ...], ...], n: int) -> list[str] | None:
+        if key in opts:
+            names = [opts[key]] if isinstance(opts[key], str) else list(opts[key])
+            if len(names) != n:
+                raise LogReadError(f"{p}: option {key!r} needs {n} column names, got {names}")
+            missing = [c for c in names if c not in cols]
+            if missing:
+                raise LogReadError(f"{p}: column(s) {missing} not found; columns: {cols}")
+            return names
+        return _find(cols, defaults)
+
+    tcol = pick("time", tuple((n,) for n in TIME_NAMES), 1)
+    pcols = pick("position", POS_NAMES, 3)
+    qcols = pick("quaternion", QUAT_NAMES, 4) if "euler" not in opts else None
+    ecols = pick("euler", EULER_NAMES, 3) if qcols is None else None
+    if tcol is None or pcols is None or (qcols is None and ecols is None):
+        what = [w for w, c in (("time", tcol), ("position", pcols),
+                               ("rotation (quaternion or euler)", qcols or ecols)) if c is None]
+        raise LogReadError(
+            f"{p}: cannot find {', '.join(what)} column(s) among {cols}; map them with "
+            "time=, position=, quaternion= / euler= or a mapping file"
+        )
+
+    def numbers(names: list[str]) -> np.ndarray:
+        block = df[names].apply(pd.to_numeric, errors="coerce").to_numpy(dtype=np.float64)
+        bad = ~np.isfinite(block)
+        if bad.any():
+            r, c = np.argwhere(bad)[0]
+            # +2: one header line, 1-based line numbers (comment lines are not counted).
+            raise LogReadError(
+                f"{p}: line {int(r) + 2}, column {names[int(c)]!r}: not a finite number "
+                f"({df[names[int(c)]].iloc[int(r)]!r})"
+            )
+        return block
+
+    t = numbers(tcol)[:, 0]
+    pos = numbers(pcols) * LENGTH_UNITS[lu]
+    if qcols is not None:
+        quat = numbers(qcols)
+    else:
+        assert ecols is not None
+        quat = quat_from_unity_euler(numbers(ecols))
+    t_ns = np.round(t * TIME_UNITS[tu]).astype(np.int64)
+    try:
+        return PoseStream.from_arrays(t_ns, pos, quat, frame=frame_name,
+                                      topic=topic or str(opts.get("topic", p.stem)),
+                                      source=str(p))
+    except Exception as exc:
+        raise LogReadError(f"{p}: {exc}") from exc
