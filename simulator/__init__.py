@@ -1,0 +1,64 @@
+"""Gazebo-like 6-DOF underwater simulator: gz-sim's Hydrodynamics + Buoyancy equations.
+
+World ENU, body FLU, quaternions (x, y, z, w), sim time int64 ns, 1 ms steps, poses published
+at 50 Hz. See :mod:`simulator.dynamics` for the equations, :mod:`simulator.vehicle` for
+parameters, :mod:`simulator.inputs` for wrench/current profiles (wrench in the body frame by
+default) and :mod:`simulator.experiment` for the experiment TOML format.
+"""
+
+from simulator.dynamics import coriolis_matrix, damping_matrix, hydro_wrench_reference
+from simulator.engine import (
+    CAMERA_TOPIC,
+    VEHICLE_TOPIC,
+    SimResult,
+    Simulator,
+    camera_poses,
+    simulate,
+    simulate_batch,
+)
+from simulator.experiment import Experiment, Factor, RunSpec, load_experiment
+from simulator.inputs import (
+    TELEOP_KEYS,
+    Constant,
+    InputProfile,
+    KeyPress,
+    KeyScript,
+    PulseTrain,
+    Ramp,
+    Signal,
+    Step,
+    constant_inputs,
+)
+from simulator.sdf import load_vehicle_sdf
+from simulator.vehicle import Vehicle, load_vehicle, preset_names
+
+__all__ = [
+    "CAMERA_TOPIC",
+    "TELEOP_KEYS",
+    "VEHICLE_TOPIC",
+    "Constant",
+    "Experiment",
+    "Factor",
+    "InputProfile",
+    "KeyPress",
+    "KeyScript",
+    "PulseTrain",
+    "Ramp",
+    "RunSpec",
+    "Signal",
+    "SimResult",
+    "Simulator",
+    "Step",
+    "Vehicle",
+    "camera_poses",
+    "constant_inputs",
+    "coriolis_matrix",
+    "damping_matrix",
+    "hydro_wrench_reference",
+    "load_experiment",
+    "load_vehicle",
+    "load_vehicle_sdf",
+    "preset_names",
+    "simulate",
+    "simulate_batch",
+]

@@ -1,0 +1,483 @@
+"""Running the physics: one vehicle (:func:`simulate`, :class:`Simulator` for live stepping) or
+many at once (:func:`simulate_batch`), publishing poses at a fixed rate on sim time.
+
+Time is int64 nanoseconds of sim time. A run steps ``dt`` (default 1 ms) and publishes the
+vehicle pose and a following camera's pose every ``1 / publish_rate`` (default 50 Hz, i.e.
+every 20 steps), starting with the initial pose at t = 0, as gz-sim's pose publisher stamps
+sim time. Inputs are sampled at the start of each step (gz systems' PreUpdate).
+
+Published streams (world ENU, body FLU, quaternions x y z w):
+
+* ``/gazebo/model_rov_pose``: the vehicle (its CoG);
+* ``/gazebo/gui_camera_pose``: a camera at ``camera_offset`` (m) from the vehicle in the
+  vehicle's yaw frame (x ahead, y left, z up; default 3 m behind, 1 m above), its x axis
+  pointing at the vehicle (roll 0), like Gazebo's GUI camera following a model.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from simulator.dynamics import N_STATE, build_params, get_kernel, initial_state
+from simulator.inputs import Constant, InputProfile, constant_inputs
+from simulator.vehicle import FORCE_AXES, Vehicle
+from uwval.errors import SimulationError
+from uwval.posestream import PoseStream
+from uwval.rotations import quat_from_rpy
+
+F64 = NDArray[np.float64]
+
+VEHICLE_TOPIC = "/gazebo/model_rov_pose"
+CAMERA_TOPIC = "/gazebo/gui_camera_pose"
+DEFAULT_CAMERA_OFFSET = (-3.0, 0.0, 1.0)
+#: A body speed beyond this (m/s or rad/s) is taken as numerical divergence.
+DIVERGENCE_LIMIT = 1.0e4
+#: Steps per input chunk: inputs are evaluated vectorised over this many step times at once.
+CHUNK_STEPS = 2000
+
+
+@dataclass
+class SimResult:
+    """One run's output.
+
+    Attributes:
+        vehicle: vehicle poses at publish ticks (topic ``/gazebo/model_rov_pose``, ``enu``).
+        camera: following camera poses (topic ``/gazebo/gui_camera_pose``, ``enu``).
+        velocity: (N, 6) body twist (u, v, w m/s; p, q, r rad/s, FLU) at the publish ticks.
+        info: vehicle name, dt, publish rate, options, steps, wall time, ``warnings``.
+    """
+
+    vehicle: PoseStream
+    camera: PoseStream
+    velocity: F64
+    info: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def t(self) -> NDArray[np.int64]:
+        """Publish stamps, int64 ns of sim time."""
+        return self.vehicle.t
+
+
+def camera_poses(
+    position: F64, orientation: F64, offset: Sequence[float] = DEFAULT_CAMERA_OFFSET
+) -> tuple[F64, F64]:
+    """Camera positions and orientations for vehicle poses (vectorised, (N, 3) / (N, 4)).
+
+    The camera sits at ``offset`` in the vehicle's yaw frame and looks at the vehicle."""
+    pos = np.asarray(position, dtype=np.float64).reshape(-1, 3)
+    q = np.asarray(orientation, dtype=np.float64).reshape(-1, 4)
+    x, y, z, w = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    yaw = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    c, s = np.cos(yaw), np.sin(yaw)
+    ox, oy, oz = (float(v) for v in offset)
+    cam = np.empty_like(pos)
+    cam[:, 0] = pos[:, 0] + c * ox - s * oy
+    cam[:, 1] = pos[:, 1] + s * ox + c * oy
+    cam[:, 2] = pos[:, 2] + oz
+    d = pos - cam
+    horiz = np.hypot(d[:, 0], d[:, 1])
+    cam_yaw = np.where(horiz > 1e-12, np.arctan2(d[:, 1], d[:, 0]), yaw)
+    cam_pitch = np.arctan2(-d[:, 2], horiz)  # FLU: positive pitch tips x down
+    rpy = np.stack([np.zeros_like(cam_yaw), cam_pitch, cam_yaw], axis=1)
+    return cam, quat_from_rpy(rpy)
+
+
+def _check_timing(dt: float, publish_rate: float) -> tuple[int, int]:
+    if not (dt > 0 and math.isfinite(dt)):
+        raise SimulationError(f"step dt must be > 0 s, got {dt}")
+    if not (publish_rate > 0 and math.isfinite(publish_rate)):
+        raise SimulationError(f"publish rate must be > 0 Hz, got {publish_rate}")
+    dt_ns = round(dt * 1e9)
+    period_ns = round(1e9 / publish_rate)
+    if dt_ns <= 0 or period_ns % dt_ns:
+        raise SimulationError(
+            f"publish period {period_ns} ns (rate {publish_rate} Hz) is not a whole number "
+            f"of steps of {dt_ns} ns"
+        )
+    return dt_ns, period_ns // dt_ns
+
+
+def _warnings_for(vehicles: Sequence[Vehicle], implicit: bool) -> list[str]:
+    out: list[str] = []
+    if implicit:
+        return out
+    for v in vehicles:
+        axes = v.explicit_added_mass_unstable_axes()
+        if axes:
+            out.append(
+                f"explicit added mass unstable for {v.name}: {'; '.join(axes)}. Gazebo's "
+                "backward-difference added mass diverges when |X_dot| >= m per axis; use "
+                "implicit_added_mass=True or a Gazebo-stable variant"
+            )
+    return out
+
+
+class Simulator:
+    """Incremental stepping of one vehicle, for live runs and teleop.
+
+    ``advance_to(t_ns)`` steps the physics up to sim time ``t_ns`` and returns the publish
+    ticks crossed (the one at t = 0 included on the first call); ``set_wrench`` /
+    ``set_current`` override the input profile from the current step on.
+    """
+
+    def __init__(
+        self,
+        vehicle: Vehicle,
+        inputs: InputProfile | None = None,
+        *,
+        dt: float = 1e-3,
+        publish_rate: float = 50.0,
+        implicit_added_mass: bool = False,
+        legacy_coriolis: bool = False,
+        camera_offset: Sequence[float] = DEFAULT_CAMERA_OFFSET,
+        initial_position: Sequence[float] = (0.0, 0.0, 0.0),
+        initial_orientation: Sequence[float] = (0.0, 0.0, 0.0, 1.0),
+        initial_velocity: Sequence[float] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+    ) -> None:
+        self.vehicle = vehicle
+        self.inputs = inputs if inputs is not None else constant_inputs()
+        self.dt = dt
+        self.publish_rate = publish_rate
+        self.dt_ns, self.publish_every = _check_timing(dt, publish_rate)
+        self.implicit_added_mass = implicit_added_mass
+        self.legacy_coriolis = legacy_coriolis
+        self.camera_offset = tuple(float(x) for x in camera_offset)
+        q0 = np.asarray(initial_orientation, dtype=np.float64)
+        q0 = q0 / np.linalg.norm(q0)
+        self.state: tuple[Any, ...] = initial_state(
+            1, initial_position, q0.tolist(), initial_velocity
+        )
+        self.step = 0
+        self._published_step = -1
+        self._force_override: F64 | None = None
+        self._torque_override: F64 | None = None
+        self._current_override: F64 | None = None
+        self._chunk_start = 0
+        self._chunk_end = 0
+        self._chunk: tuple[list[float], ...] = ()
+        self._has_current = False
+        self._kernel_for_current(
+            not (self.inputs.current.is_zero() and not np.any(vehicle.default_current))
+        )
+        self.warnings = _warnings_for([vehicle], implicit_added_mass)
+
+    # ------------------------------------------------------------------ control
+    @property
+    def t_ns(self) -> int:
+        """Current sim time, ns."""
+        return self.step * self.dt_ns
+
+    def set_wrench(self, force: ArrayLike, torque: ArrayLike) -> None:
+        """Hold this force (N) and torque (N m), in the profile's wrench frame, from now on."""
+        self._force_override = np.asarray(force, dtype=np.float64).reshape(3)
+        self._torque_override = np.asarray(torque, dtype=np.float64).reshape(3)
+        self._chunk_end = 0
+
+    def set_current(self, current: ArrayLike) -> None:
+        """Hold this world ENU current (m/s) from now on."""
+        self._current_override = np.asarray(current, dtype=np.float64).reshape(3)
+        if np.any(self._current_override) and not self._has_current:
+            self._kernel_for_current(True)
+        self._chunk_end = 0
+
+    def _kernel_for_current(self, has_current: bool) -> None:
+        self._has_current = has_current
+        self._params = build_params(
+            [self.vehicle],
+            self.dt,
+            implicit_added_mass=self.implicit_added_mass,
+            legacy_coriolis=self.legacy_coriolis,
+            has_current=has_current,
+            wrench_frame=self.inputs.wrench_frame,
+        )
+        self._kernel = get_kernel(self._params.structure)
+
+    def _load_chunk(self, start: int) -> None:
+        n = CHUNK_STEPS
+        t = (start + np.arange(n)) * (self.dt_ns * 1e-9)
+        f, tq, c = self.inputs.evaluate(t)
+        if self._force_override is not None:
+            f = np.broadcast_to(self._force_override, (n, 3))
+        if self._torque_override is not None:
+            tq = np.broadcast_to(self._torque_override, (n, 3))
+        if self._current_override is not None:
+            c = np.broadcast_to(self._current_override, (n, 3))
+        c = c + self.vehicle.default_current
+        cols = np.concatenate([f, tq, c], axis=1).T
+        self._chunk = tuple(cols.tolist())
+        self._chunk_start = start
+        self._chunk_end = start + n
+
+    def _tick(self) -> tuple[int, F64, F64, F64, F64]:
+        s = self.state
+        pos = np.array(s[0:3])
+        quat = np.array(s[3:7])
+        cam_p, cam_q = camera_poses(pos, quat, self.camera_offset)
+        return self.t_ns, pos, quat, cam_p[0], cam_q[0]
+
+    def _check(self) -> None:
+        vel = self.state[7:13]
+        if not all(abs(x) < DIVERGENCE_LIMIT for x in vel):  # also catches NaN
+            i = next(i for i, x in enumerate(vel) if not abs(x) < DIVERGENCE_LIMIT)
+            hint = ("; " + " ".join(self.warnings)) if self.warnings else ""
+            raise SimulationError(
+                f"simulation of {self.vehicle.name} diverged at t = {self.t_ns * 1e-9:.3f} s: "
+                f"body {'uvwpqr'[i]} velocity reached {vel[i]:.3g} "
+                f"(axis {FORCE_AXES[i]}){hint}"
+            )
+
+    def advance_steps(self, n_steps: int, record: list[tuple[Any, ...]] | None = None) -> None:
+        """Step ``n_steps`` steps; append the raw state at each publish tick to ``record``."""
+        target = self.step + int(n_steps)
+        pe = self.publish_every
+        if self._published_step < 0 and self.step % pe == 0:
+            if record is not None:
+                record.append(self.state)
+            self._published_step = self.step
+        while self.step < target:
+            if not (self._chunk_start <= self.step < self._chunk_end):
+                self._load_chunk(self.step)
+            end = min((self.step // pe + 1) * pe, target, self._chunk_end)
+            ch = self._chunk
+            self.state = self._kernel(
+                end - self.step,
+                self.step - self._chunk_start,
+                self.state,
+                self._params.values,
+                *ch,
+            )
+            self.step = end
+            if end % pe == 0:
+                self._check()
+                self._published_step = end
+                if record is not None:
+                    record.append(self.state)
+
+    def advance_to(self, t_ns: int) -> list[tuple[int, F64, F64, F64, F64]]:
+        """Step up to sim time ``t_ns`` (floored to a step); return the publish ticks crossed as
+        ``(t_ns, vehicle_pos, vehicle_quat, camera_pos, camera_quat)``."""
+        target = int(t_ns) // self.dt_ns
+        ticks: list[tuple[int, F64, F64, F64, F64]] = []
+        pe = self.publish_every
+        if self._published_step < 0 and self.step % pe == 0:
+            ticks.append(self._tick())
+            self._published_step = self.step
+        while self.step < target:
+            nxt = min((self.step // pe + 1) * pe, target)
+            self.advance_steps(nxt - self.step)
+            if self.step % pe == 0:
+                ticks.append(self._tick())
+        return ticks
+
+
+def _result_from_records(
+    records: list[tuple[Any, ...]] | F64,
+    period_ns: int,
+    camera_offset: Sequence[float],
+    info: dict[str, Any],
+) -> SimResult:
+    arr = np.asarray(records, dtype=np.float64).reshape(-1, N_STATE)
+    n = arr.shape[0]
+    t = np.arange(n, dtype=np.int64) * period_ns
+    pos = np.ascontiguousarray(arr[:, 0:3])
+    quat = np.ascontiguousarray(arr[:, 3:7])
+    vel = np.ascontiguousarray(arr[:, 7:13])
+    cam_p, cam_q = camera_poses(pos, quat, camera_offset)
+    src = f"simulator:{info.get('vehicle', '')}"
+    vstream = PoseStream.from_arrays(t, pos, quat, frame="enu", topic=VEHICLE_TOPIC, source=src)
+    cstream = PoseStream.from_arrays(t, cam_p, cam_q, frame="enu", topic=CAMERA_TOPIC, source=src)
+    return SimResult(vstream, cstream, vel, info)
+
+
+def simulate(
+    vehicle: Vehicle,
+    inputs: InputProfile | None,
+    duration_s: float,
+    *,
+    dt: float = 1e-3,
+    publish_rate: float = 50.0,
+    seed: int = 0,
+    implicit_added_mass: bool = False,
+    legacy_coriolis: bool = False,
+    camera_offset: Sequence[float] = DEFAULT_CAMERA_OFFSET,
+    initial_position: Sequence[float] = (0.0, 0.0, 0.0),
+    initial_orientation: Sequence[float] = (0.0, 0.0, 0.0, 1.0),
+    initial_velocity: Sequence[float] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+) -> SimResult:
+    """Run one vehicle for ``duration_s`` seconds of sim time; poses at ``publish_rate`` Hz.
+
+    The physics is deterministic; ``seed`` is recorded in ``info`` (the run's identity in an
+    experiment). Raises :class:`SimulationError` if the run diverges (e.g. Gazebo's explicit
+    added mass with |X_dot| >= m), naming the time and axis.
+    """
+    if not (duration_s >= 0 and math.isfinite(duration_s)):
+        raise SimulationError(f"duration must be >= 0 s, got {duration_s}")
+    sim = Simulator(
+        vehicle,
+        inputs,
+        dt=dt,
+        publish_rate=publish_rate,
+        implicit_added_mass=implicit_added_mass,
+        legacy_coriolis=legacy_coriolis,
+        camera_offset=camera_offset,
+        initial_position=initial_position,
+        initial_orientation=initial_orientation,
+        initial_velocity=initial_velocity,
+    )
+    n_ticks = round(duration_s * 1e9) // (sim.dt_ns * sim.publish_every)
+    records: list[tuple[Any, ...]] = []
+    t0 = time.perf_counter()
+    sim.advance_steps(n_ticks * sim.publish_every, records)
+    wall = time.perf_counter() - t0
+    info = _info(vehicle, sim.dt, publish_rate, seed, implicit_added_mass, legacy_coriolis)
+    info.update(steps=sim.step, wall_time_s=wall, warnings=list(sim.warnings))
+    return _result_from_records(records, sim.dt_ns * sim.publish_every, camera_offset, info)
+
+
+def _info(
+    vehicle: Vehicle,
+    dt: float,
+    publish_rate: float,
+    seed: int,
+    implicit: bool,
+    legacy: bool,
+) -> dict[str, Any]:
+    return {
+        "vehicle": vehicle.name,
+        "vehicle_source": vehicle.source,
+        "vehicle_notes": list(vehicle.notes),
+        "dt": dt,
+        "publish_rate": publish_rate,
+        "seed": seed,
+        "implicit_added_mass": implicit,
+        "legacy_coriolis": legacy,
+    }
+
+
+def simulate_batch(
+    vehicles: Sequence[Vehicle] | Vehicle,
+    inputs_list: Sequence[InputProfile] | InputProfile,
+    duration_s: float,
+    *,
+    dt: float = 1e-3,
+    publish_rate: float = 50.0,
+    seed: int = 0,
+    implicit_added_mass: bool = False,
+    legacy_coriolis: bool = False,
+    camera_offset: Sequence[float] = DEFAULT_CAMERA_OFFSET,
+) -> list[SimResult]:
+    """Run N vehicles in one vectorised state (each state variable an (N,) array).
+
+    ``vehicles`` and ``inputs_list`` are sequences of equal length, or one of them a single
+    item used for every run. Results equal those of :func:`simulate` per run (same equations
+    and step order; floating-point results agree to rounding). All runs must share the wrench
+    frame. A diverging run raises :class:`SimulationError` naming it.
+    """
+    vs = [vehicles] if isinstance(vehicles, Vehicle) else list(vehicles)
+    ins = [inputs_list] if isinstance(inputs_list, InputProfile) else list(inputs_list)
+    if len(vs) == 1 and len(ins) > 1:
+        vs = vs * len(ins)
+    if len(ins) == 1 and len(vs) > 1:
+        ins = ins * len(vs)
+    if len(vs) != len(ins) or not vs:
+        raise SimulationError(
+            f"simulate_batch needs as many vehicles as input profiles, got {len(vs)} and {len(ins)}"
+        )
+    frames = {p.wrench_frame for p in ins}
+    if len(frames) > 1:
+        raise SimulationError("simulate_batch: all input profiles must share one wrench_frame")
+    n = len(vs)
+    if n == 1:
+        return [
+            simulate(
+                vs[0],
+                ins[0],
+                duration_s,
+                dt=dt,
+                publish_rate=publish_rate,
+                seed=seed,
+                implicit_added_mass=implicit_added_mass,
+                legacy_coriolis=legacy_coriolis,
+                camera_offset=camera_offset,
+            )
+        ]
+    dt_ns, pe = _check_timing(dt, publish_rate)
+    has_current = any(not p.current.is_zero() for p in ins) or any(
+        bool(np.any(v.default_current)) for v in vs
+    )
+    params = build_params(
+        vs,
+        dt,
+        implicit_added_mass=implicit_added_mass,
+        legacy_coriolis=legacy_coriolis,
+        has_current=has_current,
+        wrench_frame=frames.pop(),
+    )
+    kernel = get_kernel(params.structure)
+    state = initial_state(n)
+    n_ticks = round(duration_s * 1e9) // (dt_ns * pe)
+    total = n_ticks * pe
+    rec = np.empty((n_ticks + 1, N_STATE, n))
+    rec[0] = np.asarray(state)
+    default_cur = np.stack([v.default_current for v in vs])  # (N, 3)
+    chunk = max(pe, (CHUNK_STEPS // pe) * pe)
+    t0 = time.perf_counter()
+    step = 0
+    tick = 0
+    with np.errstate(all="ignore"):
+        while step < total:
+            m = min(chunk, total - step)
+            ts = (step + np.arange(m)) * (dt_ns * 1e-9)
+            cols = np.empty((9, m, n))
+            for i, prof in enumerate(ins):
+                f, tq, c = prof.evaluate(ts)
+                cols[0:3, :, i] = f.T
+                cols[3:6, :, i] = tq.T
+                cols[6:9, :, i] = (c + default_cur[i]).T
+            k = 0
+            while k < m:
+                state = kernel(pe, k, state, params.values, *cols)
+                k += pe
+                tick += 1
+                rec[tick] = np.asarray(state)
+                vel = rec[tick, 7:13]
+                bad = ~(np.abs(vel) < DIVERGENCE_LIMIT)
+                if bad.any():
+                    i_run = int(np.flatnonzero(bad.any(axis=0))[0])
+                    raise SimulationError(
+                        f"batched run {i_run} ({vs[i_run].name}) diverged at "
+                        f"t = {tick * pe * dt_ns * 1e-9:.3f} s; "
+                        + " ".join(_warnings_for([vs[i_run]], implicit_added_mass))
+                    )
+            step += m
+    wall = time.perf_counter() - t0
+    out = []
+    for i, v in enumerate(vs):
+        info = _info(v, dt, publish_rate, seed, implicit_added_mass, legacy_coriolis)
+        info.update(
+            steps=total,
+            wall_time_s=wall,
+            batch_size=n,
+            warnings=_warnings_for([v], implicit_added_mass),
+        )
+        out.append(_result_from_records(rec[:, :, i], dt_ns * pe, camera_offset, info))
+    return out
+
+
+__all__ = [
+    "CAMERA_TOPIC",
+    "VEHICLE_TOPIC",
+    "Constant",
+    "SimResult",
+    "Simulator",
+    "camera_poses",
+    "simulate",
+    "simulate_batch",
+]
