@@ -266,8 +266,10 @@ def _tf_pose(p: Path, raw: RawTopic, log: RawLog, child: str | None, parent: str
     if parent_n is not None and not tf_static:
         cands = [(a, b) for a, b in cands if a == parent_n]
     if not cands:
+        hint = "" if tf_static or parent_n is None else (
+            " (pass tf_static=True to chain static transforms from /tf_static)")
         raise LogReadError(_no_pair(p, raw.name, dec, dec.frame_code, dec.child_code,
-                                    parent, child))
+                                    parent, child) + hint)
     dyn_parent, dyn_child = cands[0]
     codes_p = [i for i, n in enumerate(dec.names) if n == dyn_parent]
     codes_c = [i for i, n in enumerate(dec.names) if n == dyn_child]

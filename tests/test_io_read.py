@@ -1,0 +1,316 @@
+"""Reading real logs: counts and values vs rosbags / mcap, fast path == reference, bad files."""
+
+from __future__ import annotations
+
+import shutil
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from uwval.errors import LogReadError
+from uwval.io import TruncatedLogWarning, list_topics, read_stream, read_streams
+from uwval.io.containers import scan_log
+from uwval.io.decode import decode_poses
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+BAGS = DATA / "bags"
+pytestmark = pytest.mark.skipif(not BAGS.exists(), reason="shared/data not present")
+
+POSE_TOPICS = [
+    (BAGS / "evo" / "ROS_example.bag", "groundtruth", 12765),
+    (BAGS / "evo" / "ROS_example.bag", "/ORB-SLAM", 8362),
+    (BAGS / "evo" / "ROS_example.bag", "S-PTAM", 5439),
+    (DATA / "evo" / "nav2_turtlebot.mcap", "/odom", 2639),
+    (DATA / "evo" / "nav2_turtlebot.mcap", "amcl_pose", 135),
+]
+
+
+def _reference_rows(path: Path, topic: str) -> np.ndarray:
+    """(log_time, stamp, x y z qx qy qz qw) per message, decoded by rosbags / mcap alone."""
+    rows: list[tuple[float, ...]] = []
+    want = "/" + topic.strip("/")
+
+    def add(log_time: int, msg: Any) -> None:
+        pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
+        st = msg.header.stamp
+        p, o = pose.position, pose.orientation
+        rows.append((log_time, st.sec * 10**9 + st.nanosec, p.x, p.y, p.z, o.x, o.y, o.z, o.w))
+
+    if path.suffix == ".mcap":
+        from mcap.reader import make_reader
+        from rosbags.typesys import Stores, get_typestore
+
+        store = get_typestore(Stores.ROS2_HUMBLE)
+        with open(path, "rb") as fh:
+            for schema, channel, message in make_reader(fh).iter_messages():
+                if "/" + channel.topic.strip("/") == want:
+                    assert schema is not None
+                    add(message.log_time, store.deserialize_cdr(message.data, schema.name))
+    else:
+        from rosbags.highlevel import AnyReader
+
+        with AnyReader([path]) as reader:
+            conns = [c for c in reader.connections if "/" + c.topic.strip("/") == want]
+            for conn, t, data in reader.messages(connections=conns):
+                add(t, reader.deserialize(data, conn.msgtype))
+    arr = np.array(rows, dtype=object)
+    return arr
+
+
+def _sorted(log_time: np.ndarray, stamp: np.ndarray, pose: np.ndarray) -> tuple[Any, ...]:
+    order = np.lexsort((stamp, log_time))
+    return log_time[order], stamp[order], pose[order]
+
+
+@pytest.mark.parametrize(("path", "topic", "count"), POSE_TOPICS,
+                         ids=[f"{p.name}:{t}" for p, t, _ in POSE_TOPICS])
+def test_real_pose_topics_match_rosbags_and_mcap(path: Path, topic: str, count: int) -> None:
+    ref = _reference_rows(path, topic)
+    assert len(ref) == count
+    raw = scan_log(path, [topic]).raw["/" + topic.strip("/")]
+    fast = decode_poses(raw)
+    assert fast.handled.all(), "fast path must cover these fixed-layout messages"
+    lt, st, pose = _sorted(raw.log_time, fast.stamp, fast.pose)
+    r_lt, r_st, r_pose = _sorted(ref[:, 0].astype(np.int64), ref[:, 1].astype(np.int64),
+                                 ref[:, 2:].astype(np.float64))
+    np.testing.assert_array_equal(lt, r_lt)
+    np.testing.assert_array_equal(st, r_st)
+    assert np.array_equal(pose.view(np.uint64), r_pose.view(np.uint64))  # bit-identical
+    # The per-message reference path inside uwval agrees with the fast path too.
+    slow = decode_poses(raw, fast=False)
+    np.testing.assert_array_equal(slow.stamp, fast.stamp)
+    np.testing.assert_array_equal(slow.pose, fast.pose)
+    assert [slow.names[i] for i in slow.frame_code] == [fast.names[i] for i in fast.frame_code]
+    stream = read_stream(path, topic)
+    assert len(stream) + sum(stream.repairs.get("duplicates_dropped", 0) for _ in [0]) == count
+    assert stream.frame == "enu"
+    assert stream.source == str(path)
+
+
+def test_list_topics_counts_agree_with_rosbags() -> None:
+    from rosbags.highlevel import AnyReader
+
+    for path in (BAGS / "evo" / "ROS_example.bag", BAGS / "evo" / "tf_example",
+                 BAGS / "rosbag2" / "wbag_split", BAGS / "rosbag_js" / "example-bz2.bag"):
+        with AnyReader([path]) as reader:
+            expect: dict[str, int] = {}
+            for c in reader.connections:
+                name = "/" + c.topic.strip("/")
+                expect[name] = expect.get(name, 0) + c.msgcount
+        got = {t.name: t.count for t in list_topics(path)}
+        assert got == expect, path
+
+
+def test_ros1_compressions_and_unsorted_chunks_agree() -> None:
+    js = BAGS / "rosbag_js"
+    streams = [read_stream(js / f, "/tf", child_frame="turtle2")
+               for f in ("example.bag", "example-lz4.bag", "example-bz2.bag")]
+    assert len(streams[0]) > 1000
+    for s in streams[1:]:
+        np.testing.assert_array_equal(s.t, streams[0].t)
+        np.testing.assert_array_equal(s.position, streams[0].position)
+    raw = scan_log(js / "example-unsorted-chunks.bag", None).raw["/foo"]
+    assert len(raw) == 3
+    assert raw.msgtype == "std_msgs/msg/String"
+    assert np.all(np.diff(np.sort(raw.log_time)) > 0)
+
+
+def test_tf_pairs_and_static_chain() -> None:
+    bag = BAGS / "evo" / "tf_example.bag"
+    direct = read_stream(bag, "/tf")  # a single dynamic transform: chosen without asking
+    assert len(direct) == 517
+    db = read_stream(BAGS / "evo" / "tf_example", "tf")  # same data as rosbag2 sqlite3
+    np.testing.assert_array_equal(db.position, direct.position)
+    mc = DATA / "evo" / "nav2_turtlebot.mcap"
+    with pytest.raises(LogReadError, match=r"parent->child pairs present.*odom->base_link"):
+        read_stream(mc, "/tf", child_frame="no_such_frame")
+    base = read_stream(mc, "/tf", child_frame="base_link", parent_frame="odom")
+    assert len(base) > 100
+    with pytest.raises(LogReadError, match="tf_static"):
+        read_stream(mc, "/tf", child_frame="base_link", parent_frame="world_not_there")
+
+
+def test_tf_static_chain_composes_transforms(tmp_path: Path) -> None:
+    """odom->base (dynamic) chained with map->odom and base->cam (static) from /tf_static."""
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    from uwval.rotations import quat_from_rpy, quat_multiply, rotate_vectors
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    T = ts.types
+
+    def tr(parent: str, child: str, t_ns: int, p: np.ndarray, q: np.ndarray) -> Any:
+        return T["geometry_msgs/msg/TransformStamped"](
+            header=T["std_msgs/msg/Header"](
+                stamp=T["builtin_interfaces/msg/Time"](sec=t_ns // 10**9, nanosec=t_ns % 10**9),
+                frame_id=parent),
+            child_frame_id=child,
+            transform=T["geometry_msgs/msg/Transform"](
+                translation=T["geometry_msgs/msg/Vector3"](x=p[0], y=p[1], z=p[2]),
+                rotation=T["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3])))
+
+    q_mo = quat_from_rpy(np.array([0.0, 0.0, 0.5]))
+    p_mo = np.array([10.0, -2.0, 0.0])
+    q_bc = quat_from_rpy(np.array([0.1, 0.0, 0.0]))
+    p_bc = np.array([0.2, 0.0, 0.3])
+    rng = np.random.default_rng(3)
+    dyn_p = rng.normal(size=(20, 3))
+    dyn_q = quat_from_rpy(rng.normal(size=(20, 3)) * 0.3)
+    path = tmp_path / "tfbag"
+    tfm = "tf2_msgs/msg/TFMessage"
+    with Writer(path, version=9) as w:
+        cs = w.add_connection("/tf_static", tfm, typestore=ts)
+        cd = w.add_connection("/tf", tfm, typestore=ts)
+        w.write(cs, 1, ts.serialize_cdr(T[tfm](transforms=[
+            tr("map", "odom", 0, p_mo, q_mo), tr("base", "cam", 0, p_bc, q_bc)]), tfm))
+        for i in range(20):
+            t = (i + 1) * 10**8
+            w.write(cd, t, ts.serialize_cdr(T[tfm](transforms=[
+                tr("odom", "base", t, dyn_p[i], dyn_q[i])]), tfm))
+    s = read_stream(path, "/tf", child_frame="cam", parent_frame="map", tf_static=True)
+    q_mb = quat_multiply(np.broadcast_to(q_mo, (20, 4)), dyn_q)
+    p_mb = p_mo + rotate_vectors(np.broadcast_to(q_mo, (20, 4)), dyn_p)
+    q_mc = quat_multiply(q_mb, np.broadcast_to(q_bc, (20, 4)))
+    p_mc = p_mb + rotate_vectors(q_mb, np.broadcast_to(p_bc, (20, 3)))
+    np.testing.assert_allclose(s.position, p_mc, atol=1e-12)
+    np.testing.assert_allclose(np.abs(np.sum(s.orientation * q_mc, axis=1)), 1.0, atol=1e-12)
+    with pytest.raises(LogReadError, match="tf_static=True"):
+        read_stream(path, "/tf", child_frame="base", parent_frame="map")
+
+
+ALL_FILES = sorted(
+    [p for p in BAGS.rglob("*") if p.is_file() and p.parent.name in ("evo", "rosbag_js")]
+    + [p for p in (BAGS / "rosbag2").iterdir() if p.is_dir()]
+    + [p for p in (DATA / "evo").iterdir() if p.suffix == ".mcap"]
+) if BAGS.exists() else []
+
+
+@pytest.mark.parametrize("path", ALL_FILES, ids=[p.name for p in ALL_FILES])
+def test_every_shared_log_lists_or_fails_clearly(path: Path) -> None:
+    if path.suffix in (".yaml", ".db3") and path.parent.name == "tf_example":
+        path = path.parent
+    if path.is_file() and path.stat().st_size == 0:
+        with pytest.raises(LogReadError, match=rf"{path.name}: file is empty \(0 bytes\)"):
+            list_topics(path)
+        return
+    topics = list_topics(path)
+    for t in topics:
+        assert t.count >= 0
+        assert t.type
+        assert t.name.startswith("/")
+        if t.count and t.start_ns:
+            assert t.end_ns >= t.start_ns
+
+
+def test_bad_files_fail_with_clear_messages(tmp_path: Path) -> None:
+    js = BAGS / "rosbag_js"
+    with pytest.raises(LogReadError, match=r"empty-file\.bag: file is empty \(0 bytes\)"):
+        read_stream(js / "empty-file.bag", "/x")
+    with pytest.raises(LogReadError, match=r"no-messages\.bag: no topic '/x': the log has no"):
+        read_stream(js / "no-messages.bag", "/x")
+    assert list_topics(js / "no-messages.bag") == []
+    with pytest.raises(LogReadError, match=r"empty_bag: no topic '/pose'.*/rosout"):
+        read_stream(BAGS / "rosbag2" / "empty_bag", "/pose")
+    # The leftover -wal/-shm files are not touched (the shared copy is read-only anyway).
+    assert (BAGS / "rosbag2" / "empty_bag" / "empty_bag_0.db3-wal").stat().st_size == 0
+    with pytest.raises(LogReadError, match=r"topic '/rosout' .* has no messages"):
+        read_stream(BAGS / "rosbag2" / "compressed_bag_file_zstd", "/rosout")
+    with pytest.raises(LogReadError, match="no topic '/nope'; topics in this log: /AAA"):
+        read_stream(BAGS / "rosbag2" / "wbag_split", "/nope")
+    with pytest.raises(LogReadError, match="not a pose type"):
+        read_stream(js / "example.bag", "/turtle1/pose")
+    with pytest.raises(LogReadError, match="no such file"):
+        read_stream(tmp_path / "missing.mcap", "/x")
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"not an mcap file at all")
+    with pytest.raises(LogReadError, match=r"junk\.mcap: not an MCAP file"):
+        list_topics(junk)
+    shutil.copy(js / "example.bag", tmp_path / "cut.bag")
+    data = (tmp_path / "cut.bag").read_bytes()
+    (tmp_path / "cut.bag").write_bytes(data[: len(data) // 2])
+    with pytest.raises(LogReadError, match=r"cut\.bag"):
+        read_stream(tmp_path / "cut.bag", "/tf", child_frame="turtle1")
+
+
+def test_service_event_channels_do_not_stop_pose_reading(tmp_path: Path) -> None:
+    """A log with service-event channels (undecodable *_Event schema) next to a pose topic."""
+    from mcap.writer import Writer
+
+    from uwval.io.encode import encode_pose_stamped
+
+    path = tmp_path / "svc.mcap"
+    rows = encode_pose_stamped(np.arange(5) * 10**8, np.ones((5, 3)),
+                               np.tile([0, 0, 0, 1.0], (5, 1)), "world")
+    with open(path, "wb") as fh:
+        w = Writer(fh)
+        w.start(profile="ros2", library="test")
+        sid = w.register_schema("test_msgs/srv/BasicTypes_Event", "ros2msg", b"garbage ===")
+        pid = w.register_schema("geometry_msgs/msg/PoseStamped", "ros2msg", b"")
+        c_svc = w.register_channel("/svc/_service_event", "cdr", sid)
+        c_pose = w.register_channel("/pose", "cdr", pid)
+        for i in range(5):
+            w.add_message(c_svc, i * 10**8, b"\x00\x01\x00\x00\xff\xff", i * 10**8)
+            w.add_message(c_pose, i * 10**8, rows[i].tobytes(), i * 10**8)
+        w.finish()
+    names = {t.name: t.count for t in list_topics(path)}
+    assert names == {"/svc/_service_event": 5, "/pose": 5}
+    s = read_stream(path, "pose")
+    assert len(s) == 5
+    assert np.all(s.position == 1.0)
+
+
+def test_truncated_mcap_recovers_intact_messages(tmp_path: Path) -> None:
+    from uwval.io import McapPoseWriter
+    from uwval.posestream import PoseStream
+
+    n = 3000
+    rng = np.random.default_rng(11)
+    s = PoseStream.from_arrays(np.arange(n, dtype=np.int64) * 10**7 + 10**9,
+                               rng.normal(size=(n, 3)), np.tile([0, 0, 0, 1.0], (n, 1)))
+    full = tmp_path / "full.mcap"
+    w = McapPoseWriter(full, chunk_size=16 * 1024)
+    w.write_poses("/gazebo/model_rov_pose", s.t, s.position, s.orientation, "world")
+    w.close()
+    data = full.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    keep = int(len(data) * 0.6)
+    cut.write_bytes(data[:keep])
+    with pytest.warns(TruncatedLogWarning, match=r"cut\.mcap: log is truncated.* (\d+) bytes"):
+        r = read_stream(cut, "/gazebo/model_rov_pose")
+    assert 0 < len(r) < n
+    np.testing.assert_array_equal(r.t, s.t[: len(r)])
+    np.testing.assert_array_equal(r.position, s.position[: len(r)])
+    # A recorder killed right after flush(): no summary, no footer, nothing lost.
+    killed = tmp_path / "killed.mcap"
+    w2 = McapPoseWriter(killed, chunk_size=1 << 20)
+    w2.write_poses("/gazebo/model_rov_pose", s.t[:100], s.position[:100], s.orientation[:100],
+                   "world")
+    w2.flush()
+    snapshot = killed.read_bytes()
+    w2.close()
+    killed.write_bytes(snapshot)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", TruncatedLogWarning)
+        r2 = read_stream(killed, "/gazebo/model_rov_pose")
+    assert len(r2) == 100
+
+
+def test_read_streams_one_pass_and_topic_spelling() -> None:
+    bag = BAGS / "evo" / "ROS_example.bag"
+    both = read_streams(bag, ["groundtruth", "/S-PTAM"])
+    assert len(both["groundtruth"]) == len(read_stream(bag, "/groundtruth"))
+    assert len(both["/S-PTAM"]) == 5439
+    with pytest.raises(LogReadError, match="unknown read option"):
+        read_streams(bag, ["groundtruth"], bogus=1)
+    logt = read_stream(bag, "groundtruth", time="log")
+    assert len(logt) == 12765
+
+
+def test_old_type_names_without_msg_are_normalised() -> None:
+    infos = list_topics(BAGS / "rosbag2" / "test_bag_for_seek")
+    assert infos[0].type == "test_msgs/msg/BasicTypes"
+    assert infos[0].count == 5
