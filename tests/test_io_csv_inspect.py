@@ -1,0 +1,122 @@
+"""Unity CSV exports and ``uwval inspect`` (end to end through the console script)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from uwval.errors import LogReadError
+from uwval.frames import quat_from_unity_euler, unity_euler_from_quat
+from uwval.io import open_writer, read_csv, read_stream, write_stream
+from uwval.posestream import PoseStream
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+
+
+def _unity_rows(n: int = 50, seed: int = 4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / 60.0 + 3.0
+    pos = rng.normal(size=(n, 3))
+    euler = rng.uniform(0, 360, size=(n, 3))
+    euler[:, 0] = rng.uniform(-80, 80, size=n) % 360  # keep away from gimbal lock
+    return t, pos, euler
+
+
+def test_csv_quaternion_columns_autodetected(tmp_path: Path) -> None:
+    t, pos, euler = _unity_rows()
+    q = quat_from_unity_euler(euler)
+    path = tmp_path / "unity.csv"
+    lines = ["time,pos_x,pos_y,pos_z,rot_x,rot_y,rot_z,rot_w"]
+    lines += [",".join(repr(float(v)) for v in (t[i], *pos[i], *q[i])) for i in range(len(t))]
+    path.write_text("\n".join(lines) + "\n")
+    s = read_stream(path, "")  # dispatch by suffix
+    assert s.frame == "unity-flu"
+    np.testing.assert_array_equal(s.t, np.round(t * 1e9).astype(np.int64))
+    np.testing.assert_allclose(s.position, pos, rtol=0, atol=0)
+    np.testing.assert_allclose(s.orientation, q, atol=1e-12)
+
+
+def test_csv_euler_mapping_file_and_units(tmp_path: Path) -> None:
+    t, pos, euler = _unity_rows()
+    path = tmp_path / "unity_euler.csv"
+    lines = ["# exported by a Unity script", "frame_ms;X;Y;Z;EX;EY;EZ"]
+    lines += [";".join(repr(float(v)) for v in (t[i] * 1000, *(pos[i] * 100), *euler[i]))
+              for i in range(len(t))]
+    path.write_text("\n".join(lines) + "\n")
+    mapping = tmp_path / "map.yaml"
+    mapping.write_text("time: frame_ms\ntime_unit: ms\nposition: [X, Y, Z]\n"
+                       "euler: [EX, EY, EZ]\nlength_unit: cm\nframe: unity-enu\ndelimiter: ';'\n")
+    s = read_csv(path, mapping=mapping)
+    assert s.frame == "unity-enu"
+    np.testing.assert_allclose(s.position, pos, atol=1e-12)
+    np.testing.assert_allclose(s.t, np.round(t * 1e9), atol=2)
+    back = unity_euler_from_quat(s.orientation)
+    diff = (back - euler + 180.0) % 360.0 - 180.0
+    np.testing.assert_allclose(diff, 0.0, atol=1e-7)
+
+
+def test_csv_errors_name_file_line_and_column(tmp_path: Path) -> None:
+    path = tmp_path / "bad.csv"
+    path.write_text("t,x,y,z,qx,qy,qz,qw\n0,0,0,0,0,0,0,1\n0.1,0,zz,0,0,0,0,1\n")
+    with pytest.raises(LogReadError, match=r"bad\.csv: line 3, column 'y': not a finite number"):
+        read_csv(path)
+    path.write_text("t,a,b,c\n0,1,2,3\n")
+    with pytest.raises(LogReadError, match=r"cannot find position, rotation.*among"):
+        read_csv(path)
+    with pytest.raises(LogReadError, match=r"column\(s\) \['nope'\] not found"):
+        read_csv(path, time="nope")
+    path.write_text("t,x,y,z,qx,qy,qz,qw\n0,0,0,0,0,0,0,2\n")
+    with pytest.raises(LogReadError, match="norm"):
+        read_csv(path)
+
+
+def _run(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "uwval", *args], capture_output=True,
+                          text=True, timeout=120)
+
+
+def test_inspect_json_and_table(tmp_path: Path) -> None:
+    n = 200
+    t = np.arange(n, dtype=np.int64) * 10**7 + 5 * 10**9
+    t[150:] += 2 * 10**9  # one 2 s gap
+    s = PoseStream.from_arrays(t, np.zeros((n, 3)), np.tile([0, 0, 0, 1.0], (n, 1)))
+    path = tmp_path / "run.mcap"
+    with open_writer(path) as w:
+        write_stream(w, "/gazebo/model_rov_pose", s, "world")
+    proc = _run("inspect", str(path), "--json")
+    assert proc.returncode == 0, proc.stderr
+    doc = json.loads(proc.stdout)
+    (topic,) = doc["topics"]
+    assert topic["name"] == "/gazebo/model_rov_pose"
+    assert topic["type"] == "geometry_msgs/msg/PoseStamped"
+    assert topic["count"] == n
+    assert topic["start"] == pytest.approx(5.0)
+    assert topic["end"] == pytest.approx(float(t[-1]) * 1e-9)
+    assert topic["largest_gaps"][0]["gap"] == pytest.approx(2.01)
+    assert topic["largest_gaps"][0]["at"] == pytest.approx(float(t[149]) * 1e-9)
+    table = _run("inspect", str(path))
+    assert table.returncode == 0
+    assert "/gazebo/model_rov_pose" in table.stdout
+    assert "200" in table.stdout
+
+
+def test_inspect_bad_files_exit_2_without_traceback(tmp_path: Path) -> None:
+    empty = tmp_path / "empty.bag"
+    empty.write_bytes(b"")
+    proc = _run("inspect", str(empty))
+    assert proc.returncode == 2
+    assert "file is empty (0 bytes)" in proc.stderr
+    assert "Traceback" not in proc.stderr + proc.stdout
+
+
+@pytest.mark.skipif(not (DATA / "evo").exists(), reason="shared/data not present")
+def test_inspect_real_bag_json() -> None:
+    proc = _run("inspect", str(DATA / "bags" / "evo" / "ROS_example.bag"), "--json")
+    assert proc.returncode == 0, proc.stderr
+    counts = {t["name"]: t["count"] for t in json.loads(proc.stdout)["topics"]}
+    assert counts == {"/groundtruth": 12765, "/ORB-SLAM": 8362, "/S-PTAM": 5439}

@@ -1,0 +1,119 @@
+"""``uwval inspect LOG``: what a log holds (topics, types, counts, rates, span, largest gaps)."""
+
+from __future__ import annotations
+
+import json
+import warnings
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Annotated, Any
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from uwval.cli import app
+
+
+@dataclass
+class TopicSummary:
+    """One topic of an inspected log; times in seconds (log / receive time)."""
+
+    name: str
+    type: str
+    count: int
+    start: float | None
+    end: float | None
+    duration: float
+    rate_hz: float | None
+    largest_gaps: list[dict[str, float]] = field(default_factory=list)  # {"at": s, "gap": s}
+
+
+@dataclass
+class LogSummary:
+    """The whole log: path, span, topics, and warnings (e.g. bytes lost to truncation)."""
+
+    path: str
+    start: float | None
+    end: float | None
+    duration: float
+    topics: list[TopicSummary]
+    warnings: list[str]
+
+
+def summarize(path: Path, n_gaps: int = 3) -> LogSummary:
+    """Summarise a log (ROS formats by log time; CSV/TUM by their stamps)."""
+    from uwval.io.containers import log_kind
+    from uwval.io.reader import read_stream, topic_times
+
+    notes: list[str] = []
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        if log_kind(path) in ("csv", "tum"):
+            s = read_stream(path, "")
+            infos_types = [(s.topic or path.stem, "text/" + log_kind(path))]
+            times = {infos_types[0][0]: s.t}
+        else:
+            infos, times = topic_times(path)
+            infos_types = [(i.name, i.type) for i in infos]
+        notes.extend(str(w.message) for w in caught)
+    topics = []
+    for name, typ in infos_types:
+        t = times.get(name, np.zeros(0, dtype=np.int64))
+        topics.append(_topic(name, typ, t, n_gaps))
+    starts = [x.start for x in topics if x.start is not None]
+    ends = [x.end for x in topics if x.end is not None]
+    start = min(starts) if starts else None
+    end = max(ends) if ends else None
+    dur = (end - start) if start is not None and end is not None else 0.0
+    return LogSummary(str(path), start, end, dur, topics, notes)
+
+
+def _topic(name: str, typ: str, t: np.ndarray, n_gaps: int) -> TopicSummary:
+    n = int(t.shape[0])
+    if n == 0:
+        return TopicSummary(name, typ, 0, None, None, 0.0, None)
+    t = np.sort(t)
+    start, end = float(t[0]) * 1e-9, float(t[-1]) * 1e-9
+    dur = float(t[-1] - t[0]) * 1e-9
+    rate = (n - 1) / dur if n > 1 and dur > 0 else None
+    gaps = []
+    if n > 1:
+        d = np.diff(t)
+        top = np.argsort(d)[::-1][:n_gaps]
+        gaps = [{"at": float(t[i]) * 1e-9, "gap": float(d[i]) * 1e-9} for i in top]
+    return TopicSummary(name, typ, n, start, end, dur, rate, gaps)
+
+
+@app.command("inspect")
+def inspect_cmd(
+    log: Annotated[Path, typer.Argument(help="Log file (.mcap, .bag, .db3, .csv, .txt) or rosbag2 "
+                                              "directory")],
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table")] = False,
+    gaps: Annotated[int, typer.Option(help="Largest gaps to list per topic")] = 3,
+) -> None:
+    """Show a log's topics, types, message counts, rates, time span and largest gaps."""
+    summary = summarize(log, gaps)
+    if as_json:
+        typer.echo(json.dumps(asdict(summary), indent=2))
+        return
+    console = Console()
+    if not console.is_terminal:  # pipes get the full table, not an 80-column wrap
+        console = Console(width=160)
+    table = Table(title=f"{summary.path}  span {summary.duration:.3f} s")
+    for col in ("topic", "type", "count", "rate [Hz]", "start [s]", "end [s]", "largest gap [s]"):
+        table.add_column(col, justify="right" if col not in ("topic", "type") else "left",
+                         no_wrap=col in ("topic", "type"))
+    for t in summary.topics:
+        gap = f"{t.largest_gaps[0]['gap']:.4f} @ {t.largest_gaps[0]['at']:.3f}" \
+            if t.largest_gaps else "-"
+        table.add_row(t.name, t.type, str(t.count), _fmt(t.rate_hz, ".2f"),
+                      _fmt(t.start, ".3f"), _fmt(t.end, ".3f"), gap)
+    console.print(table)
+    for note in summary.warnings:
+        console.print(f"[yellow]warning:[/] {note}", highlight=False)
+
+
+def _fmt(x: Any, spec: str) -> str:
+    return "-" if x is None else format(x, spec)
