@@ -43,7 +43,7 @@ def _print_table(doc: dict[str, Any], title: str) -> None:
     from rich.table import Table
 
     console = Console()
-    table = Table(title=title, title_justify="left")
+    table = Table(title=escape(title), title_justify="left")
     for col in ("axis", "unit", "MAE", "RMSE", "max", "p95", "bias", "Pearson r"):
         table.add_column(col, justify="right" if col not in ("axis", "unit") else "left")
     for ax, s in doc["axes"].items():
@@ -147,7 +147,8 @@ def doctor_command(
         if diag is None:
             console.print(f"{name}: too few overlapping samples to diagnose")
             continue
-        table = Table(title=f"{name}: configured {diag['configured']}", title_justify="left")
+        table = Table(title=escape(f"{name}: configured {diag['configured']}"),
+                      title_justify="left")
         for col in ("convention", "position RMS (m)", "rotation RMS (deg)", ""):
             table.add_column(col)
         for conv, sc in diag["scores"].items():

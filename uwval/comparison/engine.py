@@ -23,7 +23,7 @@ from uwval.comparison.offset import OffsetEstimate, estimate_offset, latency_sta
 from uwval.comparison.stats import axis_stats, norm_stats
 from uwval.comparison.sync import associate_nearest, interpolate_at, nominal_period_ns
 from uwval.errors import AlignmentError
-from uwval.frames import convert_stream, get_convention
+from uwval.frames import CONVENTIONS, convert_stream, get_convention
 from uwval.posestream import PoseStream
 from uwval.rotations import geodesic_angle, rpy_from_quat, wrap_deg
 
@@ -164,7 +164,14 @@ def compare(
         except ValueError:
             raise AlignmentError(f"offset must be seconds or 'auto', got {offset!r}") from None
     if offset == "auto":
-        estimate = estimate_offset(ref_c, _to_canonical(raw_other), max_offset=max_offset)
+        if frame == "auto":
+            # the frame is unknown yet: estimate under every known convention, keep the
+            # one whose velocities agree best (the doctor then confirms the frame)
+            trials = [estimate_offset(ref_c, _to_canonical(other.with_(frame=name)),
+                                      max_offset=max_offset) for name in CONVENTIONS]
+            estimate = max(trials, key=lambda e: e.correlation)
+        else:
+            estimate = estimate_offset(ref_c, _to_canonical(raw_other), max_offset=max_offset)
         offset_s = estimate.offset
     else:
         offset_s = float(offset)
@@ -176,7 +183,7 @@ def compare(
     if (frame == "auto" or check_frame) and len(other) >= 2 and len(ref_c) >= 2:
         diagnosis = _diagnose(ref_c, raw_other, offset_s, configured)
         if diagnosis is not None:
-            if frame == "auto" and diagnosis.best is not None:
+            if frame == "auto" and diagnosis.best is not None:  # adopt it; redo the offset
                 configured = diagnosis.best
                 raw_other = other.with_(frame=configured)
                 if estimate is not None:

@@ -92,7 +92,7 @@ def associate_nearest(reference: PoseStream, other: PoseStream, *, max_diff: flo
             f"{offset} (s); reference spans [{s_ref[0]:.6f}, {s_ref[-1]:.6f}] s, other "
             f"[{s_oth[0]:.6f}, {s_oth[-1]:.6f}] s"
         )
-    return NearestMatch(ref_idx, oth_idx, n_candidates, not second_longer)
+    return NearestMatch(ref_idx, oth_idx, n_candidates, second_longer)
 
 
 def nominal_period_ns(t: I64) -> int:

@@ -48,8 +48,15 @@ def seconds_from_ns(t: I64) -> F64:
     evo-style float comparisons on seconds see the same numbers evo sees.
     """
     t = np.asarray(t, dtype=np.int64)
+    # below 2^53 ns (104 days) the int is an exact double: one correctly rounded division
+    small = np.abs(t) < (1 << 53)
+    if small.all():
+        return np.asarray(t.astype(np.float64) / 1e9)
     whole, frac = np.divmod(t, _NS)
-    return np.asarray(whole.astype(np.float64) + frac.astype(np.float64) * 1e-9)
+    out = whole.astype(np.float64) + frac.astype(np.float64) / 1e9
+    if small.any():
+        out[small] = t[small].astype(np.float64) / 1e9
+    return np.asarray(out)
 
 
 def parse_tum_bytes(data: bytes, source: str = "<bytes>") -> tuple[I64, F64, F64]:
@@ -59,7 +66,10 @@ def parse_tum_bytes(data: bytes, source: str = "<bytes>") -> tuple[I64, F64, F64
     not hold exactly 8 numbers.
     """
     body = _COMMENT.sub(b"", data) if b"#" in data else data
-    values = np.fromstring(body, dtype=np.float64, sep=" ")
+    try:
+        values = np.fromstring(body, dtype=np.float64, sep=" ")
+    except ValueError:  # a token that is not a number
+        raise LogReadError(f"{source}: {_first_bad_line(data)}") from None
     n_tokens = len(body.split()) if values.size % 8 else values.size
     if values.size % 8 or n_tokens != values.size:
         raise LogReadError(f"{source}: {_first_bad_line(data)}")
