@@ -21,6 +21,13 @@ and renormalised.
 ``legacy_coriolis`` reproduces gz-sim 8.0-8.11 / 9.x / 10.0-10.1, where ``Cmat(0, 5)`` had the
 wrong sign and ``Cmat(5, 0)`` the wrong index and sign (``+Ma(2,2) w`` instead of ``-Ma(1,1) v``).
 
+Sign note: gz-sim applies ``+Cmat nu_r`` (``kCmatVec = -Cmat * state`` is negated again when
+the wrench is applied) and its ``Cmat`` equals Fossen's C_A (eq. 6.43) entry for entry, so the
+added-mass Coriolis wrench gz applies is ``+C_A nu_r`` where Fossen's equations (and Kirchhoff's
+momentum conservation) have ``-C_A nu_r``: gz's Munk moment on a slender body is stabilising.
+This module reproduces gz by default; ``fossen_coriolis=True`` applies Fossen's sign. Both
+conserve energy (C_A is skew-symmetric); only Fossen's sign conserves the Kirchhoff impulse.
+
 ``implicit_added_mass`` moves ``-Ma`` into the mass matrix, ``(M_RB - Ma) nu_dot = ...``, which
 is stable for any added mass; only the (small) change of the current seen in the body frame
 keeps gz's backward difference. Gazebo's explicit form feeds the last step's acceleration back
@@ -101,16 +108,19 @@ def hydro_wrench_reference(
     prev_state: ArrayLike,
     dt: float,
     legacy: bool = False,
+    fossen: bool = False,
 ) -> F64:
     """The Hydrodynamics wrench (body frame) by gz-sim's matrix formulas, for checking the kernel:
-    ``Ma (s - s_prev)/dt - D(s) s + Cmat(s) s`` with ``s`` the relative body twist."""
+    ``Ma (s - s_prev)/dt - D(s) s + Cmat(s) s`` with ``s`` the relative body twist
+    (``- Cmat(s) s`` with ``fossen=True``)."""
     s = np.asarray(state, dtype=np.float64)
     ma = vehicle.added_mass_matrix()
     lin, qabs, quad = vehicle.damping_terms()
     sdot = (s - np.asarray(prev_state, dtype=np.float64)) / dt
     w: F64 = ma @ sdot
     w = w - damping_matrix(lin, qabs, quad, s) @ s
-    return w + coriolis_matrix(np.diag(ma), s, legacy) @ s
+    cor = coriolis_matrix(np.diag(ma), s, legacy) @ s
+    return w - cor if fossen else w + cor
 
 
 # ---------------------------------------------------------------------- parameters
@@ -130,6 +140,7 @@ def build_params(
     legacy_coriolis: bool,
     has_current: bool,
     wrench_frame: str,
+    fossen_coriolis: bool = False,
 ) -> KernelParams:
     """Kernel coefficients for one vehicle (floats) or several ((N,) arrays)."""
     n = len(vehicles)
@@ -211,6 +222,7 @@ def build_params(
         bool(legacy_coriolis),
         bool(has_current),
         wrench_frame,
+        bool(fossen_coriolis),
     )
     return KernelParams(vals, structure)
 
@@ -251,6 +263,7 @@ def generate_kernel_source(structure: tuple[Any, ...]) -> str:
         legacy,
         has_current,
         wrench_frame,
+        fossen,
     ) = structure
     names: set[str] = {"dt", "inv_dt", "mass", "net_up", "buoy", "rbx", "rby", "rbz"}
     names |= {f"ma_{i}{j}" for i, j in ma_terms}
@@ -307,7 +320,7 @@ def generate_kernel_source(structure: tuple[Any, ...]) -> str:
         terms += [f"dqa_{i}{j}{k}*abs(s{k})*s{j}" for (ii, j, k) in qabs_terms if ii == i]
         terms += [f"dq_{i}{j}{k}*s{k}*s{j}" for (ii, j, k) in quad_terms if ii == i]
         if has_added_mass:
-            terms += cor[i]
+            terms += [f"-{t}" for t in cor[i]] if fossen else cor[i]
         emit(b + f"g{i} = " + (" + ".join(terms) if terms else "0.0"))
     # input wrench
     if wrench_frame == "world":

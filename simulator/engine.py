@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from simulator.dynamics import N_STATE, build_params, get_kernel, initial_state
 from simulator.inputs import Constant, InputProfile, constant_inputs
-from simulator.vehicle import FORCE_AXES, Vehicle
+from simulator.vehicle import Vehicle
 from uwval.errors import SimulationError
 from uwval.posestream import PoseStream
 from uwval.rotations import quat_from_rpy
@@ -140,6 +140,7 @@ class Simulator:
         initial_position: Sequence[float] = (0.0, 0.0, 0.0),
         initial_orientation: Sequence[float] = (0.0, 0.0, 0.0, 1.0),
         initial_velocity: Sequence[float] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+        fossen_coriolis: bool = False,
     ) -> None:
         self.vehicle = vehicle
         self.inputs = inputs if inputs is not None else constant_inputs()
@@ -148,6 +149,7 @@ class Simulator:
         self.dt_ns, self.publish_every = _check_timing(dt, publish_rate)
         self.implicit_added_mass = implicit_added_mass
         self.legacy_coriolis = legacy_coriolis
+        self.fossen_coriolis = fossen_coriolis
         self.camera_offset = tuple(float(x) for x in camera_offset)
         q0 = np.asarray(initial_orientation, dtype=np.float64)
         q0 = q0 / np.linalg.norm(q0)
@@ -167,6 +169,7 @@ class Simulator:
             not (self.inputs.current.is_zero() and not np.any(vehicle.default_current))
         )
         self.warnings = _warnings_for([vehicle], implicit_added_mass)
+        self.state = _with_history(self.state, self._current_at(0.0), implicit_added_mass)
 
     # ------------------------------------------------------------------ control
     @property
@@ -196,8 +199,13 @@ class Simulator:
             legacy_coriolis=self.legacy_coriolis,
             has_current=has_current,
             wrench_frame=self.inputs.wrench_frame,
+            fossen_coriolis=self.fossen_coriolis,
         )
         self._kernel = get_kernel(self._params.structure)
+
+    def _current_at(self, t_s: float) -> F64:
+        c = self.inputs.current(np.array([t_s]))[0] + self.vehicle.default_current
+        return np.asarray(c, dtype=np.float64)
 
     def _load_chunk(self, start: int) -> None:
         n = CHUNK_STEPS
@@ -225,12 +233,11 @@ class Simulator:
     def _check(self) -> None:
         vel = self.state[7:13]
         if not all(abs(x) < DIVERGENCE_LIMIT for x in vel):  # also catches NaN
-            i = next(i for i, x in enumerate(vel) if not abs(x) < DIVERGENCE_LIMIT)
             hint = ("; " + " ".join(self.warnings)) if self.warnings else ""
+            twist = ", ".join(f"{n}={x:.3g}" for n, x in zip("uvwpqr", vel, strict=True))
             raise SimulationError(
-                f"simulation of {self.vehicle.name} diverged at t = {self.t_ns * 1e-9:.3f} s: "
-                f"body {'uvwpqr'[i]} velocity reached {vel[i]:.3g} "
-                f"(axis {FORCE_AXES[i]}){hint}"
+                f"simulation of {self.vehicle.name} diverged by t = {self.t_ns * 1e-9:.3f} s "
+                f"(body twist {twist}; limit {DIVERGENCE_LIMIT:g}){hint}"
             )
 
     def advance_steps(self, n_steps: int, record: list[tuple[Any, ...]] | None = None) -> None:
@@ -277,6 +284,38 @@ class Simulator:
         return ticks
 
 
+def _with_history(state: tuple[Any, ...], current: F64, implicit: bool) -> tuple[Any, ...]:
+    """Set the added-mass history to the initial relative twist (explicit) or the initial
+    body-frame current (implicit), as gz-sim 8.12+ does on its first iteration (no spike).
+
+    ``current`` is (3,) for one vehicle or (N, 3) for a batch; ``state`` holds floats or (N,)."""
+    qx, qy, qz, qw = (np.asarray(state[i], dtype=np.float64) for i in range(3, 7))
+    c = np.asarray(current, dtype=np.float64)
+    cx, cy, cz = c[..., 0], c[..., 1], c[..., 2]
+    # R^T c with R from the quaternion (columns of R dotted with c)
+    cb0 = (
+        (1 - 2 * (qy * qy + qz * qz)) * cx
+        + 2 * (qx * qy + qw * qz) * cy
+        + 2 * (qx * qz - qw * qy) * cz
+    )
+    cb1 = (
+        2 * (qx * qy - qw * qz) * cx
+        + (1 - 2 * (qx * qx + qz * qz)) * cy
+        + 2 * (qy * qz + qw * qx) * cz
+    )
+    cb2 = (
+        2 * (qx * qz + qw * qy) * cx
+        + 2 * (qy * qz - qw * qx) * cy
+        + (1 - 2 * (qx * qx + qy * qy)) * cz
+    )
+    cb = (cb0, cb1, cb2)
+    hist = list(state[13:19])
+    for i in range(3):
+        val = cb[i] if implicit else np.asarray(state[7 + i]) - cb[i]
+        hist[i] = float(val) if np.ndim(val) == 0 else np.asarray(val, dtype=np.float64)
+    return (*state[:13], *hist)
+
+
 def _result_from_records(
     records: list[tuple[Any, ...]] | F64,
     period_ns: int,
@@ -310,6 +349,7 @@ def simulate(
     initial_position: Sequence[float] = (0.0, 0.0, 0.0),
     initial_orientation: Sequence[float] = (0.0, 0.0, 0.0, 1.0),
     initial_velocity: Sequence[float] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+    fossen_coriolis: bool = False,
 ) -> SimResult:
     """Run one vehicle for ``duration_s`` seconds of sim time; poses at ``publish_rate`` Hz.
 
@@ -330,6 +370,7 @@ def simulate(
         initial_position=initial_position,
         initial_orientation=initial_orientation,
         initial_velocity=initial_velocity,
+        fossen_coriolis=fossen_coriolis,
     )
     n_ticks = round(duration_s * 1e9) // (sim.dt_ns * sim.publish_every)
     records: list[tuple[Any, ...]] = []
@@ -337,6 +378,7 @@ def simulate(
     sim.advance_steps(n_ticks * sim.publish_every, records)
     wall = time.perf_counter() - t0
     info = _info(vehicle, sim.dt, publish_rate, seed, implicit_added_mass, legacy_coriolis)
+    info["fossen_coriolis"] = fossen_coriolis
     info.update(steps=sim.step, wall_time_s=wall, warnings=list(sim.warnings))
     return _result_from_records(records, sim.dt_ns * sim.publish_every, camera_offset, info)
 
@@ -372,6 +414,7 @@ def simulate_batch(
     implicit_added_mass: bool = False,
     legacy_coriolis: bool = False,
     camera_offset: Sequence[float] = DEFAULT_CAMERA_OFFSET,
+    fossen_coriolis: bool = False,
 ) -> list[SimResult]:
     """Run N vehicles in one vectorised state (each state variable an (N,) array).
 
@@ -406,6 +449,7 @@ def simulate_batch(
                 implicit_added_mass=implicit_added_mass,
                 legacy_coriolis=legacy_coriolis,
                 camera_offset=camera_offset,
+                fossen_coriolis=fossen_coriolis,
             )
         ]
     dt_ns, pe = _check_timing(dt, publish_rate)
@@ -419,14 +463,16 @@ def simulate_batch(
         legacy_coriolis=legacy_coriolis,
         has_current=has_current,
         wrench_frame=frames.pop(),
+        fossen_coriolis=fossen_coriolis,
     )
     kernel = get_kernel(params.structure)
-    state = initial_state(n)
+    default_cur = np.stack([v.default_current for v in vs])  # (N, 3)
+    cur0 = np.stack([p.current(np.array([0.0]))[0] for p in ins]) + default_cur
+    state = _with_history(initial_state(n), cur0, implicit_added_mass)
     n_ticks = round(duration_s * 1e9) // (dt_ns * pe)
     total = n_ticks * pe
     rec = np.empty((n_ticks + 1, N_STATE, n))
     rec[0] = np.asarray(state)
-    default_cur = np.stack([v.default_current for v in vs])  # (N, 3)
     chunk = max(pe, (CHUNK_STEPS // pe) * pe)
     t0 = time.perf_counter()
     step = 0
@@ -461,6 +507,7 @@ def simulate_batch(
     out = []
     for i, v in enumerate(vs):
         info = _info(v, dt, publish_rate, seed, implicit_added_mass, legacy_coriolis)
+        info["fossen_coriolis"] = fossen_coriolis
         info.update(
             steps=total,
             wall_time_s=wall,
