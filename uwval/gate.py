@@ -364,7 +364,7 @@ def check_baseline(table: ResultsTable, baseline: ResultsTable,
     tol = tolerance or BaselineTolerance()
     key = ["run", "topic", "axis", "metric"]
     base = baseline.df[baseline.df["metric"].isin(tol.metrics)]
-    cur = table.df[[*key, "value"]].rename(columns={"value": "current"})
+    cur = table.df[[*key, "value"]].rename(columns={"value": "_current_value"})
     merged = base.merge(cur, on=key, how="left", indicator=True)
     result = GateResult()
     for _, row in merged.iterrows():
@@ -378,7 +378,7 @@ def check_baseline(table: ResultsTable, baseline: ResultsTable,
             result.violations.append(Violation("missing", value=math.nan, bound=b, op="",
                                                **common))
             continue
-        v = float(row["current"])
+        v = float(row["_current_value"])
         if math.isnan(b):
             result.skipped.append(f"{metric} {row['run']}/{row['topic']}/{row['axis']}: "
                                   "undefined in the baseline")

@@ -85,12 +85,10 @@ def _number(v: Any) -> float | None:
 def topic_results(obj: Mapping[str, Any]) -> list[tuple[str, dict[str, Any]]]:
     """Split one compare JSON into ``(topic, ComparisonResult JSON)`` pairs.
 
-    Accepts a single ComparisonResult JSON (has ``axes``) or a LogComparison JSON whose
-    per-topic results sit under ``topics`` (a mapping topic -> result, or a list of results
-    carrying ``topic``/``name``), or under ``results``/``comparisons``.
+    Accepts a LogComparison JSON, whose per-topic results sit under ``topics`` (a mapping
+    topic -> result, or a list of results carrying ``topic``/``name``; preferred when present,
+    as its top level repeats the vehicle topic), or a single ComparisonResult JSON (``axes``).
     """
-    if "axes" in obj:
-        return [(_topic_name(obj, ""), dict(obj))]
     for key in ("topics", "results", "comparisons", "pairs"):
         sect = obj.get(key)
         if isinstance(sect, Mapping):
@@ -105,6 +103,8 @@ def topic_results(obj: Mapping[str, Any]) -> list[tuple[str, dict[str, Any]]]:
                    if isinstance(r, Mapping) and "axes" in r]
             if out:
                 return out
+    if "axes" in obj:
+        return [(_topic_name(obj, ""), dict(obj))]
     raise ConfigError(
         "comparison JSON has neither 'axes' (one topic pair) nor per-topic results under "
         f"'topics'; keys present: {sorted(obj)}"

@@ -1,0 +1,66 @@
+"""Render a :class:`reports.content.Report` into one self-contained HTML file.
+
+Everything is inline: CSS from ``templates/report.css``, figures as base64 PNG ``data:``
+URIs, no scripts, no fonts or other network resources, so the file opens offline and in CI
+artifacts viewers alike.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+from pathlib import Path
+
+from jinja2 import Environment, FileSystemLoader, StrictUndefined, select_autoescape
+from matplotlib.figure import Figure
+
+from reports.content import Plot, Report
+from uwval.errors import UwvalError
+
+TEMPLATES = Path(__file__).resolve().parent / "templates"
+
+
+class ReportError(UwvalError):
+    """The report cannot be written (output path not writable, template error)."""
+
+
+def figure_png_base64(fig: Figure, dpi: int = 90) -> str:
+    """A figure as base64 PNG (for ``<img src="data:image/png;base64,...">``)."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    # the layout is solved now: freeze it so the PDF pass does not solve it again
+    fig.set_layout_engine("none")
+    return base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def environment() -> Environment:
+    """The jinja2 environment over ``reports/templates`` (autoescaped, strict)."""
+    return Environment(
+        loader=FileSystemLoader(str(TEMPLATES)),
+        autoescape=select_autoescape(["html", "j2"]),
+        undefined=StrictUndefined,
+        trim_blocks=True,
+        lstrip_blocks=True,
+    )
+
+
+def render_html(report: Report) -> str:
+    """The report as an HTML string (figures rendered to PNG on the way)."""
+    for sec in report.sections:
+        for block in sec.blocks:
+            if isinstance(block, Plot) and not block.png_base64:
+                block.png_base64 = figure_png_base64(block.figure)
+    env = environment()
+    css = (TEMPLATES / "report.css").read_text()
+    return env.get_template("report.html.j2").render(report=report, css=css)
+
+
+def write_html(report: Report, path: Path) -> Path:
+    """Write the report's HTML to ``path`` (parents created)."""
+    text = render_html(report)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise ReportError(f"{path}: cannot write the HTML report: {exc}") from exc
+    return path

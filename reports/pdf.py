@@ -1,0 +1,157 @@
+"""Render a :class:`reports.content.Report` into a paginated PDF (matplotlib PdfPages).
+
+The same sections as the HTML page, in the same order: text and tables are laid out on A4
+pages (long tables continue on the next page, wide ones shrink their font), each figure
+gets its own page. No dependency beyond matplotlib.
+"""
+
+from __future__ import annotations
+
+import textwrap
+from datetime import datetime, timezone
+from pathlib import Path
+
+from matplotlib.backends.backend_pdf import PdfPages
+from matplotlib.figure import Figure
+from matplotlib.transforms import Bbox
+
+from reports.content import Plot, Report, Section, Table, Text
+from reports.html import ReportError
+
+A4 = (8.27, 11.69)  # inches, portrait
+MARGIN = 0.06  # fraction of the page
+LINE = 0.018  # fraction of the page height per text line at 9 pt
+ROWS_PER_PAGE = 42
+COLOURS = {"pass": "#1a7f37", "fail": "#cf222e", "neutral": "#57606a", "": "#1f2328"}
+
+
+class _Pager:
+    """Lays text and tables out top to bottom, starting a new A4 page when one is full."""
+
+    def __init__(self, pdf: PdfPages, report: Report) -> None:
+        self.pdf = pdf
+        self.report = report
+        self.fig: Figure | None = None
+        self.y = 1.0
+        self.page = 0
+
+    def new_page(self) -> Figure:
+        self.flush()
+        self.fig = Figure(figsize=A4)
+        self.page += 1
+        self.fig.text(MARGIN, 0.02, f"{self.report.title} - page {self.page}", fontsize=7,
+                      color="#57606a")
+        self.y = 1.0 - MARGIN
+        return self.fig
+
+    def flush(self) -> None:
+        if self.fig is not None:
+            self.pdf.savefig(self.fig)
+            self.fig.clear()
+            self.fig = None
+
+    def need(self, height: float) -> Figure:
+        if self.fig is None or self.y - height < MARGIN + 0.02:
+            return self.new_page()
+        return self.fig
+
+    def text(self, s: str, size: float = 9, weight: str = "normal", colour: str = "#1f2328",
+             width: int = 110) -> None:
+        lines = []
+        for para in s.splitlines() or [""]:
+            lines += textwrap.wrap(para, width=width) or [""]
+        for line in lines:
+            fig = self.need(LINE * size / 9)
+            fig.text(MARGIN, self.y, line, fontsize=size, weight=weight, color=colour, va="top",
+                     family="DejaVu Sans")
+            self.y -= LINE * size / 9
+
+    def table(self, t: Table) -> None:
+        rows = t.rows or [["(no rows)"] + [""] * (len(t.columns) - 1)]
+        ncols = max(1, len(t.columns))
+        size = 7.0 if ncols <= 8 else max(4.0, 7.0 - 0.25 * (ncols - 8))
+        for start in range(0, len(rows), ROWS_PER_PAGE):
+            chunk = rows[start:start + ROWS_PER_PAGE]
+            row_h = 0.016 * size / 7
+            height = row_h * (len(chunk) + 1) + 0.03
+            fig = self.need(height)
+            cont = " (continued)" if start else ""
+            fig.text(MARGIN, self.y, t.title + cont, fontsize=8.5, weight="bold", va="top")
+            self.y -= 0.02
+            ax = fig.add_axes((MARGIN, self.y - row_h * (len(chunk) + 1), 1 - 2 * MARGIN,
+                               row_h * (len(chunk) + 1)))
+            ax.axis("off")
+            tab = ax.table(cellText=[[_clip(c) for c in r] for r in chunk],
+                           colLabels=[_clip(c) for c in t.columns], loc="upper left",
+                           cellLoc="right", colLoc="center", bbox=Bbox.from_bounds(0, 0, 1, 1))
+            tab.auto_set_font_size(False)
+            tab.set_fontsize(size)
+            for (r, c), cell in tab.get_celld().items():
+                cell.set_linewidth(0.3)
+                if r == 0:
+                    cell.set_facecolor("#f0f2f5")
+                    cell.set_text_props(weight="bold")
+                elif t.flag(start + r - 1, c) == "bad":
+                    cell.set_facecolor("#ffebe9")
+                elif t.flag(start + r - 1, c) == "warn":
+                    cell.set_facecolor("#fff8c5")
+            self.y -= row_h * (len(chunk) + 1) + 0.012
+        if t.caption:
+            self.text(t.caption, size=7, colour="#57606a", width=140)
+        self.y -= 0.008
+
+
+def _clip(s: str, n: int = 48) -> str:
+    s = str(s)
+    return s if len(s) <= n else s[: n - 3] + "..."
+
+
+def write_pdf(report: Report, path: Path) -> Path:
+    """Write the report as a PDF to ``path``; returns the path."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with PdfPages(path) as pdf:
+            pager = _Pager(pdf, report)
+            pager.new_page()
+            pager.text(report.title, size=16, weight="bold")
+            pager.text(report.subtitle, size=9, colour="#57606a")
+            colour = COLOURS["pass" if report.verdict == "PASS" else
+                             "fail" if report.verdict == "FAIL" else "neutral"]
+            pager.text(f"Verdict: {report.verdict}", size=14, weight="bold", colour=colour)
+            pager.text(f"generated {report.generated}", size=8, colour="#57606a")
+            pager.y -= 0.01
+            for sec in report.sections:
+                _section(pager, sec)
+            pager.flush()
+            meta = pdf.infodict()
+            meta["Title"] = report.title
+            meta["Subject"] = f"verdict {report.verdict}"
+            meta["Creator"] = "uwval"
+            meta["CreationDate"] = datetime.now(timezone.utc)
+    except OSError as exc:
+        raise ReportError(f"{path}: cannot write the PDF report: {exc}") from exc
+    return path
+
+
+def _section(pager: _Pager, sec: Section) -> None:
+    pager.need(0.08)
+    pager.text(sec.title, size=13 if sec.level <= 2 else 11, weight="bold")
+    pager.y -= 0.006
+    for b in sec.blocks:
+        if isinstance(b, Text):
+            if b.kind == "list":
+                for line in b.text:
+                    pager.text(f"- {line}", colour=COLOURS.get(b.css, COLOURS[""]))
+            else:
+                pager.text(str(b.text), colour=COLOURS.get(b.css, COLOURS[""]),
+                           weight="bold" if b.css in ("pass", "fail") else "normal")
+        elif isinstance(b, Table):
+            pager.table(b)
+        elif isinstance(b, Plot):
+            pager.flush()  # a figure gets a page of its own, at its own size
+            fig = b.figure
+            note = fig.text(0.01, 0.003, f"{b.title}. {b.caption}", fontsize=7, color="#57606a",
+                            va="bottom")
+            pager.pdf.savefig(fig)
+            note.remove()
+            pager.page += 1

@@ -1,0 +1,256 @@
+"""The report's figures (matplotlib, Agg backend): one function per plot, each returns a Figure.
+
+All positions are ENU metres (x east, y north, z up); angles are ROS roll/pitch/yaw in
+degrees. "Gazebo" is the reference stream, "Unity" the other one, converted back to ENU/FLU
+and aligned in time by the compare engine. Figures are rendered by :mod:`reports.render`
+both into the HTML page (PNG, base64) and into the PDF.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any, Protocol
+
+import matplotlib
+
+matplotlib.use("Agg")  # headless: CI machines have no display
+
+import numpy as np
+from matplotlib.figure import Figure
+from numpy.typing import NDArray
+
+from uwval.posestream import PoseStream
+from uwval.results import AXES, AXIS_UNITS, ResultsTable, main_effects
+from uwval.rotations import rpy_from_quat
+
+F64 = NDArray[np.float64]
+
+GAZEBO_STYLE: dict[str, Any] = {"color": "#1f77b4", "lw": 1.6, "label": "Gazebo (reference)"}
+UNITY_STYLE: dict[str, Any] = {"color": "#d62728", "lw": 1.2, "ls": "--", "label": "Unity"}
+AXIS_COLOURS = {"x": "#1f77b4", "y": "#2ca02c", "z": "#9467bd",
+                "roll": "#ff7f0e", "pitch": "#8c564b", "yaw": "#e377c2"}
+
+
+class AlignedPair(Protocol):
+    """What a per-run plot needs from a ComparisonResult (``uwval.comparison``).
+
+    ``t`` are the common stamps (int64 ns); ``reference``/``other`` the aligned streams in
+    ENU/FLU; ``errors`` the signed per-axis error arrays (m for x y z, deg for roll pitch yaw).
+    """
+
+    t: NDArray[np.int64]
+    reference: PoseStream
+    other: PoseStream
+    errors: Mapping[str, F64]
+
+
+def _new_figure(w: float, h: float) -> Figure:
+    # Figure() directly (not pyplot): no global state, safe in threads, freed when dropped
+    return Figure(figsize=(w, h), dpi=100, layout="constrained")
+
+
+def axis_series(stream: PoseStream, ref_rpy_deg: F64 | None = None) -> dict[str, F64]:
+    """Per-axis series of a stream: x y z (m) and roll pitch yaw (deg, unwrapped in time).
+
+    With ``ref_rpy_deg`` the angles are shifted by whole turns to sit next to the reference
+    (so a 359 deg vs 1 deg pair plots as 359 vs 361, matching the wrapped error of 2 deg).
+    """
+    rpy = np.degrees(np.unwrap(rpy_from_quat(stream.orientation), axis=0))
+    if ref_rpy_deg is not None and len(rpy) == len(ref_rpy_deg) and len(rpy):
+        rpy = rpy + 360.0 * np.round((ref_rpy_deg - rpy) / 360.0)
+    out = {a: stream.position[:, i] for i, a in enumerate(("x", "y", "z"))}
+    out.update({a: rpy[:, i] for i, a in enumerate(("roll", "pitch", "yaw"))})
+    return out
+
+
+def pair_series(pair: AlignedPair) -> tuple[F64, dict[str, F64], dict[str, F64]]:
+    """(time in s from the first sample, Gazebo series, Unity series) of an aligned pair."""
+    t = np.asarray(pair.t, dtype=np.int64)
+    ts = (t - t[0]).astype(np.float64) * 1e-9 if len(t) else np.zeros(0)
+    ref = axis_series(pair.reference)
+    ref_rpy = np.stack([ref["roll"], ref["pitch"], ref["yaw"]], axis=1)
+    oth = axis_series(pair.other, ref_rpy)
+    return ts, ref, oth
+
+
+def _decimate(n: int, max_points: int = 4000) -> slice:
+    """A stride that keeps plots light: figures never need more than a few thousand points."""
+    return slice(None, None, max(1, math.ceil(n / max_points)))
+
+
+def trajectory_figure(pair: AlignedPair, title: str = "") -> Figure:
+    """Trajectory overlay seen from above (x-y) and from the side (x-z), Gazebo vs Unity."""
+    fig = _new_figure(10, 4.4)
+    ax_top, ax_side = fig.subplots(1, 2)
+    ref, oth = pair.reference.position, pair.other.position
+    s = _decimate(len(ref))
+    for ax, (i, j), view in ((ax_top, (0, 1), "from above"), (ax_side, (0, 2), "from the side")):
+        ax.plot(ref[s, i], ref[s, j], **GAZEBO_STYLE)
+        ax.plot(oth[s, i], oth[s, j], **UNITY_STYLE)
+        if len(ref):
+            ax.plot(ref[0, i], ref[0, j], "o", color="black", ms=5, label="start")
+            ax.plot(ref[-1, i], ref[-1, j], "s", color="black", ms=5, label="end")
+        ax.set_xlabel("x east (m)")
+        ax.set_ylabel("y north (m)" if j == 1 else "z up (m)")
+        ax.set_title(f"Trajectory {view}")
+        ax.grid(True, alpha=0.3)
+        ax.set_aspect("equal", adjustable="datalim")
+    ax_top.legend(loc="best", fontsize=8)
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def timeseries_figure(pair: AlignedPair, title: str = "") -> Figure:
+    """Per axis: Gazebo and Unity over time (left) and the signed error over time (right)."""
+    ts, ref, oth = pair_series(pair)
+    s = _decimate(len(ts))
+    fig = _new_figure(11, 13)
+    axes = fig.subplots(6, 2, sharex=True)
+    for row, a in enumerate(AXES):
+        unit = AXIS_UNITS[a]
+        left, right = axes[row]
+        left.plot(ts[s], ref[a][s], **GAZEBO_STYLE)
+        left.plot(ts[s], oth[a][s], **UNITY_STYLE)
+        left.set_ylabel(f"{a} ({unit})")
+        left.grid(True, alpha=0.3)
+        err = np.asarray(pair.errors.get(a, oth[a] - ref[a]), dtype=np.float64)
+        right.plot(ts[s][: len(err[s])], err[s], color=AXIS_COLOURS[a], lw=1.0,
+                   label="signed error (Unity - Gazebo)")
+        right.fill_between(ts[s][: len(err[s])], np.abs(err[s]), color=AXIS_COLOURS[a],
+                           alpha=0.2, label="absolute error")
+        right.axhline(0.0, color="black", lw=0.6)
+        right.set_ylabel(f"error {a} ({unit})")
+        right.grid(True, alpha=0.3)
+        if row == 0:
+            left.set_title("Pose: Gazebo vs Unity")
+            right.set_title("Error: Unity - Gazebo")
+            left.legend(loc="best", fontsize=8)
+            right.legend(loc="best", fontsize=8)
+    axes[-1][0].set_xlabel("time (s)")
+    axes[-1][1].set_xlabel("time (s)")
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def scatter_figure(pair: AlignedPair, pearson: Mapping[str, float | None] | None = None,
+                   title: str = "") -> Figure:
+    """Unity vs Gazebo per axis with the y = x line and Pearson r (from the compare JSON)."""
+    _, ref, oth = pair_series(pair)
+    fig = _new_figure(11, 7)
+    grid = fig.subplots(2, 3)
+    for k, a in enumerate(AXES):
+        ax = grid[k // 3][k % 3]
+        x, y = ref[a], oth[a]
+        s = _decimate(len(x), 3000)
+        ax.scatter(x[s], y[s], s=4, alpha=0.5, color=AXIS_COLOURS[a], label="samples")
+        if len(x):
+            lo = float(min(x.min(), y.min()))
+            hi = float(max(x.max(), y.max()))
+            pad = 0.05 * (hi - lo) if hi > lo else 1e-3
+            ax.plot([lo - pad, hi + pad], [lo - pad, hi + pad], color="black", lw=0.8,
+                    label="y = x")
+        r = (pearson or {}).get(a)
+        ax.set_title(f"{a}: r = {r:.5f}" if r is not None else f"{a}: r undefined")
+        unit = AXIS_UNITS[a]
+        ax.set_xlabel(f"Gazebo {a} ({unit})")
+        ax.set_ylabel(f"Unity {a} ({unit})")
+        ax.grid(True, alpha=0.3)
+        if k == 0:
+            ax.legend(loc="best", fontsize=8)
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def box_mae_figure(table: ResultsTable, factor: str, topic: str,
+                   metric: str = "mae") -> Figure:
+    """Box plots of ``metric`` (default MAE) per level of ``factor``, one panel per axis."""
+    fig = _new_figure(11, 6.5)
+    grid = fig.subplots(2, 3)
+    sub = table.select(metric=metric, topic=topic)
+    levels = sorted(sub[factor].dropna().unique().tolist(),
+                    key=lambda v: (0, v) if isinstance(v, (int, float)) else (1, str(v)))
+    for k, a in enumerate(AXES):
+        ax = grid[k // 3][k % 3]
+        rows = sub[sub["axis"] == a]
+        data = [rows.loc[rows[factor] == lv, "value"].dropna().to_numpy() for lv in levels]
+        if any(len(d) for d in data):
+            ax.boxplot([d if len(d) else np.array([np.nan]) for d in data],
+                       tick_labels=[_fmt(lv) for lv in levels], showmeans=True)
+        ax.set_title(f"{metric.upper()} {a}")
+        ax.set_xlabel(factor)
+        ax.set_ylabel(f"{metric} ({AXIS_UNITS[a]})")
+        ax.grid(True, axis="y", alpha=0.3)
+    fig.suptitle(f"{topic}: {metric.upper()} per level of {factor} (box: runs; triangle: mean)")
+    return fig
+
+
+def main_effects_figure(table: ResultsTable, topic: str, metric: str = "mae") -> Figure:
+    """Main-effects plot: mean ``metric`` per factor level, position axes (m) above and
+    rotation axes (deg) below, one column per factor."""
+    factors = table.varying_factors() or table.factors
+    eff = main_effects(table, metric=metric)
+    eff = eff[eff["topic"] == topic]
+    ncol = max(1, len(factors))
+    fig = _new_figure(max(4.0 * ncol, 6.0), 6.5)
+    grid = np.atleast_2d(fig.subplots(2, ncol, squeeze=False))
+    for c, f in enumerate(factors):
+        for r, group in enumerate((("x", "y", "z"), ("roll", "pitch", "yaw"))):
+            ax = grid[r][c]
+            for a in group:
+                rows = eff[(eff["factor"] == f) & (eff["axis"] == a)]
+                if rows.empty:
+                    continue
+                levels = rows["level"].tolist()
+                xs = np.arange(len(levels))
+                ax.plot(xs, rows["mean"].to_numpy(), "o-", color=AXIS_COLOURS[a], label=a)
+                ax.set_xticks(xs, [_fmt(v) for v in levels])
+            ax.set_xlabel(f)
+            ax.set_ylabel(f"mean {metric} ({'m' if r == 0 else 'deg'})")
+            ax.grid(True, alpha=0.3)
+            if c == 0:
+                ax.legend(loc="best", fontsize=8)
+    fig.suptitle(f"{topic}: main effects on {metric.upper()}")
+    return fig
+
+
+def bridge_figure(stats: Mapping[str, Mapping[str, Any]]) -> Figure | None:
+    """Bar charts of the numeric bridge statistics per run (latency in ms, drops...)."""
+    keys: list[str] = []
+    for s in stats.values():
+        for k, v in s.items():
+            if isinstance(v, (int, float)) and not isinstance(v, bool) and k not in keys:
+                keys.append(k)
+    if not keys or not stats:
+        return None
+    keys = keys[:6]
+    runs = list(stats)
+    fig = _new_figure(11, 2.6 * math.ceil(len(keys) / 2))
+    grid = np.atleast_2d(fig.subplots(math.ceil(len(keys) / 2), 2, squeeze=False))
+    for i, key in enumerate(keys):
+        ax = grid[i // 2][i % 2]
+        vals = [float(stats[r].get(key, np.nan)) if isinstance(stats[r].get(key), (int, float))
+                else np.nan for r in runs]
+        ax.bar(np.arange(len(runs)), vals, color="#4c72b0")
+        ax.set_xticks(np.arange(len(runs)), runs, rotation=45, ha="right", fontsize=7)
+        ax.set_title(key)
+        ax.grid(True, axis="y", alpha=0.3)
+    for i in range(len(keys), grid.size):
+        grid[i // 2][i % 2].set_visible(False)
+    fig.suptitle("Bridge statistics per run")
+    return fig
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:g}"
+    return str(v)
+
+
+def close(figs: Sequence[Figure]) -> None:
+    """Release figures' memory (Figure objects made without pyplot need no pyplot.close)."""
+    for f in figs:
+        f.clear()
