@@ -314,3 +314,25 @@ def test_old_type_names_without_msg_are_normalised() -> None:
     infos = list_topics(BAGS / "rosbag2" / "test_bag_for_seek")
     assert infos[0].type == "test_msgs/msg/BasicTypes"
     assert infos[0].count == 5
+
+
+@pytest.mark.parametrize("name", ["evo/ROS_example.bag", "evo/tf_example.bag",
+                                  "rosbag_js/example.bag", "rosbag_js/example-lz4.bag",
+                                  "rosbag_js/example-bz2.bag",
+                                  "rosbag_js/example-unsorted-chunks.bag",
+                                  "rosbag_js/no-messages.bag"])
+def test_fast_ros1_scanner_equals_rosbags_reader(name: str) -> None:
+    """uwval's chunk/index scanner returns the same topics, times and payloads as rosbags."""
+    from uwval.io.bag1_raw import scan_bag1
+    from uwval.io.containers import _scan_bag1_rosbags
+
+    path = BAGS / name
+    fast = scan_bag1(path, None)
+    ref = _scan_bag1_rosbags(path, None, False)
+    assert sorted(fast.topics, key=lambda i: i.name) == sorted(ref.topics, key=lambda i: i.name)
+    assert fast.raw.keys() == ref.raw.keys()
+    for n, a in fast.raw.items():
+        b = ref.raw[n]
+        ka = sorted(zip(a.log_time.tolist(), (a.payload(i) for i in range(len(a))), strict=True))
+        kb = sorted(zip(b.log_time.tolist(), (b.payload(i) for i in range(len(b))), strict=True))
+        assert ka == kb, n

@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 import sqlite3
+import struct
 import tempfile
 from collections.abc import Iterable
 from pathlib import Path
@@ -72,6 +73,17 @@ def scan_log(path: Path, topics: Iterable[str] | None, *, times_only: bool = Fal
 
 # ---------------------------------------------------------------- ROS 1 bag
 def _scan_bag1(path: Path, topics: Iterable[str] | None, times_only: bool) -> RawLog:
+    """Fast scanner first; bags it cannot follow go through rosbags (clear error messages)."""
+    from uwval.io.bag1_raw import BagFormatError, scan_bag1
+
+    topic_list = None if topics is None else list(topics)
+    try:
+        return scan_bag1(path, topic_list, times_only=times_only)
+    except (BagFormatError, KeyError, IndexError, ValueError, struct.error, OSError):
+        return _scan_bag1_rosbags(path, topic_list, times_only)
+
+
+def _scan_bag1_rosbags(path: Path, topics: Iterable[str] | None, times_only: bool) -> RawLog:
     from rosbags.rosbag1 import Reader, ReaderError
 
     want = None if topics is None else {norm_topic(t) for t in topics}
