@@ -120,3 +120,15 @@ def test_inspect_real_bag_json() -> None:
     assert proc.returncode == 0, proc.stderr
     counts = {t["name"]: t["count"] for t in json.loads(proc.stdout)["topics"]}
     assert counts == {"/groundtruth": 12765, "/ORB-SLAM": 8362, "/S-PTAM": 5439}
+
+
+@pytest.mark.skipif(not (DATA / "evo").exists(), reason="shared/data not present")
+@pytest.mark.parametrize("name", ["freiburg1_xyz-groundtruth.txt", "fr2_desk_ORB.txt"])
+def test_tum_text_dispatches_to_read_tum(name: str) -> None:
+    path = DATA / "evo" / name
+    ref = np.loadtxt(path, comments="#")
+    s = read_stream(path, "")
+    assert s.frame == "enu"
+    assert len(s) == len(np.unique(ref[:, 0]))
+    order = np.argsort(ref[:, 0], kind="stable")
+    np.testing.assert_allclose(s.position[0], ref[order[0], 1:4])

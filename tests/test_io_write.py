@@ -256,3 +256,40 @@ def test_fast_path_leaves_odd_payloads_to_rosbags() -> None:
     dec = decode_poses(raw2.build())
     np.testing.assert_array_equal(dec.pose[0], dec.pose[1])
     assert dec.stamp.tolist() == [123_000_000_007] * 2
+
+
+@pytest.mark.parametrize("mode", ["FILE", "MESSAGE"])
+def test_rosbag2_zstd_compressed_bags_read(tmp_path: Path, mode: str) -> None:
+    """rosbag2 sqlite3 bags with zstd file or message compression (written by rosbags)."""
+    from rosbags.rosbag2 import Writer
+    from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
+
+    s = _stream(120)
+    path = tmp_path / f"z_{mode.lower()}"
+    store = typestore(2)
+    w = Writer(path, version=9)
+    w.set_compression(CompressionMode[mode], CompressionFormat.ZSTD)
+    with w:
+        conn = w.add_connection(TOPIC, "geometry_msgs/msg/PoseStamped", typestore=store)
+        rows = encode_pose_stamped(s.t, s.position, s.orientation, "world")
+        for i in range(len(s)):
+            w.write(conn, int(s.t[i]), rows[i].tobytes())
+    r = read_stream(path, TOPIC)
+    np.testing.assert_array_equal(r.position, s.position)
+    np.testing.assert_array_equal(r.t, s.t)
+
+
+def test_pose_without_header_is_stamped_with_log_time(tmp_path: Path) -> None:
+    store = typestore(2)
+    T = store.types
+    path = tmp_path / "pose.mcap"
+    with open_writer(path) as w:
+        for i in range(10):
+            m = T["geometry_msgs/msg/Pose"](
+                position=T["geometry_msgs/msg/Point"](x=float(i), y=0.0, z=0.0),
+                orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
+            w.write_raw("/pose_only", "geometry_msgs/msg/Pose",
+                        bytes(store.serialize_cdr(m, "geometry_msgs/msg/Pose")), 10**9 + i * 10**8)
+    s = read_stream(path, "pose_only")
+    np.testing.assert_array_equal(s.t, 10**9 + np.arange(10) * 10**8)
+    np.testing.assert_array_equal(s.position[:, 0], np.arange(10.0))
