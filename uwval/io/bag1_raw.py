@@ -108,8 +108,9 @@ def _scan(path: Path, mm: mmap.mmap, size: int, topics: Iterable[str] | None,
     index_pos = struct.unpack("<Q", hdr["index_pos"][:8])[0]
     n_conn = _u32(hdr["conn_count"])
     n_chunk = _u32(hdr["chunk_count"])
-    if index_pos == 0 or index_pos > size:
-        raise BagFormatError("bag is not indexed (index_pos missing)")
+    if index_pos == 0 or index_pos >= size:
+        # Never closed (recorder killed) or cut short: recover what the chunks hold.
+        return _walk_unindexed(path, mm, size, _nxt, topics)
     conns: dict[int, _Conn] = {}
     chunk_pos: list[int] = []
     pos = index_pos
@@ -192,4 +193,69 @@ def _scan(path: Path, mm: mmap.mmap, size: int, topics: Iterable[str] | None,
     log = RawLog(path, list(infos.values()), raw)
     if not infos:
         log.notes.append("bag has no connections and no messages")
+    return log
+
+
+def _walk_unindexed(path: Path, mm: mmap.mmap, size: int, pos: int,
+                    topics: Iterable[str] | None) -> RawLog:
+    """Linear walk over the records of a bag without a usable index (slow path).
+
+    Complete chunks are decoded record by record; the walk stops at the first record that
+    is cut off, and the bytes after it are reported as lost.
+    """
+    want = None if topics is None else {norm_topic(t) for t in topics}
+    conns: dict[int, _Conn] = {}
+    payloads: dict[int, list[bytes]] = {}
+    stamps: dict[int, list[int]] = {}
+    lost = 0
+
+    def records(b: bytes | mmap.mmap, start: int, end: int) -> None:
+        q = start
+        while q < end:
+            h, ds, dl, q = _record(b, q, end)
+            op = h["op"][0]
+            if op == OP_CONNECTION:
+                d = _fields(b, ds, ds + dl)
+                cid = _u32(h["conn"])
+                conns[cid] = _Conn(cid, h["topic"].decode(), d["type"].decode(),
+                                   d.get("message_definition", b"").decode(errors="replace"))
+            elif op == OP_MSG_DATA:
+                cid = _u32(h["conn"])
+                sec, nsec = struct.unpack("<II", h["time"][:8])
+                payloads.setdefault(cid, []).append(bytes(b[ds : ds + dl]))
+                stamps.setdefault(cid, []).append(sec * 1_000_000_000 + nsec)
+
+    while pos < size:
+        try:
+            h, ds, dl, nxt = _record(mm, pos, size)
+            if h["op"][0] == OP_CHUNK:
+                data = _decompress(h["compression"].decode(), mm[ds : ds + dl], _u32(h["size"]))
+                records(data, 0, len(data))
+            elif h["op"][0] in (OP_CONNECTION, OP_MSG_DATA):
+                records(mm, pos, nxt)
+        except (BagFormatError, KeyError, OSError, ValueError, EOFError):
+            lost = size - pos
+            break
+        pos = nxt
+    builders: dict[str, TopicBuilder] = {}
+    infos: dict[str, TopicInfo] = {}
+    for cid, c in conns.items():
+        name = norm_topic(c.topic)
+        t = stamps.get(cid, [])
+        old = infos.get(name)
+        lo = [min(t)] if t else []
+        hi = [max(t)] if t else []
+        if old is not None and old.count:
+            lo.append(old.start_ns)
+            hi.append(old.end_ns)
+        infos[name] = TopicInfo(name, normalize_type_name(c.msgtype),
+                                len(t) + (old.count if old else 0),
+                                min(lo) if lo else 0, max(hi) if hi else 0)
+        if want is None or name in want:
+            b = builders.setdefault(name, TopicBuilder(name, normalize_type_name(c.msgtype),
+                                                       "ros1", c.msgdef))
+            b.add_payloads(payloads.get(cid, []), t)
+    log = RawLog(path, list(infos.values()), {n: b.build() for n, b in builders.items()},
+                 lost_bytes=lost)
+    log.notes.append("bag has no index (not closed): recovered by a linear walk")
     return log

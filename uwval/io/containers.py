@@ -60,6 +60,16 @@ def scan_log(path: Path, topics: Iterable[str] | None, *, times_only: bool = Fal
     kind = log_kind(path)
     if path.is_file() and path.stat().st_size == 0:
         raise LogReadError(f"{path}: file is empty (0 bytes)")
+    try:
+        return _scan_kind(path, kind, topics, times_only)
+    except LogReadError:
+        raise
+    except (struct.error, ValueError, IndexError, KeyError, OSError, EOFError) as exc:
+        # Damaged bytes that the format checks above did not anticipate: still no traceback.
+        raise LogReadError(f"{path}: damaged {kind} log: {type(exc).__name__}: {exc}") from exc
+
+
+def _scan_kind(path: Path, kind: str, topics: Iterable[str] | None, times_only: bool) -> RawLog:
     if kind == "mcap":
         return scan_mcap(path, topics, times_only=times_only)
     if kind == "bag":

@@ -240,6 +240,18 @@ def _merge_infos(infos: list[TopicInfo]) -> list[TopicInfo]:
     return list(out.values())
 
 
+def _index_fits(mv: memoryview, wanted: dict[int, tuple[int, int]], size: int) -> bool:
+    """Whether every MessageIndex entry points at a Message record inside the chunk."""
+    for s, n in wanted.values():
+        if n % 16:
+            return False
+        if n:
+            rec = np.frombuffer(mv[s : s + n], dtype="<u8").reshape(-1, 2)[:, 1]
+            if int(rec.max()) + 31 > size:
+                return False
+    return True
+
+
 def _chunk(path: Path, mv: memoryview, chunk: tuple[int, int],
            indexes: dict[int, tuple[int, int]], tables: _Tables, builder: object,
            trusted_index: bool, times_only: bool) -> int:
@@ -264,7 +276,7 @@ def _chunk(path: Path, mv: memoryview, chunk: tuple[int, int],
     except Exception:
         return ln + 9  # a damaged chunk: its messages are lost, the others still read
     buf = np.frombuffer(data, dtype=np.uint8)
-    if trusted_index and indexes:
+    if trusted_index and indexes and _index_fits(mv, wanted, buf.shape[0]):
         for cid, (s, n) in wanted.items():
             ent = np.frombuffer(mv[s : s + n], dtype="<u8").reshape(-1, 2)
             rec = ent[:, 1].astype(np.int64)
@@ -277,8 +289,13 @@ def _chunk(path: Path, mv: memoryview, chunk: tuple[int, int],
             from uwval.io.fastdecode import gather
 
             rlen_all[:] = gather(buf, rec + 1, 8).view("<u8").reshape(-1)
+            if (rlen_all < 22).any() or (rec + 9 + rlen_all > buf.shape[0]).any():
+                break  # a damaged record length: walk the chunk instead (bounds-checked)
             get(cid).add(buf, rec + 31, rlen_all - 22, log_time)  # type: ignore[operator]
-        return 0
+        else:
+            return 0
+        for cid in wanted:
+            get(cid).drop_last_from(buf)  # type: ignore[operator]
     # No usable index: walk the chunk's records.
     offs: dict[int, list[int]] = {}
     lens: dict[int, list[int]] = {}
@@ -290,7 +307,7 @@ def _chunk(path: Path, mv: memoryview, chunk: tuple[int, int],
         cc = q + 9
         if cc + rl > end:
             break
-        if op == OP_MESSAGE:
+        if op == OP_MESSAGE and rl >= 22:
             cid, _seq, lt, _pub = _MSG.unpack_from(data, cc)
             offs.setdefault(cid, []).append(cc + 22)
             lens.setdefault(cid, []).append(rl - 22)
@@ -300,7 +317,8 @@ def _chunk(path: Path, mv: memoryview, chunk: tuple[int, int],
         q = cc + rl
     for cid, o in offs.items():
         lt_arr = np.asarray(times[cid], dtype=np.int64)
-        tables.seen(cid, lt_arr)
+        if not (trusted_index and indexes):  # else already counted from the index
+            tables.seen(cid, lt_arr)
         bld = get(cid)  # type: ignore[operator]
         if bld is not None:
             bld.add(buf, np.asarray(o, dtype=np.int64), np.asarray(lens[cid], dtype=np.int64),

@@ -81,11 +81,23 @@ class TopicBuilder:
         self._times: list[I64] = []
 
     def add(self, buf: U8, offset: I64, length: I64, log_time: I64) -> None:
+        """Add messages ``buf[offset[i] : offset[i] + length[i]]`` (bounds are checked)."""
+        if offset.size and length.any() and (
+            int(offset.min()) < 0 or int(length.min()) < 0
+            or int((offset + length).max()) > buf.shape[0]
+        ):
+            raise ValueError(f"topic {self.name}: a message reaches outside its chunk")
         if offset.size:
             self._bufs.append(buf)
             self._offs.append(offset.astype(np.int64, copy=False))
             self._lens.append(length.astype(np.int64, copy=False))
             self._times.append(log_time.astype(np.int64, copy=False))
+
+    def drop_last_from(self, buf: U8) -> None:
+        """Forget segments added from ``buf`` (a chunk whose index turned out damaged)."""
+        while self._bufs and self._bufs[-1] is buf:
+            for lst in (self._bufs, self._offs, self._lens, self._times):
+                lst.pop()
 
     def add_payloads(self, payloads: list[bytes], log_time: list[int]) -> None:
         """Add per-message byte strings (readers that hand out one message at a time)."""
