@@ -1,0 +1,281 @@
+"""The CI gate: thresholds TOML, golden baselines, `uwval check` exit codes, pytest plugin."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from uwval.errors import ConfigError
+from uwval.gate import (
+    BaselineTolerance,
+    check,
+    check_baseline,
+    load_thresholds,
+    parse_thresholds,
+)
+from uwval.results import ResultsTable, load_experiment_results
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_results import VEHICLE, write_experiment, write_pair_log
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def experiment(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return write_experiment(tmp_path_factory.mktemp("gate-exp"))
+
+
+@pytest.fixture(scope="module")
+def table(experiment: Path) -> ResultsTable:
+    return load_experiment_results(experiment).table
+
+
+def _toml(tmp_path: Path, text: str, name: str = "th.toml") -> Path:
+    p = tmp_path / name
+    p.write_text(textwrap.dedent(text))
+    return p
+
+
+def _x_mae(table: ResultsTable, run: str) -> float:
+    return table.value(run, VEHICLE, "x", "mae")
+
+
+# ----------------------------------------------------------------------------- thresholds
+def test_threshold_violation_lists_metric_topic_axis_levels_value_bound(
+        table: ResultsTable, tmp_path: Path) -> None:
+    ranked = sorted(table.runs, key=lambda r: _x_mae(table, r))
+    worst_run = ranked[-1]
+    worst = _x_mae(table, worst_run)
+    bound = (worst + _x_mae(table, ranked[-2])) / 2  # only the worst run breaks it
+    th = load_thresholds(_toml(tmp_path, f"""
+        [[threshold]]
+        metric = "mae"
+        axes = ["x"]
+        topics = ["{VEHICLE}"]
+        max = {bound!r}
+    """))
+    verdict = check(table, th)
+    assert not verdict.passed
+    assert len(verdict.violations) == 1
+    v = verdict.violations[0]
+    assert (v.metric, v.topic, v.axis, v.run) == ("mae", VEHICLE, "x", worst_run)
+    assert v.value == worst
+    assert v.bound == bound
+    assert v.op == "<="
+    assert v.factors == {"force": 10.0, "torque": 0.0, "current": 0.2}
+    text = verdict.format()
+    assert "FAIL - 1 regression" in text
+    assert f"run={worst_run}" in text
+    assert "axis=x" in text
+    assert "current=0.2" in text
+    assert f"must be <= {bound:.6g} m" in text
+    assert verdict.checked == len(table.runs)
+
+
+def test_min_bound_factor_filter_and_undefined_policy(table: ResultsTable) -> None:
+    # Pearson r of x is > 0.999 everywhere; z is constant (r undefined)
+    ok = check(table, parse_thresholds({"threshold": [
+        {"metric": "pearson_r", "axes": ["x", "z"], "min": 0.99}]}))
+    assert ok.passed
+    assert ok.checked == 2 * 2 * len(table.runs)
+    assert len(ok.skipped) == 2 * len(table.runs)  # both topics' z, skipped with the reason
+    assert "constant" in ok.skipped[0]
+    strict = check(table, parse_thresholds({"threshold": [
+        {"metric": "pearson_r", "axes": ["z"], "min": 0.99, "undefined": "fail"}]}))
+    assert {v.kind for v in strict.violations} == {"undefined"}
+    assert len(strict.violations) == 2 * len(table.runs)
+    # a bound that only the current = 0.2 runs break, restricted to current = 0 -> pass
+    lo = max(_x_mae(table, r) for r in table.runs if "current0_" in r)
+    only0 = parse_thresholds({"threshold": [{"metric": "mae", "axes": "x", "max": lo,
+                                             "topics": VEHICLE, "factors": {"current": 0.0}}]})
+    assert check(table, only0).passed
+    everywhere = parse_thresholds({"threshold": [{"metric": "mae", "axes": "x", "max": lo,
+                                                  "topics": VEHICLE}]})
+    bad = check(table, everywhere)
+    assert not bad.passed
+    assert all(v.factors["current"] == 0.2 for v in bad.violations)
+
+
+def test_a_rule_matching_nothing_fails(table: ResultsTable) -> None:
+    verdict = check(table, parse_thresholds({"threshold": [
+        {"metric": "mea", "max": 1.0}]}))  # typo
+    assert not verdict.passed
+    assert verdict.violations[0].kind == "no-match"
+    assert "matched no results" in verdict.format()
+    with pytest.raises(ConfigError, match="filters on factor 'speed'"):
+        check(table, parse_thresholds({"threshold": [
+            {"metric": "mae", "max": 1.0, "factors": {"speed": 1}}]}))
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("[[threshold]]\nmetric = 'mae'\n", "give 'max' and/or 'min'"),
+    ("[[threshold]]\nmax = 1\n", "'metric' .* is required"),
+    ("[[threshold]]\nmetric = 'mae'\nmax = 'big'\n", "'max' must be a number"),
+    ("[[threshold]]\nmetric = 'mae'\nmax = 1\nbogus = 2\n", r"unknown key\(s\) \['bogus'\]"),
+    ("[[threshold]]\nmetric = 'mae'\nmax = 1\nundefined = 'maybe'\n", "'undefined' must be"),
+    ("version = 2\n", "unsupported thresholds version 2"),
+    ("threshold = 3\n", "must be an array of tables"),
+    ("[baseline]\nrtol = -1\n", "rtol must be a number >= 0"),
+    ("[[threshold]\n", "not valid TOML"),
+    ("colour = 1\n", r"unknown top-level key\(s\) \['colour'\]"),
+])
+def test_bad_thresholds_name_the_file_and_rule(tmp_path: Path, text: str, message: str) -> None:
+    p = _toml(tmp_path, text, "ci-thresholds.toml")
+    with pytest.raises(ConfigError, match=message) as info:
+        load_thresholds(p)
+    assert "ci-thresholds.toml" in str(info.value)
+
+
+def test_embedded_default_thresholds_parse() -> None:
+    th = load_thresholds(REPO / "data" / "thresholds" / "default.toml")
+    assert th.rules
+    assert {r.metric for r in th.rules} >= {"mae", "max", "pearson_r"}
+    assert th.baseline.rtol > 0
+
+
+# ----------------------------------------------------------------------------- baseline
+def test_baseline_identical_passes_and_regression_is_caught(table: ResultsTable,
+                                                            tmp_path: Path) -> None:
+    (golden,) = table.save(tmp_path / "golden.json")
+    same = check(table, baseline=golden)
+    assert same.passed
+    assert same.checked > 0
+    df = table.to_dataframe()
+    run = table.runs[3]
+    hit = (df["run"] == run) & (df["topic"] == VEHICLE) & (df["axis"] == "yaw")
+    df.loc[hit & (df["metric"] == "mae"), "value"] *= 2.0
+    df.loc[hit & (df["metric"] == "pearson_r"), "value"] = 0.5
+    worse = ResultsTable.from_dataframe(df, table.factors)
+    verdict = check(worse, baseline=golden)
+    got = {(v.metric, v.run, v.topic, v.axis) for v in verdict.violations}
+    assert got == {("mae", run, VEHICLE, "yaw"), ("pearson_r", run, VEHICLE, "yaw")}
+    mae = next(v for v in verdict.violations if v.metric == "mae")
+    base = table.value(run, VEHICLE, "yaw", "mae")
+    tol = BaselineTolerance()
+    assert mae.bound == pytest.approx(base * (1 + tol.rtol) + tol.atol_deg)
+    assert mae.value == pytest.approx(2 * base)
+    r = next(v for v in verdict.violations if v.metric == "pearson_r")
+    assert r.bound == pytest.approx(table.value(run, VEHICLE, "yaw", "pearson_r") - tol.atol_r)
+    # improvements never fail: zero MAE everywhere breaks no MAE bound
+    better = df.copy()
+    better.loc[better["metric"] == "mae", "value"] = 0.0
+    improved = check(ResultsTable.from_dataframe(better, table.factors), baseline=golden)
+    assert not [v for v in improved.violations if v.metric == "mae"]
+
+
+def test_missing_run_in_results_fails(table: ResultsTable) -> None:
+    part = ResultsTable.from_dataframe(table.df[table.df["run"] != table.runs[0]],
+                                       table.factors)
+    verdict = check_baseline(part, table)
+    assert verdict.violations
+    assert {v.kind for v in verdict.violations} == {"missing"}
+    assert {v.run for v in verdict.violations} == {table.runs[0]}
+    assert "missing from the results" in verdict.format()
+
+
+def test_check_needs_something_to_check(table: ResultsTable) -> None:
+    with pytest.raises(ConfigError, match="needs --thresholds"):
+        check(table)
+
+
+# ----------------------------------------------------------------------------- CLI
+def _uwval(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "uwval", *args], capture_output=True,
+                          text=True, cwd=cwd, timeout=120)
+
+
+def test_cli_check_exit_codes(experiment: Path, table: ResultsTable, tmp_path: Path) -> None:
+    loose = _toml(tmp_path, """
+        [[threshold]]
+        metric = "mae"
+        axes = ["x", "y", "z"]
+        max = 1.0
+    """, "loose.toml")
+    ok = _uwval("check", str(experiment), "--thresholds", str(loose))
+    assert ok.returncode == 0, ok.stderr
+    assert "PASS" in ok.stdout
+    tight = _toml(tmp_path, """
+        [[threshold]]
+        name = "vehicle x MAE"
+        metric = "mae"
+        axes = "x"
+        topics = "model_rov_pose"
+        max = 1e-6
+    """, "tight.toml")
+    bad = _uwval("check", str(experiment / "results"), "--thresholds", str(tight))
+    assert bad.returncode == 1
+    assert f"FAIL - {len(table.runs)} regression(s)" in bad.stderr
+    assert "[vehicle x MAE]" in bad.stderr
+    assert "must be <= 1e-06 m" in bad.stderr
+    js = _uwval("check", str(experiment), "--thresholds", str(tight), "--json")
+    assert js.returncode == 1
+    obj = json.loads(js.stdout)
+    assert obj["passed"] is False
+    assert len(obj["violations"]) == len(table.runs)
+    assert {"metric", "topic", "axis", "factors", "value", "bound"} <= set(obj["violations"][0])
+    # exit 2: unreadable input, one line naming the file
+    broken = _toml(tmp_path, "[[threshold]\n", "broken.toml")
+    err = _uwval("check", str(experiment), "--thresholds", str(broken))
+    assert err.returncode == 2
+    assert "broken.toml" in err.stderr
+    assert "Traceback" not in err.stderr
+    none = _uwval("check", str(experiment))
+    assert none.returncode == 2
+    assert "needs --thresholds" in none.stderr
+
+
+def test_cli_check_against_baseline(experiment: Path, table: ResultsTable,
+                                    tmp_path: Path) -> None:
+    (golden,) = table.save(tmp_path / "golden.csv")
+    assert _uwval("check", str(experiment), "--baseline", str(golden)).returncode == 0
+    df = pd.read_csv(golden, keep_default_na=False, na_values=[""])
+    df.loc[df["metric"] == "max", "value"] = df.loc[df["metric"] == "max", "value"] / 10
+    df.to_csv(golden, index=False)
+    res = _uwval("check", str(experiment), "--baseline", str(golden))
+    assert res.returncode == 1
+    assert "max run=" in res.stderr
+
+
+# ----------------------------------------------------------------------------- pytest plugin
+def test_pytest_plugin_pattern_passes_and_fails(experiment: Path, tmp_path: Path) -> None:
+    """The documented drop-in pattern, run in a separate pytest session."""
+    log = write_pair_log(tmp_path / "rig.mcap", lag_s=0.02)
+    _toml(tmp_path, """
+        [[threshold]]
+        metric = "mae"
+        axes = ["x", "y", "z"]
+        max = 0.1
+    """, "ci.toml")
+    (tmp_path / "conftest.py").write_text('pytest_plugins = ["uwval.pytest_plugin"]\n')
+    (tmp_path / "test_rig.py").write_text(textwrap.dedent(f"""
+        from uwval.pytest_plugin import assert_pose_correspondence
+
+        def test_log_passes():
+            v = assert_pose_correspondence({str(log)!r}, "ci.toml")
+            assert v.passed and v.checked == 6  # 2 topics x 3 axes
+
+        def test_fixture_uses_ini(uwval_check):
+            uwval_check({str(experiment)!r})
+
+        def test_fixture_reports_regressions(uwval_check):
+            uwval_check({str(log)!r}, {{"threshold": [
+                {{"metric": "mae", "axes": ["x"], "max": 1e-9}}]}})
+    """))
+    (tmp_path / "pytest.ini").write_text("[pytest]\nuwval_thresholds = ci.toml\n")
+    res = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                          "test_rig.py"], capture_output=True, text=True, cwd=tmp_path,
+                         timeout=120)
+    out = res.stdout + res.stderr
+    assert res.returncode == 1, out
+    assert "2 passed" in out
+    assert "1 failed" in out
+    assert "test_fixture_reports_regressions" in out
+    assert "mae run=rig topic=model_rov_pose axis=x" in out
+    assert "must be <= 1e-09 m" in out
