@@ -30,6 +30,7 @@ from simulator.inputs import (
     constant_inputs,
 )
 from simulator.sdf import load_vehicle_sdf
+from simulator.thrusters import Thrusters
 from simulator.vehicle import Vehicle, load_vehicle, preset_names
 
 __all__ = [
@@ -49,6 +50,7 @@ __all__ = [
     "SimResult",
     "Simulator",
     "Step",
+    "Thrusters",
     "Vehicle",
     "camera_poses",
     "constant_inputs",

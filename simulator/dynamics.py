@@ -159,7 +159,7 @@ def build_params(
         vals[name] = float(arr[0]) if n == 1 else np.ascontiguousarray(arr, dtype=np.float64)
 
     put("dt", np.full(n, dt))
-    put("inv_dt", np.full(n, 1.0 / dt))
+    put("hdt", np.full(n, 0.5 * dt))
     put("mass", np.array([v.mass for v in vehicles]))
     for i in range(3):
         for j in range(3):
@@ -173,9 +173,11 @@ def build_params(
         (i, j) for i in range(6) for j in range(6) if np.any(np.abs(ma[:, i, j]) > _TOL)
     )
     for i, j in ma_terms:
-        put(f"ma_{i}{j}", ma[:, i, j])
+        # explicit: the backward difference's 1/dt folded into the coefficient
+        put(f"mad_{i}{j}", ma[:, i, j] / dt)
     for i in range(6):
         put(f"a{i}", ma[:, i, i])
+        put(f"na{i}", -ma[:, i, i])
     lin_terms = tuple(
         (i, j) for i in range(6) for j in range(6) if np.any(np.abs(lin[:, i, j]) > _TOL)
     )
@@ -203,11 +205,12 @@ def build_params(
         (i, j) for i in range(6) for j in range(6) if np.any(np.abs(minv[:, i, j]) > 0)
     )
     for i, j in minv_terms:
-        put(f"mi_{i}{j}", minv[:, i, j])
+        put(f"dmi_{i}{j}", dt * minv[:, i, j])
     inertia_terms = tuple(
         (i, j) for i in range(3) for j in range(3) if any(v.inertia[i, j] != 0 for v in vehicles)
     )
     has_cob = bool(np.any(cob != 0))
+    has_net = any(v.buoyancy != v.weight for v in vehicles)
     has_added_mass = bool(ma_terms)
     structure = (
         ma_terms,
@@ -217,6 +220,7 @@ def build_params(
         minv_terms,
         inertia_terms,
         has_cob,
+        has_net,
         has_added_mass,
         bool(implicit_added_mass),
         bool(legacy_coriolis),
@@ -232,17 +236,17 @@ _S = ("s0", "s1", "s2", "s3", "s4", "s5")
 _D = ("d0", "d1", "d2", "d3", "d4", "d5")
 
 
-def _coriolis_rows(legacy: bool) -> list[list[str]]:
-    """Terms of (Cmat s)_i as code, gz-sim's 18 entries (Cmat(i,j) * s_j)."""
-    row0_5 = "(-a1*s1)*s5" if legacy else "(a1*s1)*s5"
-    row5_0 = "(a2*s2)*s0" if legacy else "(-a1*s1)*s0"
+def _coriolis_rows(legacy: bool) -> list[list[tuple[int, int, int, int]]]:
+    """(Cmat s)_i as terms ``sign * Ma_kk * s_m * s_n``: gz-sim's 18 entries Cmat(i,j) s_j."""
+    row0_5 = (-1, 1, 1, 5) if legacy else (1, 1, 1, 5)
+    row5_0 = (1, 2, 2, 0) if legacy else (-1, 1, 1, 0)
     return [
-        ["(-a2*s2)*s4", row0_5],
-        ["(a2*s2)*s3", "(-a0*s0)*s5"],
-        ["(-a1*s1)*s3", "(a0*s0)*s4"],
-        ["(-a2*s2)*s1", "(a1*s1)*s2", "(-a5*s5)*s4", "(a4*s4)*s5"],
-        ["(a2*s2)*s0", "(-a0*s0)*s2", "(a5*s5)*s3", "(-a3*s3)*s5"],
-        [row5_0, "(a0*s0)*s1", "(-a4*s4)*s3", "(a3*s3)*s4"],
+        [(-1, 2, 2, 4), row0_5],
+        [(1, 2, 2, 3), (-1, 0, 0, 5)],
+        [(-1, 1, 1, 3), (1, 0, 0, 4)],
+        [(-1, 2, 2, 1), (1, 1, 1, 2), (-1, 5, 5, 4), (1, 4, 4, 5)],
+        [(1, 2, 2, 0), (-1, 0, 0, 2), (1, 5, 5, 3), (-1, 3, 3, 5)],
+        [row5_0, (1, 0, 0, 1), (-1, 4, 4, 3), (1, 3, 3, 4)],
     ]
 
 
@@ -258,6 +262,7 @@ def generate_kernel_source(structure: tuple[Any, ...]) -> str:
         minv_terms,
         inertia_terms,
         has_cob,
+        has_net,
         has_added_mass,
         implicit,
         legacy,
@@ -265,13 +270,13 @@ def generate_kernel_source(structure: tuple[Any, ...]) -> str:
         wrench_frame,
         fossen,
     ) = structure
-    names: set[str] = {"dt", "inv_dt", "mass", "net_up", "buoy", "rbx", "rby", "rbz"}
-    names |= {f"ma_{i}{j}" for i, j in ma_terms}
-    names |= {f"a{i}" for i in range(6)}
+    names: set[str] = {"dt", "hdt", "mass", "net_up", "buoy", "rbx", "rby", "rbz"}
+    names |= {f"mad_{i}{j}" for i, j in ma_terms}
+    names |= {f"a{i}" for i in range(6)} | {f"na{i}" for i in range(6)}
     names |= {f"dl_{i}{j}" for i, j in lin_terms}
     names |= {f"dqa_{i}{j}{k}" for i, j, k in qabs_terms}
     names |= {f"dq_{i}{j}{k}" for i, j, k in quad_terms}
-    names |= {f"mi_{i}{j}" for i, j in minv_terms}
+    names |= {f"dmi_{i}{j}" for i, j in minv_terms}
     names |= {f"I{i}{j}" for i, j in inertia_terms}
     L: list[str] = []
     emit = L.append
@@ -303,24 +308,28 @@ def generate_kernel_source(structure: tuple[Any, ...]) -> str:
         if not implicit:
             # gz: stateDot = (state - prevState) / dt; prevState = state
             for i in range(6):
-                emit(b + f"d{i} = (s{i} - h{i})*inv_dt; h{i} = s{i}")
+                emit(b + f"d{i} = s{i} - h{i}; h{i} = s{i}")
             used_d = set(range(6))
         elif has_current:
             # implicit: only the change of the body-frame current stays a backward difference
             for i in range(3):
-                emit(b + f"d{i} = (h{i} - cb{i})*inv_dt; h{i} = cb{i}")
+                emit(b + f"d{i} = h{i} - cb{i}; h{i} = cb{i}")
             used_d = {0, 1, 2}
     cor = _coriolis_rows(legacy)
     for i in range(6):
         terms: list[str] = []
         if has_added_mass:
-            terms += [f"ma_{i}{j}*d{j}" for (ii, j) in ma_terms if ii == i and j in used_d]
+            terms += [f"mad_{i}{j}*d{j}" for (ii, j) in ma_terms if ii == i and j in used_d]
         # damping: -(D s)_i with D(i,j) = -lin - qabs|s_k| - quad s_k
         terms += [f"dl_{i}{j}*s{j}" for (ii, j) in lin_terms if ii == i]
         terms += [f"dqa_{i}{j}{k}*abs(s{k})*s{j}" for (ii, j, k) in qabs_terms if ii == i]
         terms += [f"dq_{i}{j}{k}*s{k}*s{j}" for (ii, j, k) in quad_terms if ii == i]
         if has_added_mass:
-            terms += [f"-{t}" for t in cor[i]] if fossen else cor[i]
+            for sign, kk, m, nn in cor[i]:
+                if (kk, kk) not in ma_terms:
+                    continue  # that added mass is zero in every vehicle
+                pos = (sign > 0) != bool(fossen)
+                terms.append(f"{'a' if pos else 'na'}{kk}*s{m}*s{nn}")
         emit(b + f"g{i} = " + (" + ".join(terms) if terms else "0.0"))
     # input wrench
     if wrench_frame == "world":
@@ -332,9 +341,10 @@ def generate_kernel_source(structure: tuple[Any, ...]) -> str:
     else:
         emit(b + "fb0 = FX[k]; fb1 = FY[k]; fb2 = FZ[k]; tb0 = TX[k]; tb1 = TY[k]; tb2 = TZ[k]")
     # gravity + buoyancy: (B - W) along world +z, in body axes R^T e_z = (R20, R21, R22)
-    emit(b + "f0 = g0 + fb0 + net_up*R20 - mass*(wq*vw - wr*vv)")
-    emit(b + "f1 = g1 + fb1 + net_up*R21 - mass*(wr*vu - wp*vw)")
-    emit(b + "f2 = g2 + fb2 + net_up*R22 - mass*(wp*vv - wq*vu)")
+    net = (" + net_up*R20", " + net_up*R21", " + net_up*R22") if has_net else ("", "", "")
+    emit(b + f"f0 = g0 + fb0{net[0]} - mass*(wq*vw - wr*vv)")
+    emit(b + f"f1 = g1 + fb1{net[1]} - mass*(wr*vu - wp*vw)")
+    emit(b + f"f2 = g2 + fb2{net[2]} - mass*(wp*vv - wq*vu)")
 
     def irow(i: int) -> str:
         t = [f"I{i}{j}*{('wp', 'wq', 'wr')[j]}" for (ii, j) in inertia_terms if ii == i]
@@ -351,15 +361,15 @@ def generate_kernel_source(structure: tuple[Any, ...]) -> str:
     emit(b + f"f5 = g5 + tb2{bt[2]} - (wp*Iw1 - wq*Iw0)")
     vel = ("vu", "vv", "vw", "wp", "wq", "wr")
     for i in range(6):
-        t = [f"mi_{i}{j}*f{j}" for (ii, j) in minv_terms if ii == i]
+        t = [f"dmi_{i}{j}*f{j}" for (ii, j) in minv_terms if ii == i]
         if t:
-            emit(b + f"{vel[i]} = {vel[i]} + dt*(" + " + ".join(t) + ")")
+            emit(b + f"{vel[i]} = {vel[i]} + " + " + ".join(t))
     # pose with the new velocities (semi-implicit Euler). No in-place operators anywhere:
     # in batch mode the history h_i may be the very array object s_i = vu etc.
     emit(b + "px = px + dt*(R00*vu + R01*vv + R02*vw)")
     emit(b + "py = py + dt*(R10*vu + R11*vv + R12*vw)")
     emit(b + "pz = pz + dt*(R20*vu + R21*vv + R22*vw)")
-    emit(b + "hp = 0.5*dt*wp; hq = 0.5*dt*wq; hr = 0.5*dt*wr")
+    emit(b + "hp = hdt*wp; hq = hdt*wq; hr = hdt*wr")
     emit(b + "nx = qx + qw*hp + qy*hr - qz*hq")
     emit(b + "ny = qy + qw*hq + qz*hp - qx*hr")
     emit(b + "nz = qz + qw*hr + qx*hq - qy*hp")

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -415,13 +415,15 @@ def simulate_batch(
     legacy_coriolis: bool = False,
     camera_offset: Sequence[float] = DEFAULT_CAMERA_OFFSET,
     fossen_coriolis: bool = False,
+    progress: Callable[[float], None] | None = None,
 ) -> list[SimResult]:
     """Run N vehicles in one vectorised state (each state variable an (N,) array).
 
     ``vehicles`` and ``inputs_list`` are sequences of equal length, or one of them a single
     item used for every run. Results equal those of :func:`simulate` per run (same equations
     and step order; floating-point results agree to rounding). All runs must share the wrench
-    frame. A diverging run raises :class:`SimulationError` naming it.
+    frame. A diverging run raises :class:`SimulationError` naming it. ``progress`` is called
+    with the completed fraction (0..1] after each chunk of steps (e.g. to drive a rich bar).
     """
     vs = [vehicles] if isinstance(vehicles, Vehicle) else list(vehicles)
     ins = [inputs_list] if isinstance(inputs_list, InputProfile) else list(inputs_list)
@@ -503,6 +505,8 @@ def simulate_batch(
                         + " ".join(_warnings_for([vs[i_run]], implicit_added_mass))
                     )
             step += m
+            if progress is not None:
+                progress(step / total)
     wall = time.perf_counter() - t0
     out = []
     for i, v in enumerate(vs):

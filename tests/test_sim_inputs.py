@@ -193,3 +193,25 @@ def test_simulator_teleop_overrides() -> None:
     ticks = sim.advance_to(8_000_000_000)
     assert ticks[-1][1][1] > 0.5  # drifts north with the new current
     assert sim.state[7] < 0.3  # surge decays once the key is released
+
+
+def test_thrusters_map_thrust_to_wrench() -> None:
+    from simulator.thrusters import Thrusters
+
+    # two surge thrusters 0.2 m either side of the centre line
+    th = Thrusters(positions=[[0, 0.2, 0], [0, -0.2, 0]], directions=[[1, 0, 0], [2, 0, 0]])
+    np.testing.assert_allclose(th.wrench([[10, 10]]), [[20, 0, 0, 0, 0, 0]], atol=1e-12)
+    np.testing.assert_allclose(
+        th.wrench([[10, -10]]), [[0, 0, 0, 0, 0, -4.0]], atol=1e-12
+    )  # yaw right
+    prof = th.inputs([Constant([5, 0, 0]), Step([5, 0, 0], t0=1.0)])
+    f, tq, _ = prof.evaluate([0.5, 1.5])
+    np.testing.assert_allclose(f[:, 0], [5, 10])
+    np.testing.assert_allclose(tq[:, 2], [-1.0, 0.0], atol=1e-12)
+    r = simulate(TETHYS, th.inputs([Constant([5, 0, 0])] * 2), 5.0)
+    ref = simulate(TETHYS, constant_inputs(force=(10, 0, 0)), 5.0)
+    np.testing.assert_allclose(r.vehicle.position, ref.vehicle.position, atol=1e-12)
+    with pytest.raises(ConfigError, match="zero thrust direction"):
+        Thrusters(positions=[[0, 0, 0]], directions=[[0, 0, 0]])
+    with pytest.raises(ConfigError, match="expected 2 thrust values"):
+        th.wrench([[1, 2, 3]])
