@@ -20,7 +20,7 @@ import numpy as np
 
 from uwval.errors import LogReadError
 from uwval.io.mcap_raw import scan_mcap
-from uwval.io.raw import RawLog, TopicBuilder, TopicInfo, norm_topic
+from uwval.io.raw import RawLog, TopicBuilder, TopicInfo, load_yaml, norm_topic
 from uwval.io.ros import normalize_type_name
 
 
@@ -151,10 +151,8 @@ def _metadata(bagdir: Path) -> dict[str, Any] | None:
     meta = bagdir / "metadata.yaml"
     if not meta.exists():
         return None
-    import yaml
-
     try:
-        doc = yaml.safe_load(meta.read_text())
+        doc = load_yaml(meta.read_text())
         info = doc["rosbag2_bagfile_information"]
     except Exception as exc:
         raise LogReadError(f"{meta}: not a rosbag2 metadata file: {exc}") from exc

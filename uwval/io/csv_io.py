@@ -27,6 +27,7 @@ import numpy as np
 
 from uwval.errors import LogReadError
 from uwval.frames import CONVENTIONS, quat_from_unity_euler
+from uwval.io.raw import load_yaml
 from uwval.posestream import PoseStream
 
 TIME_NAMES = ("t", "time", "timestamp", "stamp", "time_s", "unity_time", "frame_time", "sec")
@@ -47,12 +48,7 @@ def load_mapping(path: str | Path) -> dict[str, Any]:
     p = Path(path)
     try:
         text = p.read_text()
-        if p.suffix.lower() == ".json":
-            doc = json.loads(text)
-        else:
-            import yaml
-
-            doc = yaml.safe_load(text)
+        doc = json.loads(text) if p.suffix.lower() == ".json" else load_yaml(text)
     except Exception as exc:
         raise LogReadError(f"{p}: cannot read CSV mapping file: {exc}") from exc
     if not isinstance(doc, dict):

@@ -9,6 +9,7 @@ from __future__ import annotations
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -19,6 +20,13 @@ I64 = NDArray[np.int64]
 
 class TruncatedLogWarning(UserWarning):
     """A log ended early (e.g. the recorder was killed); intact messages were recovered."""
+
+
+def load_yaml(text: str) -> Any:
+    """Parse YAML safely with ruamel.yaml (a rosbags dependency, so always installed)."""
+    from ruamel.yaml import YAML
+
+    return YAML(typ="safe", pure=True).load(text)
 
 
 def norm_topic(name: str) -> str:
