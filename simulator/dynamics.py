@@ -402,8 +402,8 @@ def initial_state(
     orientation: Sequence[float] = (0.0, 0.0, 0.0, 1.0),
     velocity: Sequence[float] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
 ) -> tuple[Any, ...]:
-    """Initial kernel state. The added-mass history starts at the initial twist, which is
-    gz-sim's zero ``prevState`` for a body spawned at rest."""
+    """Initial kernel state; the added-mass history starts at the initial twist (the engine
+    then sets it to the initial relative twist, as gz-sim's first iteration does)."""
     vals = [*position, *orientation, *velocity, *velocity]
     if n == 1:
         return tuple(float(x) for x in vals)

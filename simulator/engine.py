@@ -286,7 +286,7 @@ class Simulator:
 
 def _with_history(state: tuple[Any, ...], current: F64, implicit: bool) -> tuple[Any, ...]:
     """Set the added-mass history to the initial relative twist (explicit) or the initial
-    body-frame current (implicit), as gz-sim 8.12+ does on its first iteration (no spike).
+    body-frame current (implicit), as current gz-sim does on its first iteration (no spike).
 
     ``current`` is (3,) for one vehicle or (N, 3) for a batch; ``state`` holds floats or (N,)."""
     qx, qy, qz, qw = (np.asarray(state[i], dtype=np.float64) for i in range(3, 7))
