@@ -217,7 +217,7 @@ class FrameParser:
         pos = 0
         n = len(buf)
         unpack = _U32.unpack_from
-        while n - pos >= 8:
+        while n - pos >= 4:
             dlen = unpack(buf, pos)[0]
             if dlen > self.max_destination:
                 self._fail(f"destination length {dlen} exceeds {self.max_destination} bytes",

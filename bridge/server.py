@@ -339,9 +339,7 @@ class BridgeServer:
                 return
             c.closed = True
             c.cond.notify_all()
-        with contextlib.suppress(OSError):
-            c.sock.shutdown(socket.SHUT_RDWR)
-        c.sock.close()
+        # Bookkeeping first, so whoever sees the socket close also sees the reason.
         with self._lock:
             self._clients.pop(c.client_id, None)
             assert c.stats is not None
@@ -349,6 +347,9 @@ class BridgeServer:
             c.stats.subscriptions = tuple(sorted(c.subscriptions))
             self._closed_stats.append(c.stats)
             self._sub_cond.notify_all()
+        with contextlib.suppress(OSError):
+            c.sock.shutdown(socket.SHUT_RDWR)
+        c.sock.close()
         self._event(f"client {c.client_id} ({c.address}) closed: {reason}")
 
     def _reply(self, c: _Client, command: str, params: dict[str, Any]) -> None:
