@@ -147,8 +147,19 @@ def test_open_writer_errors(tmp_path: Path) -> None:
     with pytest.raises(LogWriteError, match="unknown log format 'zip'"):
         open_writer(tmp_path / "x", "zip")
     (tmp_path / "exists").mkdir()
+    (tmp_path / "exists" / "notes.txt").write_text("not a bag")
     with pytest.raises(LogWriteError, match="exists"):
         open_writer(tmp_path / "exists", "rosbag2")
+    assert (tmp_path / "exists" / "notes.txt").exists()
+
+
+@pytest.mark.parametrize(("fmt", "name"), FORMATS)
+def test_rewriting_a_log_replaces_the_old_one(tmp_path: Path, fmt: str, name: str) -> None:
+    path = tmp_path / name
+    _write(path, fmt, _stream(50))
+    _write(path, fmt, _stream(20, seed=9))
+    r = read_stream(path, TOPIC)
+    np.testing.assert_array_equal(r.position, _stream(20, seed=9).position)
     with pytest.raises(LogWriteError, match="cannot open"):
         open_writer(tmp_path / "no" / "such" / "dir.mcap", "mcap")
 

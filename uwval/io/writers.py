@@ -179,6 +179,8 @@ def open_writer(path: str | Path, format: str = "mcap",
     Writers are incremental (write as you go, ``flush()``, ``close()``) and context managers.
     """
     p = Path(path)
+    if format != "mcap" and format in (*FORMATS, "bag"):
+        _clear_old_log(p)
     if format == "mcap":
         return McapPoseWriter(p, metadata=metadata)
     if format in ("rosbag2", "rosbag2-sqlite3"):
@@ -212,6 +214,21 @@ def write_stream(writer: PoseLogWriter, topic: str, stream: PoseStream, frame_id
             writer.write_raw(topic + APPLIED_SUFFIX, HEADER, hdr[i].tobytes(), lt_list[i])
         n += hdr.shape[0]
     return n
+
+
+def _clear_old_log(p: Path) -> None:
+    """Replace an earlier log at ``p`` as the MCAP writer does (rosbags refuses to).
+
+    Only files and directories that hold nothing but a rosbag2's own files are removed.
+    """
+    if p.is_file():
+        p.unlink()
+    elif p.is_dir():
+        names = [c.name for c in p.iterdir()]
+        own = all(n == "metadata.yaml" or n.endswith((".db3", ".mcap", ".db3-wal",
+                                                         ".db3-shm", ".zstd")) for n in names)
+        if names and own and "metadata.yaml" in names:
+            shutil.rmtree(p)
 
 
 def remove_log(path: str | Path) -> None:
