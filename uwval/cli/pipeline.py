@@ -62,8 +62,7 @@ def run_one(job: RunJob) -> dict[str, Any]:
 
     spec = job.spec
     opts = job.session
-    sim = simulate(spec.vehicle, spec.inputs, spec.duration_s, publish_rate=spec.publish_rate,
-                   seed=spec.seed)
+    sim = simulate(spec.vehicle, spec.inputs, spec.duration_s, **spec.simulate_kwargs())
     path = Path(job.log_path)
     path.parent.mkdir(parents=True, exist_ok=True)
     metadata = {

@@ -165,5 +165,8 @@ def simulate(
     b = record["bridge"]
     console.print(
         f"[green]wrote[/] {output} in {time.perf_counter() - t0:.2f} s: "
-        + ", ".join(f"{k} {v}" for k, v in b.items() if isinstance(v, int | float))
+        f"{b.get('sent', 0)} poses sent, {b.get('received', 0)} received, "
+        f"{b.get('applied', 0)} applied in {b.get('frames', 0)} Unity frames, "
+        f"{b.get('dropped', 0) + b.get('server_dropped', 0)} dropped; render lag "
+        f"{1e3 * b.get('render_lag_mean_s', 0.0):.1f} ms mean"
     )
