@@ -94,3 +94,27 @@ def test_write_read_round_trip(tmp_path: Path) -> None:
     assert np.abs(back.t - s.t).max() < 300
     np.testing.assert_allclose(back.position, s.position, atol=1e-9)
     np.testing.assert_allclose(back.orientation, s.orientation, atol=1e-9)
+
+
+def test_seven_plus_nine_numbers_is_not_silently_misparsed(tmp_path: Path) -> None:
+    f = tmp_path / "s.tum"
+    f.write_text("1 0 0 0 0 0 0 1\n2 0 0 0 0 0 1\n3 0 0 0 0 0 0 1 0\n4 0 0 0 0 0 0 1\n")
+    with pytest.raises(LogReadError, match="line 2"):
+        read_tum(f)
+
+
+def test_large_file_is_parsed_in_chunks(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import uwval.io.tum as tum
+
+    monkeypatch.setattr(tum, "_CHUNK", 64)  # force many chunks and boundary cases
+    rng = np.random.default_rng(2)
+    n = 300
+    s = PoseStream.from_arrays(np.arange(n, dtype=np.int64) * 10_000_000 + 5, rng.normal(size=(n, 3)),
+                               quat_from_rpy(rng.normal(size=(n, 3))))
+    write_tum(tmp_path / "c.tum", s)
+    back = read_tum(tmp_path / "c.tum")
+    np.testing.assert_array_equal(back.t, s.t)
+    np.testing.assert_allclose(back.position, s.position, atol=1e-9)
+    (tmp_path / "c.tum").write_text((tmp_path / "c.tum").read_text() + "1e99 1 2\n")
+    with pytest.raises(LogReadError, match=f"line {n + 2}"):
+        read_tum(tmp_path / "c.tum")

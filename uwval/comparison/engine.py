@@ -25,7 +25,7 @@ from uwval.comparison.sync import associate_nearest, interpolate_at, nominal_per
 from uwval.errors import AlignmentError
 from uwval.frames import CONVENTIONS, convert_stream, get_convention
 from uwval.posestream import PoseStream
-from uwval.rotations import geodesic_angle, rpy_from_quat, wrap_deg
+from uwval.rotations import geodesic_angle, rpy_from_quat
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -52,7 +52,6 @@ class ComparisonResult:
     t: I64
     reference: PoseStream
     other: PoseStream
-    errors: dict[str, F64]
     stats: dict[str, Any]
     alignment: Alignment
     offset_s: float
@@ -60,9 +59,20 @@ class ComparisonResult:
     diagnosis: FrameDiagnosis | None = None
     warnings: list[str] = field(default_factory=list)
 
+    _errors: dict[str, F64] | None = field(default=None, repr=False)
+
     @property
     def n_samples(self) -> int:
         return int(self.t.shape[0])
+
+    @property
+    def errors(self) -> dict[str, F64]:
+        """Signed per-axis error series (computed from the aligned streams on first use, so a
+        large comparison does not hold eight extra series unless someone asks for them)."""
+        if self._errors is None:
+            self._errors = _error_series(self.reference.position, self.reference.orientation,
+                                         self.other.position, self.other.orientation)
+        return self._errors
 
     def to_json(self) -> dict[str, Any]:
         """The JSON contract of ``uwval compare --json`` (plain dicts, lists, floats, None)."""
@@ -212,18 +222,21 @@ def compare(
                             f"longer than {interp.max_gap_ns * 1e-9:.6g} s and were masked")
     else:
         match = associate_nearest(ref_c, oth_c, max_diff=max_diff, offset=offset_s)
+        ref_sel, oth_sel = _selector(match.ref_idx), _selector(match.other_idx)
         if match.reference_drives:
-            t = ref_c.t[match.ref_idx]
+            t = ref_c.t[ref_sel]
         else:
-            t = oth_c.t[match.other_idx] + np.int64(_offset_ns(offset_s))
-        ref_pos, ref_quat = ref_c.position[match.ref_idx], ref_c.orientation[match.ref_idx]
-        oth_pos, oth_quat = oth_c.position[match.other_idx], oth_c.orientation[match.other_idx]
+            t = oth_c.t[oth_sel]
+            if _offset_ns(offset_s):
+                t = t + np.int64(_offset_ns(offset_s))
+        ref_pos, ref_quat = ref_c.position[ref_sel], ref_c.orientation[ref_sel]
+        oth_pos, oth_quat = oth_c.position[oth_sel], oth_c.orientation[oth_sel]
         matched = int(match.ref_idx.size)
         sync_info.update(matched=matched, masked=0, dropped=match.n_candidates - matched,
                          max_diff_s=max_diff,
                          driving_stream="reference" if match.reference_drives else "other",
-                         reused_reference=int(matched - np.unique(match.ref_idx).size),
-                         reused_other=int(matched - np.unique(match.other_idx).size))
+                         reused_reference=_repeats(match.ref_idx),
+                         reused_other=_repeats(match.other_idx))
     n = int(t.shape[0])
     if n < max(1, min_samples):
         raise AlignmentError(
@@ -236,10 +249,9 @@ def compare(
     alignment = estimate_alignment(align, ref_pos, ref_quat, oth_pos, oth_quat)
     oth_pos, oth_quat = alignment.apply(oth_pos, oth_quat)
 
-    # ---- errors
-    errors, axes = _errors_and_axes(ref_pos, ref_quat, oth_pos, oth_quat)
-    position_norm = errors["position_norm"]
-    rotation = errors["rotation_angle"]
+    # ---- errors: statistics axis by axis; the series themselves are recomputed on demand
+    axes, position_norm_stats, rotation_stats = _axis_statistics(ref_pos, ref_quat, oth_pos,
+                                                                 oth_quat)
 
     aligned_ref = PoseStream(t=t, position=ref_pos, orientation=ref_quat, frame="enu",
                              topic=reference.topic, source=reference.source)
@@ -262,36 +274,107 @@ def compare(
         "latency": latency,
         "alignment": alignment.to_json(),
         "axes": axes,
-        "position_error_norm": norm_stats(position_norm),
-        "rotation_error_deg": norm_stats(rotation),
+        "position_error_norm": position_norm_stats,
+        "rotation_error_deg": rotation_stats,
         "warnings": warnings,
     }
-    return ComparisonResult(t=t, reference=aligned_ref, other=aligned_oth, errors=errors,
-                            stats=stats, alignment=alignment, offset_s=offset_s,
+    return ComparisonResult(t=t, reference=aligned_ref, other=aligned_oth, stats=stats, alignment=alignment, offset_s=offset_s,
                             offset_estimate=estimate, diagnosis=diagnosis, warnings=warnings)
 
 
-def _errors_and_axes(ref_pos: F64, ref_quat: F64, oth_pos: F64,
-                     oth_quat: F64) -> tuple[dict[str, F64], dict[str, Any]]:
-    """Signed errors per axis, norms, and the per-axis statistics (Pearson on the series)."""
-    dpos = oth_pos - ref_pos
-    ref_rpy = np.degrees(rpy_from_quat(ref_quat))
-    oth_rpy = np.degrees(rpy_from_quat(oth_quat))
-    drpy = wrap_deg(oth_rpy - ref_rpy)
+def _selector(idx: I64) -> I64 | slice:
+    """A slice when ``idx`` is a contiguous run (no copy of the gathered arrays), else idx."""
+    if idx.size and int(idx[-1]) - int(idx[0]) + 1 == idx.size and \
+            bool(np.all(np.diff(idx) == 1)):
+        return slice(int(idx[0]), int(idx[-1]) + 1)
+    return idx
+
+
+def _repeats(idx: I64) -> int:
+    """How many matches reuse the previous pose (indices come out non-decreasing)."""
+    return int(np.count_nonzero(np.diff(idx) == 0)) if idx.size > 1 else 0
+
+
+def _wrap_deg(a: F64) -> F64:
+    """Wrap degrees to (-180, 180] (as uwval.rotations.wrap_deg, without a slow np.mod)."""
+    w = a - 360.0 * np.round(a / 360.0)
+    w[w <= -180.0] += 360.0
+    w[w > 180.0] -= 360.0
+    return w
+
+
+def _rpy_deg(q: F64, axis: int) -> F64:
+    """One ROS angle (0 roll, 1 pitch, 2 yaw; fixed-axis XYZ) in degrees, from (N, 4) xyzw.
+
+    Same formulas as :func:`uwval.rotations.rpy_from_quat`, one angle at a time so that only
+    a few (N,) temporaries exist at once on large streams.
+    """
+    x, y, z, w = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    if axis == 0:
+        out = np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    elif axis == 1:
+        out = np.arcsin(np.clip(2 * (w * y - z * x), -1.0, 1.0))
+    else:
+        out = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    return np.asarray(np.degrees(out, out=out))
+
+
+def _position_norm(ref_pos: F64, oth_pos: F64) -> F64:
+    d2 = np.square(oth_pos[:, 0] - ref_pos[:, 0])
+    for j in (1, 2):
+        d2 += np.square(oth_pos[:, j] - ref_pos[:, j])
+    return np.asarray(np.sqrt(d2, out=d2))
+
+
+def _angle_error(ref_quat: F64, oth_quat: F64, j: int) -> tuple[F64, F64]:
+    """(reference angle, wrapped error other - reference), degrees, for ROS angle ``j``."""
+    ref_angle = _rpy_deg(ref_quat, j)
+    return ref_angle, _wrap_deg(_rpy_deg(oth_quat, j) - ref_angle)
+
+
+def _error_series(ref_pos: F64, ref_quat: F64, oth_pos: F64, oth_quat: F64) -> dict[str, F64]:
+    """All signed error series: x y z (m), roll pitch yaw (deg, wrapped), norms."""
     errors: dict[str, F64] = {}
+    for j, ax in enumerate("xyz"):
+        errors[ax] = oth_pos[:, j] - ref_pos[:, j]
+    for j, ax in enumerate(("roll", "pitch", "yaw")):
+        errors[ax] = _angle_error(ref_quat, oth_quat, j)[1]
+    errors["position_norm"] = _position_norm(ref_pos, oth_pos)
+    errors["rotation_angle"] = np.degrees(geodesic_angle(oth_quat, ref_quat))
+    return errors
+
+
+def _axis_statistics(ref_pos: F64, ref_quat: F64, oth_pos: F64,
+                     oth_quat: F64) -> tuple[dict[str, Any], dict[str, float], dict[str, float]]:
+    """Per-axis statistics, position-norm and rotation-angle statistics, one series at a time
+    (bounded memory on large streams)."""
     axes: dict[str, Any] = {}
     for j, ax in enumerate("xyz"):
-        errors[ax] = np.ascontiguousarray(dpos[:, j])
-        axes[ax] = axis_stats(errors[ax], ref_pos[:, j], oth_pos[:, j]) | {"unit": "m"}
+        err = oth_pos[:, j] - ref_pos[:, j]
+        axes[ax] = axis_stats(err, ref_pos[:, j], oth_pos[:, j]) | {"unit": "m"}
+        del err
     for j, ax in enumerate(("roll", "pitch", "yaw")):
-        errors[ax] = np.ascontiguousarray(drpy[:, j])
+        ref_angle, err = _angle_error(ref_quat, oth_quat, j)
         # correlate continuous series: unwrap the reference, other = reference + wrapped error,
         # so a 179 -> -179 deg crossing is not a 358 deg jump in either series
-        ref_series = np.unwrap(ref_rpy[:, j], period=360.0)
-        axes[ax] = axis_stats(errors[ax], ref_series, ref_series + errors[ax]) | {"unit": "deg"}
-    errors["position_norm"] = np.sqrt(np.einsum("ij,ij->i", dpos, dpos))
-    errors["rotation_angle"] = np.degrees(geodesic_angle(oth_quat, ref_quat))
-    return errors, axes
+        ref_series = _unwrap_deg(ref_angle)
+        del ref_angle
+        axes[ax] = axis_stats(err, ref_series, ref_series + err) | {"unit": "deg"}
+        del ref_series, err
+    position = norm_stats(_position_norm(ref_pos, oth_pos))
+    rotation = norm_stats(np.degrees(geodesic_angle(oth_quat, ref_quat)))
+    return axes, position, rotation
+
+
+def _unwrap_deg(a: F64) -> F64:
+    """np.unwrap(a, period=360) for degrees, with fewer temporaries."""
+    if a.size < 2:
+        return a.copy()
+    jumps = np.diff(a)
+    jumps = -360.0 * np.round(jumps / 360.0, out=jumps)
+    out = a.copy()
+    out[1:] += np.cumsum(jumps, out=jumps)
+    return out
 
 
 def _diagnose(ref_c: PoseStream, raw_other: PoseStream, offset_s: float,

@@ -116,9 +116,14 @@ def compare_logs(
                     f"{DEFAULT_UNITY_TOPIC}); topics: {', '.join(sorted(present))}; "
                     "choose with --gazebo-topic / --unity-topic"
                 )
+        from uwval.io import read_streams
+
+        # one pass over the log for every topic of every pair
+        streams = read_streams(path_a, [t for _, g, u in pairs for t in (g, u)])
         for name, g, u in pairs:
-            ref = read_pose_stream(path_a, g)
-            oth = read_pose_stream(path_a, u, frame=None if frame == "auto" else frame)
+            ref, oth = streams[g], streams[u]
+            if frame not in (None, "auto"):
+                oth = oth.with_(frame=frame)
             results[name] = compare(ref, oth, frame=frame, **options)
         return LogComparison(results, pairs[0][0], [str(path_a)])
 

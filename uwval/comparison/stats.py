@@ -75,8 +75,12 @@ def betainc_regularized(a: float, b: float, x: float) -> float:
         return 1.0
     log_front = (math.lgamma(a + b) - math.lgamma(a) - math.lgamma(b)
                  + a * math.log(x) + b * math.log1p(-x))
+    # the continued fraction is O(1) (>= 1e-3 here), so below exp(-800) the result underflows:
+    # skip its ~sqrt(a) iterations (hundreds for the n = 360,000 series of a benchmark)
     if x < (a + 1.0) / (a + b + 2.0):
-        return math.exp(log_front) * _betacf(a, b, x) / a
+        return 0.0 if log_front < -800.0 else math.exp(log_front) * _betacf(a, b, x) / a
+    if log_front < -800.0:
+        return 1.0
     return 1.0 - math.exp(log_front) * _betacf(b, a, 1.0 - x) / b
 
 
@@ -97,17 +101,17 @@ def pearson(a: F64, b: F64) -> dict[str, Any]:
         return out
     xm = x - x.mean()
     ym = y - y.mean()
-    sx = float(np.sqrt(np.dot(xm, xm)))
-    sy = float(np.sqrt(np.dot(ym, ym)))
+    sxx = float(np.einsum("i,i->", xm, xm))
+    syy = float(np.einsum("i,i->", ym, ym))
     # a series is constant when its spread is at rounding level relative to its magnitude
     scale_x = max(float(np.abs(x).max()), 1e-300)
     scale_y = max(float(np.abs(y).max()), 1e-300)
-    const = [name for name, s, sc in (("reference", sx, scale_x), ("other", sy, scale_y))
-             if s <= 1e-12 * sc * math.sqrt(n)]
+    const = [name for name, s2, sc in (("reference", sxx, scale_x), ("other", syy, scale_y))
+             if math.sqrt(s2) <= 1e-12 * sc * math.sqrt(n)]
     if const:
         out["pearson_reason"] = f"undefined: {' and '.join(const)} series is constant"
         return out
-    r = float(np.dot(xm / sx, ym / sy))
+    r = float(np.einsum("i,i->", xm, ym)) / (math.sqrt(sxx) * math.sqrt(syy))
     r = max(-1.0, min(1.0, r))
     ab = n / 2.0 - 1.0
     # two-sided: 2 * P(R <= -|r|) with (R + 1) / 2 ~ Beta(ab, ab)
@@ -136,12 +140,13 @@ def axis_stats(signed_err: F64, reference: F64, other: F64) -> dict[str, Any]:
         stats.update(pearson(e, e))
         return stats
     ae = np.abs(e)
+    p50, p95 = np.percentile(ae, [50.0, 95.0])  # one partition for both
     stats = {
         "mae": float(ae.mean()),
-        "rmse": math.sqrt(float(np.dot(e, e)) / e.size),
+        "rmse": math.sqrt(float(np.einsum("i,i->", e, e)) / e.size),
         "max": float(ae.max()),
-        "p95": float(np.percentile(ae, 95)),
-        "median": float(np.median(ae)),
+        "p95": float(p95),
+        "median": float(p50),
         "bias": float(e.mean()),
         "std": float(e.std()),
     }

@@ -70,21 +70,14 @@ def write_pair_log(path: str | Path, gazebo: PoseStream, unity: PoseStream,
     """Write an MCAP like uwval's recorder: /gazebo/<name> (ENU), /unity/<name> (Unity frame,
     frame_id = convention unless ``frame_id`` overrides it) and /unity/<name>/applied_stamp.
     """
-    from uwval.io.mcap_io import McapPoseWriter
-    from uwval.io.ros import APPLIED_SUFFIX
+    from uwval.io.writers import open_writer, write_stream
 
     p = Path(path)
     pairs = [(gazebo, unity)] + ([camera] if camera else [])
-    with McapPoseWriter(p) as w:
+    with open_writer(p, "mcap") as w:
         for g, u in pairs:
-            for i in range(len(g)):
-                w.write_pose(g.topic, int(g.t[i]), g.position[i], g.orientation[i], "enu")
-            fid = frame_id if frame_id is not None else u.frame
-            for i in range(len(u)):
-                w.write_pose(u.topic, int(u.t[i]), u.position[i], u.orientation[i], fid)
-                if u.applied_stamp is not None:
-                    w.write_header(u.topic + APPLIED_SUFFIX, int(u.applied_stamp[i]),
-                                   int(u.t[i]), g.topic)
+            write_stream(w, g.topic, g, "enu")
+            write_stream(w, u.topic, u, frame_id if frame_id is not None else u.frame)
     return p
 
 
