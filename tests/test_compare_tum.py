@@ -109,8 +109,8 @@ def test_large_file_is_parsed_in_chunks(tmp_path: Path, monkeypatch: pytest.Monk
     monkeypatch.setattr(tum, "_CHUNK", 64)  # force many chunks and boundary cases
     rng = np.random.default_rng(2)
     n = 300
-    s = PoseStream.from_arrays(np.arange(n, dtype=np.int64) * 10_000_000 + 5, rng.normal(size=(n, 3)),
-                               quat_from_rpy(rng.normal(size=(n, 3))))
+    s = PoseStream.from_arrays(np.arange(n, dtype=np.int64) * 10_000_000 + 5,
+                               rng.normal(size=(n, 3)), quat_from_rpy(rng.normal(size=(n, 3))))
     write_tum(tmp_path / "c.tum", s)
     back = read_tum(tmp_path / "c.tum")
     np.testing.assert_array_equal(back.t, s.t)

@@ -278,8 +278,9 @@ def compare(
         "rotation_error_deg": rotation_stats,
         "warnings": warnings,
     }
-    return ComparisonResult(t=t, reference=aligned_ref, other=aligned_oth, stats=stats, alignment=alignment, offset_s=offset_s,
-                            offset_estimate=estimate, diagnosis=diagnosis, warnings=warnings)
+    return ComparisonResult(t=t, reference=aligned_ref, other=aligned_oth, stats=stats,
+                            alignment=alignment, offset_s=offset_s, offset_estimate=estimate,
+                            diagnosis=diagnosis, warnings=warnings)
 
 
 def _selector(idx: I64) -> I64 | slice:
