@@ -383,3 +383,33 @@ def test_damaged_mcap_bytes_never_leak_a_traceback(tmp_path: Path) -> None:
                 outcomes.add("read")
             assert "bad.mcap" in message
     assert "read" in outcomes
+
+
+def test_db3_with_committed_pages_in_wal_is_read(tmp_path: Path) -> None:
+    """A .db3 whose writer is still open in WAL mode: committed rows live in the -wal file."""
+    import sqlite3
+
+    from uwval.io.encode import encode_pose_stamped
+
+    live = tmp_path / "live.db3"
+    con = sqlite3.connect(live)
+    con.execute("PRAGMA journal_mode=WAL")
+    con.execute("CREATE TABLE topics(id INTEGER PRIMARY KEY, name TEXT, type TEXT, "
+                "serialization_format TEXT, offered_qos_profiles TEXT)")
+    con.execute("CREATE TABLE messages(id INTEGER PRIMARY KEY, topic_id INTEGER, "
+                "timestamp INTEGER, data BLOB)")
+    con.execute("INSERT INTO topics VALUES (1, '/p', 'geometry_msgs/msg/PoseStamped', 'cdr', '')")
+    rows = encode_pose_stamped(np.arange(30) * 10**8, np.full((30, 3), 2.0),
+                               np.tile([0, 0, 0, 1.0], (30, 1)), "world")
+    con.executemany("INSERT INTO messages(topic_id, timestamp, data) VALUES (1, ?, ?)",
+                    [(i * 10**8, rows[i].tobytes()) for i in range(30)])
+    con.commit()
+    snap = tmp_path / "snap"
+    snap.mkdir()
+    for suffix in ("", "-wal", "-shm"):
+        shutil.copy(str(live) + suffix, snap / ("bag.db3" + suffix))
+    con.close()
+    assert (snap / "bag.db3-wal").stat().st_size > 0
+    s = read_stream(snap / "bag.db3", "/p")
+    assert len(s) == 30
+    assert (snap / "bag.db3-wal").stat().st_size > 0  # the snapshot itself is left as it was

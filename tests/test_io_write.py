@@ -304,3 +304,20 @@ def test_pose_without_header_is_stamped_with_log_time(tmp_path: Path) -> None:
     s = read_stream(path, "pose_only")
     np.testing.assert_array_equal(s.t, 10**9 + np.arange(10) * 10**8)
     np.testing.assert_array_equal(s.position[:, 0], np.arange(10.0))
+
+
+def test_killed_rosbag2_sqlite_recording_is_readable_after_flush(tmp_path: Path) -> None:
+    """flush() commits; a copy of the directory taken before close() (no metadata.yaml)."""
+    import shutil
+
+    s = _stream(80)
+    path = tmp_path / "rec"
+    w = open_writer(path, "rosbag2")
+    write_stream(w, TOPIC, s, "world")
+    w.flush()
+    snap = tmp_path / "snap"
+    shutil.copytree(path, snap)
+    w.close()
+    assert not (snap / "metadata.yaml").exists()
+    r = read_stream(snap, TOPIC)
+    np.testing.assert_array_equal(r.position, s.position)

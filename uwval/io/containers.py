@@ -9,6 +9,7 @@
 
 from __future__ import annotations
 
+import shutil
 import sqlite3
 import struct
 import tempfile
@@ -213,8 +214,21 @@ def _scan_db3(name: Path, path: Path, topics: Iterable[str] | None,
               compression: str) -> RawLog:
     """A rosbag2 sqlite3 storage file, opened read-only and immutable (no -wal replay)."""
     want = None if topics is None else {norm_topic(t) for t in topics}
+    wal = path.with_name(path.name + "-wal")
+    if wal.exists() and wal.stat().st_size > 0:
+        # Committed pages still in the write-ahead log (writer never closed): read a private
+        # copy so sqlite can replay the log without touching the original files.
+        with tempfile.TemporaryDirectory(prefix="uwval-wal-") as tmp:
+            for src in (path, wal, path.with_name(path.name + "-shm")):
+                if src.exists():
+                    shutil.copy(src, Path(tmp) / src.name.replace(path.name, "copy.db3"))
+            return _query_db3(name, f"file:{Path(tmp) / 'copy.db3'}", want, compression)
+    return _query_db3(name, f"file:{path}?mode=ro&immutable=1", want, compression)
+
+
+def _query_db3(name: Path, uri: str, want: set[str] | None, compression: str) -> RawLog:
     try:
-        con = sqlite3.connect(f"file:{path}?mode=ro&immutable=1", uri=True)
+        con = sqlite3.connect(uri, uri=True)
     except sqlite3.Error as exc:
         raise LogReadError(f"{name}: cannot open sqlite3 storage: {exc}") from exc
     try:

@@ -98,7 +98,8 @@ class _RosbagsWriter:
         self.write_raw(topic, HEADER, bytes(data), log_time)
 
     def flush(self) -> None:
-        """rosbags writes through: sqlite commits per message batch, bags on close."""
+        """Nothing to push: ROS 1 bags are indexed by ``close()`` (a killed recording is
+        recovered by a linear walk, see :mod:`uwval.io.bag1_raw`)."""
 
     def close(self) -> None:
         if not self._closed:
@@ -141,6 +142,14 @@ class Rosbag2PoseWriter(_RosbagsWriter):
 
     def _add_connection(self, topic: str, msgtype: str) -> Any:
         return self._writer.add_connection(topic, msgtype, typestore=typestore(2))
+
+    def flush(self) -> None:
+        """Commit the messages written so far (sqlite3 storage), so that a recorder killed
+        later leaves them readable (the directory then lacks metadata.yaml; uwval reads the
+        .db3 alone). MCAP storage is finished by ``close()`` only."""
+        conn = getattr(getattr(self._writer, "storage", None), "conn", None)
+        if conn is not None:
+            conn.commit()
 
 
 class Rosbag1PoseWriter(_RosbagsWriter):
