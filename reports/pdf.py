@@ -34,6 +34,7 @@ class _Pager:
         self.fig: Figure | None = None
         self.y = 1.0
         self.page = 0
+        self.heading: str = ""  # a section title waiting for its first text or table
 
     def new_page(self) -> Figure:
         self.flush()
@@ -55,8 +56,17 @@ class _Pager:
             return self.new_page()
         return self.fig
 
+    def put_heading(self) -> None:
+        """Print the pending section title (kept with the content that follows it)."""
+        if self.heading:
+            title, self.heading = self.heading, ""
+            self.need(0.12)
+            self.text(title, size=13, weight="bold")
+            self.y -= 0.006
+
     def text(self, s: str, size: float = 9, weight: str = "normal", colour: str = "#1f2328",
              width: int = 110) -> None:
+        self.put_heading()
         lines = []
         for para in s.splitlines() or [""]:
             lines += textwrap.wrap(para, width=width) or [""]
@@ -67,6 +77,7 @@ class _Pager:
             self.y -= LINE * size / 9
 
     def table(self, t: Table) -> None:
+        self.put_heading()
         rows = t.rows or [["(no rows)"] + [""] * (len(t.columns) - 1)]
         ncols = max(1, len(t.columns))
         size = 7.0 if ncols <= 8 else max(4.0, 7.0 - 0.25 * (ncols - 8))
@@ -122,6 +133,7 @@ def write_pdf(report: Report, path: Path) -> Path:
             pager.y -= 0.01
             for sec in report.sections:
                 _section(pager, sec)
+            pager.put_heading()
             pager.flush()
             meta = pdf.infodict()
             meta["Title"] = report.title
@@ -134,9 +146,7 @@ def write_pdf(report: Report, path: Path) -> Path:
 
 
 def _section(pager: _Pager, sec: Section) -> None:
-    pager.need(0.08)
-    pager.text(sec.title, size=13 if sec.level <= 2 else 11, weight="bold")
-    pager.y -= 0.006
+    pager.heading = sec.title
     for b in sec.blocks:
         if isinstance(b, Text):
             if b.kind == "list":
@@ -150,8 +160,13 @@ def _section(pager: _Pager, sec: Section) -> None:
         elif isinstance(b, Plot):
             pager.flush()  # a figure gets a page of its own, at its own size
             fig = b.figure
-            note = fig.text(0.01, 0.003, f"{b.title}. {b.caption}", fontsize=7, color="#57606a",
-                            va="bottom")
+            notes = [fig.text(0.01, 0.003, f"{b.title}. {b.caption}", fontsize=7,
+                              color="#57606a", va="bottom")]
+            if pager.heading:  # the section opens with a figure: title it on that page
+                notes.append(fig.text(0.01, 0.995, pager.heading, fontsize=11, weight="bold",
+                                      va="top"))
+                pager.heading = ""
             pager.pdf.savefig(fig)
-            note.remove()
+            for n in notes:
+                n.remove()
             pager.page += 1

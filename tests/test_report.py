@@ -1,0 +1,231 @@
+"""The HTML/PDF report: content, self-containment, real headless Chromium, pdftoppm pages."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+import sys
+from html.parser import HTMLParser
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from reports import build_report
+from reports.builder import sha256_of
+from uwval.gate import parse_thresholds
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_results import VEHICLE, write_experiment, write_pair_log
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+PDFTOPPM = shutil.which("pdftoppm")
+
+
+@pytest.fixture(scope="module")
+def experiment(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return write_experiment(tmp_path_factory.mktemp("report-exp"))
+
+
+@pytest.fixture(scope="module")
+def experiment_report(experiment: Path, tmp_path_factory: pytest.TempPathFactory
+                      ) -> tuple[Path, Path, str]:
+    out = tmp_path_factory.mktemp("report-out")
+    outcome = build_report(experiment, out / "report.html", pdf=out / "report.pdf",
+                           max_detail_runs=2)
+    assert outcome.n_runs == 8
+    return outcome.html, out / "report.pdf", outcome.html.read_text()
+
+
+class _Refs(HTMLParser):
+    """Every URL-bearing attribute and every tag name of a page."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.urls: list[str] = []
+        self.tags: list[str] = []
+        self.ids: list[str] = []
+
+    def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
+        self.tags.append(tag)
+        for k, v in attrs:
+            if k in ("src", "href", "action", "poster", "data") and v is not None:
+                self.urls.append(v)
+            if k == "id" and v:
+                self.ids.append(v)
+
+
+def _refs(html: str) -> _Refs:
+    p = _Refs()
+    p.feed(html)
+    return p
+
+
+# ----------------------------------------------------------------------------- content
+def test_experiment_report_sections_and_self_containment(
+        experiment_report: tuple[Path, Path, str]) -> None:
+    _, _, html = experiment_report
+    refs = _refs(html)
+    # self-contained: images are data: URIs, links are in-page anchors, nothing else
+    assert refs.urls
+    for url in refs.urls:
+        assert url.startswith(("data:", "#")), url
+    assert "script" not in refs.tags
+    assert not re.search(r"url\((?!data:)", html)  # no CSS-fetched resources
+    assert "@import" not in html
+    for section in ("verdict", "summary", "factor-force", "factor-current", "main-effects",
+                    "two-way", "runs", "bridge", "provenance"):
+        assert section in refs.ids, section
+    assert "factor-torque" not in refs.ids  # torque does not vary: no section
+    assert "One-way ANOVA of MAE across levels of current" in html
+    assert "Pearson r" in html
+    assert "MAE" in html
+    assert "Absolute error" in html
+    # per-run details for the first 2 runs only, with the three per-run plots each
+    run_sections = [i for i in refs.ids if i.startswith("run-")]
+    assert len(run_sections) == 2
+    for title in ("Trajectory overlay", "Per-axis series and error", "Unity vs Gazebo"):
+        assert html.count(f'alt="{title}: ') == 2
+    assert "per-run plots shown for the first 2 of 8 runs" in html
+    # bridge statistics from the manifest
+    assert "latency_mean_ms" in html
+    assert "dropped" in html
+
+
+def test_provenance_lists_inputs_with_their_sha256(experiment: Path,
+                                                   experiment_report: tuple[Path, Path, str]
+                                                   ) -> None:
+    import uwval
+
+    _, _, html = experiment_report
+    assert uwval.__version__ in html
+    for name in ("manifest.json", "comparisons.json"):
+        assert name in html
+    log = sorted((experiment / "runs").glob("*.mcap"))[0]
+    assert sha256_of(log) in html
+    assert sha256_of(experiment / "manifest.json") in html
+
+
+def test_verdict_fail_lists_the_regressions(tmp_path: Path) -> None:
+    log = write_pair_log(tmp_path / "laggy.mcap", lag_s=0.2)
+    th = parse_thresholds({"threshold": [{"name": "tight x", "metric": "mae", "axes": ["x"],
+                                          "topics": [VEHICLE], "max": 0.01}]})
+    outcome = build_report(log, tmp_path / "r.html", thresholds=th)
+    assert outcome.gate is not None
+    assert not outcome.gate.passed
+    html = outcome.html.read_text()
+    assert 'class="verdict-badge fail">FAIL<' in html
+    assert "What regressed" in html
+    assert "tight x" in html
+    assert 'class="bad"' in html
+    ok = build_report(log, tmp_path / "ok.html", thresholds=None)
+    assert ok.gate is None
+    assert "not gated" in ok.html.read_text()
+
+
+def test_manifest_without_results_is_compared_on_the_fly(tmp_path: Path) -> None:
+    root = write_experiment(tmp_path / "e", compare=False, reps=1)
+    outcome = build_report(root, tmp_path / "r.html", max_detail_runs=1)
+    assert outcome.n_runs == 4
+    assert set(outcome.table.runs) == {p.stem for p in (root / "runs").glob("*.mcap")}
+
+
+# ----------------------------------------------------------------------------- CLI
+def test_cli_report_on_a_single_log(tmp_path: Path) -> None:
+    log = write_pair_log(tmp_path / "run.mcap", lag_s=0.02)
+    res = subprocess.run([sys.executable, "-m", "uwval", "report", str(log), "-o",
+                          str(tmp_path / "out" / "r.html"), "--pdf", str(tmp_path / "r.pdf"),
+                          "--results", str(tmp_path / "res.csv")],
+                         capture_output=True, text=True, timeout=180)
+    assert res.returncode == 0, res.stderr
+    assert "verdict PASS" in res.stdout
+    html = (tmp_path / "out" / "r.html").read_text()
+    assert "Run run" in html
+    assert "Trajectory overlay: run / model_rov_pose" in html
+    assert (tmp_path / "r.pdf").read_bytes().startswith(b"%PDF")
+    assert (tmp_path / "res.csv").read_text().startswith("run,topic,axis,metric,value")
+    missing = subprocess.run([sys.executable, "-m", "uwval", "report",
+                              str(tmp_path / "nope.mcap"), "-o", str(tmp_path / "x.html")],
+                             capture_output=True, text=True, timeout=120)
+    assert missing.returncode == 2
+    assert "nope.mcap" in missing.stderr
+    assert "Traceback" not in missing.stderr
+
+
+# ----------------------------------------------------------------------------- Chromium
+def _chromium(page: Path, tmp_path: Path) -> tuple[Path, str]:
+    """Load ``page`` in real headless Chromium; return (screenshot, its log on stderr)."""
+    assert CHROMIUM is not None
+    shot = tmp_path / "shot.png"
+    res = subprocess.run(
+        [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+         "--no-first-run", "--disable-background-networking", "--disable-component-update",
+         "--disable-sync", f"--user-data-dir={tmp_path / 'profile'}", "--enable-logging=stderr",
+         "--v=0", "--hide-scrollbars", "--window-size=1280,1600", f"--screenshot={shot}",
+         page.as_uri()],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert res.returncode == 0, res.stderr[-2000:]
+    return shot, res.stderr
+
+
+def _console_errors(log: str) -> list[str]:
+    # Chromium writes page console messages as "...:CONSOLE(line)] "message", source: ..."
+    return [line for line in log.splitlines() if ":CONSOLE" in line]
+
+
+def _ink(png: Path) -> tuple[float, float]:
+    """(share of non-white pixels, grey-level std) of an image."""
+    from PIL import Image
+
+    a = np.asarray(Image.open(png).convert("L"), dtype=np.float64)
+    return float((a < 245).mean()), float(a.std())
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="chromium not installed (.ci/run installs it)")
+def test_html_loads_in_headless_chromium_without_console_errors(
+        experiment_report: tuple[Path, Path, str], tmp_path: Path) -> None:
+    page, _, _ = experiment_report
+    shot, log = _chromium(page, tmp_path)
+    assert _console_errors(log) == []
+    ink, std = _ink(shot)
+    assert ink > 0.02, "screenshot is blank"
+    assert std > 10
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="chromium not installed (.ci/run installs it)")
+def test_the_chromium_checks_do_catch_errors_and_blank_pages(tmp_path: Path) -> None:
+    # negative control: the same checks flag a page with a script error and no content
+    bad = tmp_path / "bad.html"
+    bad.write_text("<!DOCTYPE html><html><body><script>undefinedFunction();</script>"
+                   "</body></html>")
+    shot, log = _chromium(bad, tmp_path)
+    assert _console_errors(log), "a script error must show up as a console message"
+    ink, _ = _ink(shot)
+    assert ink < 0.02
+
+
+# ----------------------------------------------------------------------------- PDF
+@pytest.mark.skipif(PDFTOPPM is None, reason="pdftoppm not installed (poppler-utils)")
+def test_pdf_pages_render_and_are_not_blank(experiment_report: tuple[Path, Path, str],
+                                            tmp_path: Path) -> None:
+    _, pdf, html = experiment_report
+    assert PDFTOPPM is not None
+    res = subprocess.run([PDFTOPPM, "-r", "30", "-png", str(pdf), str(tmp_path / "page")],
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    pages = sorted(tmp_path.glob("page-*.png"))
+    # text pages + one page per figure: at least as many pages as figures in the HTML
+    n_figures = html.count("<img ")
+    assert len(pages) > n_figures
+    for p in pages:
+        ink, std = _ink(p)
+        assert ink > 0.005, f"{p.name} is blank"
+        assert std > 3, f"{p.name} is blank"
+    text = subprocess.run(["pdftotext", str(pdf), "-"], capture_output=True, text=True,
+                          timeout=60) if shutil.which("pdftotext") else None
+    if text is not None and text.returncode == 0:
+        for words in ("Verdict", "Summary: absolute error, MAE and Pearson r", "Factor: current",
+                      "Provenance"):
+            assert words in text.stdout
