@@ -224,19 +224,40 @@ class BridgeServer:
 
     def wait_for_subscribers(self, topic: str, count: int = 1, timeout: float = 5.0) -> None:
         """Block until ``count`` connected clients subscribe to ``topic``."""
+        self.wait_for_registration(topic, "subscribe", count, timeout)
+
+    def wait_for_registration(self, topic: str, kind: str = "subscribe", count: int = 1,
+                              timeout: float = 5.0) -> None:
+        """Block until ``count`` clients registered ``topic`` as ``kind`` (``subscribe``,
+        ``publish``, ``ros_service`` or ``unity_service``)."""
         deadline = time.monotonic() + timeout
         with self._sub_cond:
-            while self.subscriber_count(topic) < count:
+            while self.registration_count(topic, kind) < count:
                 left = deadline - time.monotonic()
                 if left <= 0:
                     raise BridgeError(f"timed out after {timeout} s waiting for {count} "
-                                      f"subscriber(s) on {topic!r}")
+                                      f"{kind} registration(s) of {topic!r}")
                 self._sub_cond.wait(left)
 
     def subscriber_count(self, topic: str) -> int:
         """How many connected clients subscribe to ``topic``."""
+        return self.registration_count(topic, "subscribe")
+
+    def registration_count(self, topic: str, kind: str = "subscribe") -> int:
+        """How many connected clients registered ``topic`` as ``kind``."""
+        attr = {"subscribe": "subscriptions", "publish": "publications",
+                "ros_service": "ros_services", "unity_service": "unity_services"}[kind]
         with self._lock:
-            return sum(topic in c.subscriptions for c in self._clients.values())
+            return sum(topic in getattr(c, attr) for c in self._clients.values())
+
+    def disconnect(self, client_id: int, reason: str = "closed by the server") -> bool:
+        """Close one client's connection (fault injection, admin). False if unknown."""
+        with self._lock:
+            client = self._clients.get(client_id)
+        if client is None:
+            return False
+        self._close(client, reason)
+        return True
 
     def clients(self) -> list[ClientStats]:
         """Stats of connected clients."""

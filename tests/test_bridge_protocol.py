@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import struct
 
@@ -89,7 +90,7 @@ def test_handshake_payload_is_exact() -> None:
 
 def test_handshake_rejects_other_versions() -> None:
     bad = wire.encode_command("__handshake", {"version": "v0.6.0", "metadata": "{}"})
-    with pytest.raises(wire.ProtocolError, match="unsupported ROS-TCP version 'v0.6.0'"):
+    with pytest.raises(wire.ProtocolError, match=r"unsupported ROS-TCP version 'v0\.6\.0'"):
         wire.parse_handshake(wire.FrameParser().feed(bad)[0])
     newer_patch = wire.encode_command("__handshake", {
         "version": "v0.7.3", "metadata": json.dumps({"protocol": "ROS1"})})
@@ -111,7 +112,7 @@ def test_parser_reassembles_frames_split_anywhere(frames: list[tuple[str, bytes,
     points = sorted({c % (len(stream) + 1) for c in cuts} | {0, len(stream)})
     parser = wire.FrameParser()
     got = []
-    for a, b in zip(points, points[1:], strict=False):
+    for a, b in itertools.pairwise(points):
         got.extend(parser.feed(stream[a:b]))
     assert [(f.destination, f.payload) for f in got] == [(d, p) for d, p, _ in frames]
     assert parser.buffered == 0

@@ -1,0 +1,169 @@
+"""run_session: ticks -> real loopback TCP -> Unity-like client -> MCAP, on a virtual clock."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from bridge.gazebo import ticks_from_streams
+from bridge.recorder import open_mcap_writer
+from bridge.session import SessionStats, run_session
+from uwval.errors import BridgeError
+from uwval.frames import convert_arrays, enu_from_unity
+from uwval.io import list_topics, read_stream
+from uwval.posestream import PoseStream
+from uwval.rotations import quat_from_rpy
+
+PERIOD_NS = 20_000_000  # 50 Hz publish ticks
+
+
+def motion(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Synthetic vehicle motion: stamps (ns), ENU positions, FLU->ENU quaternions."""
+    t = np.arange(n, dtype=np.int64) * PERIOD_NS + 1_000_000_000
+    s = (t - t[0]) * 1e-9
+    pos = np.stack([0.5 * s, np.sin(s), -0.1 * s], axis=1)
+    rpy = np.stack([0.2 * np.sin(2 * s), 0.1 * np.cos(s), 0.7 * s], axis=1)
+    return t, pos, quat_from_rpy(rpy)
+
+
+def ticks(n: int = 200) -> Iterator[tuple[int, dict[str, tuple[np.ndarray, np.ndarray]]]]:
+    t, pos, quat = motion(n)
+    for k in range(n):
+        yield int(t[k]), {"model_rov_pose": (pos[k], quat[k]),
+                          "gui_camera_pose": (pos[k] + [-3.0, 0.0, 1.0], quat[k])}
+
+
+def session(tmp_path: Path, name: str = "run.mcap", n: int = 200, **kw: Any
+            ) -> tuple[Path, SessionStats]:
+    path = tmp_path / name
+    writer = open_mcap_writer(path)
+    try:
+        stats = run_session(ticks(n), writer, **kw)
+    finally:
+        writer.close()
+    return path, stats
+
+
+def same_rotation(a: np.ndarray, b: np.ndarray, atol: float = 1e-12) -> bool:
+    dots = np.abs(np.sum(a * b, axis=1))
+    return bool(np.all(np.abs(dots - 1.0) < atol))
+
+
+@pytest.mark.parametrize(("unity_map", "protocol"),
+                         [("unity-flu", "ROS2"), ("unity-enu", "ROS2"), ("unity-flu", "ROS1")])
+def test_unity_stream_back_in_enu_equals_gazebo_at_applied_stamps(
+        tmp_path: Path, unity_map: str, protocol: str) -> None:
+    path, stats = session(tmp_path, unity_map=unity_map, protocol=protocol, latency_s=0.03,
+                          jitter_s=0.002, drop_prob=0.1, unity_clock_offset_s=2.5, seed=3)
+    topics = {t.name: t for t in list_topics(path)}
+    assert set(topics) == {
+        "/gazebo/model_rov_pose", "/gazebo/gui_camera_pose", "/unity/model_rov_pose",
+        "/unity/gui_camera_pose", "/unity/model_rov_pose/applied_stamp",
+        "/unity/gui_camera_pose/applied_stamp"}
+    for name in ("model_rov_pose", "gui_camera_pose"):
+        gz = read_stream(path, f"/gazebo/{name}")
+        un = read_stream(path, f"/unity/{name}")
+        assert gz.frame == "enu" and un.frame == unity_map  # frame_id names the map
+        assert len(gz) == 200 and un.applied_stamp is not None
+        back = enu_from_unity(un)
+        idx = np.searchsorted(gz.t, un.applied_stamp)
+        assert np.array_equal(gz.t[idx], un.applied_stamp)  # every applied stamp was sent
+        np.testing.assert_allclose(back.position, gz.position[idx], atol=1e-12, rtol=0)
+        assert same_rotation(back.orientation, gz.orientation[idx])
+        # Unity's header stamps are its own clock: frame time + 2.5 s offset.
+        assert np.all(un.t - 2_500_000_000 >= un.applied_stamp + 30_000_000)
+    assert stats.sent == 400 and stats.received == 400
+    assert stats.delivered + stats.dropped == stats.received
+
+
+def test_unity_poses_really_are_in_unity_axes(tmp_path: Path) -> None:
+    path, _ = session(tmp_path, n=20, unity_map="unity-flu")
+    gz = read_stream(path, "/gazebo/model_rov_pose")
+    un = read_stream(path, "/unity/model_rov_pose")
+    assert un.applied_stamp is not None
+    g = gz.position[np.searchsorted(gz.t, un.applied_stamp)]
+    # ROS-TCP-Connector FLU: ROS x -> Unity z, ROS y -> Unity -x, ROS z -> Unity y.
+    np.testing.assert_allclose(un.position, np.stack([-g[:, 1], g[:, 2], g[:, 0]], axis=1))
+
+
+def test_applied_pose_is_the_latest_arrived_one(tmp_path: Path) -> None:
+    latency = 0.045
+    path, stats = session(tmp_path, latency_s=latency, frame_rate=60.0)
+    gz = read_stream(path, "/gazebo/model_rov_pose")
+    un = read_stream(path, "/unity/model_rov_pose")
+    assert un.applied_stamp is not None
+    frame_t = un.t  # no clock offset: Unity clock = virtual frame time
+    # Latest Gazebo stamp that had arrived (stamp + latency <= frame time).
+    expect = gz.t[np.searchsorted(gz.t + int(latency * 1e9), frame_t, side="right") - 1]
+    np.testing.assert_array_equal(un.applied_stamp, expect)
+    assert stats.latency_mean_s == pytest.approx(latency)
+    assert stats.render_lag_mean_s >= latency
+    # 60 Hz frames over the 3.98 s of ticks, nothing shown before the first arrival.
+    assert stats.frames == pytest.approx(3.98 * 60, abs=2)
+    assert stats.applied == len(un) + len(read_stream(path, "/unity/gui_camera_pose"))
+
+
+def test_same_seed_same_log_other_seed_other_drops(tmp_path: Path) -> None:
+    kw: dict[str, Any] = {"drop_prob": 0.3, "jitter_s": 0.003, "latency_jitter_s": 0.01}
+    a, sa = session(tmp_path, "a.mcap", seed=1, **kw)
+    b, sb = session(tmp_path, "b.mcap", seed=1, **kw)
+    c, sc = session(tmp_path, "c.mcap", seed=2, **kw)
+    ua, ub, uc = (read_stream(p, "/unity/model_rov_pose") for p in (a, b, c))
+    assert np.array_equal(ua.t, ub.t) and np.array_equal(ua.applied_stamp, ub.applied_stamp)
+    assert np.array_equal(ua.position, ub.position)
+    assert sa.dropped == sb.dropped
+    assert not np.array_equal(ua.t, uc.t)
+    # 400 messages at p = 0.3: the drop count is binomial (mean 120, sd ~9.2).
+    for s in (sa, sc):
+        assert 80 < s.dropped < 160
+
+
+def test_disconnect_loses_messages_then_reconnects_and_resubscribes(tmp_path: Path) -> None:
+    path, stats = session(tmp_path, n=250, disconnects=[1.5], reconnect_delay_s=1.0,
+                          latency_s=0.01)
+    assert stats.disconnects == 1 and stats.reconnects == 1
+    assert stats.lost_disconnected > 0
+    assert stats.received + stats.lost_disconnected == stats.sent
+    un = read_stream(path, "/unity/model_rov_pose")
+    assert un.applied_stamp is not None
+    t0 = 1_000_000_000
+    down = (un.t >= t0 + 1_500_000_000) & (un.t < t0 + 2_500_000_000)
+    # While disconnected Unity keeps showing the last pose received before the drop.
+    assert down.any() and len(np.unique(un.applied_stamp[down])) == 1
+    assert un.applied_stamp[down][0] <= t0 + 1_500_000_000
+    # After the reconnect (and re-registration) fresh poses flow again.
+    after = un.t >= t0 + 2_600_000_000
+    assert un.applied_stamp[after].max() > t0 + 2_600_000_000
+
+
+def test_realtime_paces_to_the_wall_clock(tmp_path: Path) -> None:
+    _, stats = session(tmp_path, n=25, realtime=True)  # 0.48 s of sim time
+    assert stats.wall_time_s >= 0.45
+    assert stats.received == 50
+
+
+def test_bad_arguments_raise_bridge_errors(tmp_path: Path) -> None:
+    with pytest.raises(BridgeError, match="no ticks"):
+        run_session(iter(()), open_mcap_writer(tmp_path / "x.mcap"))
+    with pytest.raises(BridgeError, match="drop probability"):
+        session(tmp_path, "y.mcap", drop_prob=1.5)
+    with pytest.raises(BridgeError, match="not a Unity map"):
+        session(tmp_path, "z.mcap", unity_map="ned")
+
+
+def test_ticks_from_streams_merges_and_converts() -> None:
+    t, pos, quat = motion(10)
+    veh = PoseStream.from_arrays(t, pos, quat)
+    pos_u, quat_u = convert_arrays(pos[::2], quat[::2], "enu", "unity-flu")
+    cam = PoseStream.from_arrays(t[::2], pos_u, quat_u, frame="unity-flu")
+    out = list(ticks_from_streams(veh, cam))
+    assert [k[0] for k in out] == t.tolist()
+    assert [sorted(k[1]) for k in out[:2]] == [["gui_camera_pose", "model_rov_pose"],
+                                               ["model_rov_pose"]]
+    np.testing.assert_allclose(out[2][1]["gui_camera_pose"][0], pos[2], atol=1e-12)
+    with pytest.raises(BridgeError, match="1 names for 2 streams"):
+        list(ticks_from_streams(veh, cam, names=["a"]))
