@@ -67,8 +67,10 @@ def test_unity_stream_back_in_enu_equals_gazebo_at_applied_stamps(
     for name in ("model_rov_pose", "gui_camera_pose"):
         gz = read_stream(path, f"/gazebo/{name}")
         un = read_stream(path, f"/unity/{name}")
-        assert gz.frame == "enu" and un.frame == unity_map  # frame_id names the map
-        assert len(gz) == 200 and un.applied_stamp is not None
+        assert gz.frame == "enu"
+        assert un.frame == unity_map
+        assert len(gz) == 200
+        assert un.applied_stamp is not None
         back = enu_from_unity(un)
         idx = np.searchsorted(gz.t, un.applied_stamp)
         assert np.array_equal(gz.t[idx], un.applied_stamp)  # every applied stamp was sent
@@ -76,7 +78,8 @@ def test_unity_stream_back_in_enu_equals_gazebo_at_applied_stamps(
         assert same_rotation(back.orientation, gz.orientation[idx])
         # Unity's header stamps are its own clock: frame time + 2.5 s offset.
         assert np.all(un.t - 2_500_000_000 >= un.applied_stamp + 30_000_000)
-    assert stats.sent == 400 and stats.received == 400
+    assert stats.sent == 400
+    assert stats.received == 400
     assert stats.delivered + stats.dropped == stats.received
 
 
@@ -113,7 +116,8 @@ def test_same_seed_same_log_other_seed_other_drops(tmp_path: Path) -> None:
     b, sb = session(tmp_path, "b.mcap", seed=1, **kw)
     c, sc = session(tmp_path, "c.mcap", seed=2, **kw)
     ua, ub, uc = (read_stream(p, "/unity/model_rov_pose") for p in (a, b, c))
-    assert np.array_equal(ua.t, ub.t) and np.array_equal(ua.applied_stamp, ub.applied_stamp)
+    assert np.array_equal(ua.t, ub.t)
+    assert np.array_equal(ua.applied_stamp, ub.applied_stamp)
     assert np.array_equal(ua.position, ub.position)
     assert sa.dropped == sb.dropped
     assert not np.array_equal(ua.t, uc.t)
@@ -125,7 +129,8 @@ def test_same_seed_same_log_other_seed_other_drops(tmp_path: Path) -> None:
 def test_disconnect_loses_messages_then_reconnects_and_resubscribes(tmp_path: Path) -> None:
     path, stats = session(tmp_path, n=250, disconnects=[1.5], reconnect_delay_s=1.0,
                           latency_s=0.01)
-    assert stats.disconnects == 1 and stats.reconnects == 1
+    assert stats.disconnects == 1
+    assert stats.reconnects == 1
     assert stats.lost_disconnected > 0
     assert stats.received + stats.lost_disconnected == stats.sent
     un = read_stream(path, "/unity/model_rov_pose")
@@ -133,7 +138,8 @@ def test_disconnect_loses_messages_then_reconnects_and_resubscribes(tmp_path: Pa
     t0 = 1_000_000_000
     down = (un.t >= t0 + 1_500_000_000) & (un.t < t0 + 2_500_000_000)
     # While disconnected Unity keeps showing the last pose received before the drop.
-    assert down.any() and len(np.unique(un.applied_stamp[down])) == 1
+    assert down.any()
+    assert len(np.unique(un.applied_stamp[down])) == 1
     assert un.applied_stamp[down][0] <= t0 + 1_500_000_000
     # After the reconnect (and re-registration) fresh poses flow again.
     after = un.t >= t0 + 2_600_000_000
