@@ -1,0 +1,89 @@
+"""Scale-out (issue 9): the default experiment on Dask LocalCluster == the local process pool."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from uwval.batch import compare_batch, items_from
+from uwval.cli.pipeline import SessionOptions
+from uwval.cli.simulate_cmd import run_experiment
+from uwval.errors import ConfigError
+from uwval.resources import data_path
+
+HAS_DASK = importlib.util.find_spec("distributed") is not None
+
+
+def _numbers(runs: list[dict]) -> dict[str, dict]:  # type: ignore[type-arg]
+    """Every run's comparison numbers, keyed by run name (wall times left out)."""
+    out = {}
+    for r in runs:
+        c = r["comparison"]
+        out[r["name"]] = {"factors": r["factors"], "axes": c["axes"],
+                          "pen": c["position_error_norm"], "n": c["n_samples"]}
+    return out
+
+
+@pytest.mark.skipif(not HAS_DASK, reason="dask.distributed not installed")
+def test_dask_sweep_and_batch_identical_to_local(tmp_path: Path) -> None:
+    exp = data_path("experiments", "default.toml")
+    local = run_experiment(exp, tmp_path / "local", SessionOptions(), executor="local",
+                           workers=2, progress=False)
+    dask = run_experiment(exp, tmp_path / "dask", SessionOptions(), executor="dask",
+                          workers=2, progress=False)
+    assert not local["failed"] and not dask["failed"]
+    assert [r["name"] for r in dask["runs"]] == [r["name"] for r in local["runs"]]
+    assert len(local["runs"]) == 8
+    b_local = compare_batch(tmp_path / "local", executor="local", workers=2, progress=False)
+    b_dask = compare_batch(tmp_path / "dask", executor="dask", workers=2, progress=False)
+    assert _numbers(b_dask.runs) == _numbers(b_local.runs)
+    df_l = b_local.table.to_dataframe().sort_values(["run", "topic", "axis", "metric"])
+    df_d = b_dask.table.to_dataframe().sort_values(["run", "topic", "axis", "metric"])
+    assert df_l["value"].fillna(-1).tolist() == df_d["value"].fillna(-1).tolist()
+
+
+def test_batch_reports_failing_log_and_completes_others(tmp_path: Path) -> None:
+    exp = data_path("experiments", "default.toml")
+    m = run_experiment(exp, tmp_path / "sweep", SessionOptions(), executor="inline",
+                       progress=False)
+    bad = tmp_path / "sweep" / m["runs"][3]["log"]
+    bad.write_bytes(b"not an mcap at all")
+    batch = compare_batch(tmp_path / "sweep", executor="local", workers=2, progress=False)
+    assert len(batch.runs) == 7
+    assert len(batch.failed) == 1
+    assert batch.failed[0]["name"] == m["runs"][3]["name"]
+    assert str(bad.name) in batch.failed[0]["error"]
+    written = batch.save(tmp_path / "results")
+    names = {p.name for p in written}
+    assert "comparisons.json" in names
+    saved = json.loads((tmp_path / "results" / "comparisons.json").read_text())
+    assert saved["failed"][0]["name"] == m["runs"][3]["name"]
+
+
+def test_items_from_errors_name_the_file(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="no such manifest"):
+        items_from(tmp_path / "missing")
+    (tmp_path / "manifest.json").write_text("{broken")
+    with pytest.raises(ConfigError, match=r"manifest.json: not valid JSON: line 1"):
+        items_from(tmp_path)
+
+
+def test_simulate_experiment_cli_writes_manifest(tmp_path: Path) -> None:
+    res = subprocess.run(
+        [sys.executable, "-m", "uwval", "simulate", str(data_path("experiments", "default.toml")),
+         "-o", str(tmp_path / "exp"), "--executor", "local", "--workers", "2"],
+        capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL)
+    assert res.returncode == 0, res.stderr
+    manifest = json.loads((tmp_path / "exp" / "manifest.json").read_text())
+    assert len(manifest["runs"]) == 8
+    levels = {(r["factors"]["force"], r["factors"]["torque"], r["factors"]["current"])
+              for r in manifest["runs"]}
+    assert len(levels) == 8  # full factorial: 2 x 2 x 2 distinct combinations
+    for r in manifest["runs"]:
+        assert (tmp_path / "exp" / r["log"]).is_file()
+        assert r["bridge"]["sent"] > 0
