@@ -19,6 +19,7 @@ everything (a clean stop loses nothing).
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -131,3 +132,68 @@ def open_mcap_writer(path: str | Path, *, metadata: dict[str, str] | None = None
             super().flush()
 
     return _FlushingWriter(path, metadata=metadata, chunk_size=chunk_size)
+
+
+@dataclass(frozen=True)
+class RecoveryReport:
+    """What a (possibly truncated) MCAP log still holds.
+
+    ``messages`` per topic readable in complete records; ``complete`` is True when the
+    file ends with its footer (a clean stop); ``lost_bytes`` are the trailing bytes of a
+    record cut off by a crash; ``error`` says why reading stopped early.
+    """
+
+    path: str
+    messages: dict[str, int]
+    complete: bool
+    valid_bytes: int
+    total_bytes: int
+    error: str = ""
+
+    @property
+    def lost_bytes(self) -> int:
+        return self.total_bytes - self.valid_bytes
+
+    def describe(self) -> str:
+        """One line for users: what survived and what was cut off."""
+        n = sum(self.messages.values())
+        if self.complete:
+            return f"{self.path}: complete, {n} messages"
+        return (f"{self.path}: truncated after byte {self.valid_bytes} of {self.total_bytes}"
+                f" ({self.lost_bytes} bytes of an unfinished record lost); {n} messages "
+                f"recovered ({self.error})")
+
+
+def scan_mcap(path: str | Path) -> RecoveryReport:
+    """Scan an MCAP record by record, counting messages per topic, tolerating truncation.
+
+    A recorder killed with SIGKILL leaves complete chunks up to its last flush followed by
+    a partial record; this reports what is readable and how many bytes were cut off.
+    """
+    from mcap.records import Channel, Footer, Message
+    from mcap.stream_reader import StreamReader
+
+    p = Path(path)
+    total = p.stat().st_size
+    topics: dict[int, str] = {}
+    counts: dict[str, int] = {}
+    complete = False
+    error = ""
+    with open(p, "rb") as fh:
+        valid = 0
+        try:
+            # emit_chunks=False expands each complete chunk into its records.
+            for record in StreamReader(fh, emit_chunks=False).records:
+                if isinstance(record, Channel):
+                    topics[record.id] = record.topic
+                elif isinstance(record, Message):
+                    topic = topics.get(record.channel_id, f"<channel {record.channel_id}>")
+                    counts[topic] = counts.get(topic, 0) + 1
+                elif isinstance(record, Footer):
+                    complete = True
+                valid = fh.tell() if not isinstance(record, Message) else valid
+        except Exception as exc:  # truncated or corrupt tail: report, do not fail
+            error = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+    if complete:
+        valid = total
+    return RecoveryReport(str(p), counts, complete, min(valid, total), total, error)

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import socket
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -387,13 +388,17 @@ class UnityClient:
 
     def run_realtime(self, duration_s: float,
                      on_frame: Callable[[AppliedTransform], None] | None = None,
-                     connect_timeout: float = 5.0) -> list[AppliedTransform]:
-        """Run the render loop for ``duration_s`` wall seconds; returns applied transforms."""
+                     connect_timeout: float = 5.0,
+                     stop: threading.Event | None = None) -> list[AppliedTransform]:
+        """Run the render loop for ``duration_s`` wall seconds (or until ``stop`` is set);
+        returns the applied transforms."""
         applied: list[AppliedTransform] = []
         t0 = time.monotonic_ns()
         end = t0 + int(duration_s * 1e9)
         next_connect = t0
         for frame_ns in self.scene.frame_times(t0, end):
+            if stop is not None and stop.is_set():
+                break
             now = time.monotonic_ns()
             if frame_ns > now:
                 time.sleep((frame_ns - now) * 1e-9)
