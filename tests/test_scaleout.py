@@ -87,3 +87,25 @@ def test_simulate_experiment_cli_writes_manifest(tmp_path: Path) -> None:
     for r in manifest["runs"]:
         assert (tmp_path / "exp" / r["log"]).is_file()
         assert r["bridge"]["sent"] > 0
+
+
+def test_logs_on_an_object_store_url_are_fetched(tmp_path: Path) -> None:
+    fsspec = pytest.importorskip("fsspec")
+    exp = data_path("experiments", "default.toml")
+    m = run_experiment(exp, tmp_path / "sweep", SessionOptions(), executor="inline",
+                       progress=False)
+    fs = fsspec.filesystem("memory")
+    runs = []
+    for r in m["runs"][:2]:
+        url = f"memory://bucket/{Path(r['log']).name}"
+        fs.pipe(url, (tmp_path / "sweep" / r["log"]).read_bytes())
+        runs.append({**r, "log": url})
+    runs.append({"name": "gone", "log": "memory://bucket/missing.mcap", "factors": {}})
+    (tmp_path / "remote.json").write_text(json.dumps({"runs": runs}))
+    batch = compare_batch(tmp_path / "remote.json", executor="inline", progress=False)
+    local = compare_batch(tmp_path / "sweep", executor="inline", progress=False)
+    assert [r["name"] for r in batch.runs] == [r["name"] for r in m["runs"][:2]]
+    assert _numbers(batch.runs) == {k: v for k, v in _numbers(local.runs).items()
+                                    if k in {r["name"] for r in batch.runs}}
+    assert batch.failed[0]["name"] == "gone"
+    assert "missing.mcap: no such object" in batch.failed[0]["error"]

@@ -46,9 +46,11 @@ def items_from(source: Path, options: dict[str, Any] | None = None) -> list[Batc
         for i, r in enumerate(runs):
             if "name" not in r or "log" not in r:
                 raise ConfigError(f"{manifest}: run {i} lacks 'name' or 'log'")
-            log = Path(r["log"])
-            items.append(BatchItem(r["name"], str(log if log.is_absolute() else base / log),
-                                   dict(r.get("factors", {})), opts, dict(r.get("bridge", {}))))
+            log = str(r["log"])
+            if not is_url(log) and not Path(log).is_absolute():
+                log = str(base / log)
+            items.append(BatchItem(r["name"], log, dict(r.get("factors", {})), opts,
+                                   dict(r.get("bridge", {}))))
         return items
     if source.is_dir():
         logs = sorted(
@@ -64,13 +66,46 @@ def items_from(source: Path, options: dict[str, Any] | None = None) -> list[Batc
     raise ConfigError(f"{source}: no such manifest or directory")
 
 
+def is_url(log: str) -> bool:
+    """True for object-store / remote URLs (``s3://``, ``gs://``, ``memory://``...)."""
+    scheme, sep, _ = log.partition("://")
+    return bool(sep) and scheme not in ("", "file")
+
+
 def compare_item(item: BatchItem) -> dict[str, Any]:
-    """Compare one log (vehicle and camera topics); module-level for worker processes."""
+    """Compare one log (vehicle and camera topics); module-level for worker processes.
+
+    A log given as a URL is fetched through fsspec into a temporary file first (workers of a
+    cluster without a shared file system read the logs from an object store that way).
+    """
     from uwval.comparison import compare_logs
 
-    result = compare_logs(item.log, **item.options)
+    if is_url(item.log):
+        import tempfile
+
+        with tempfile.TemporaryDirectory(prefix="uwval-") as tmp:
+            local = Path(tmp) / Path(item.log.split("://", 1)[1]).name
+            _fetch(item.log, local)
+            result = compare_logs(local, **item.options)
+    else:
+        result = compare_logs(item.log, **item.options)
     return {"name": item.name, "log": item.log, "factors": item.factors,
             "bridge": item.bridge, "comparison": result.to_json()}
+
+
+def _fetch(url: str, dest: Path) -> None:
+    """Copy one remote file to ``dest`` with fsspec (installed with the dask extra)."""
+    try:
+        import fsspec
+    except ImportError as exc:
+        raise ConfigError(f"{url}: reading URLs needs fsspec (pip install 'uwval[dask]')"
+                          ) from exc
+    try:
+        with fsspec.open(url, "rb") as src, open(dest, "wb") as out:
+            while chunk := src.read(1 << 22):
+                out.write(chunk)
+    except FileNotFoundError as exc:
+        raise ConfigError(f"{url}: no such object") from exc
 
 
 @dataclass
