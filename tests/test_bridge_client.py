@@ -175,3 +175,46 @@ def test_replay_cli_missing_log_is_a_clean_error(tmp_path: Path) -> None:
                          capture_output=True, text=True, timeout=60)
     assert res.returncode == 2
     assert "nope.mcap: no such file or directory" in res.stderr
+
+
+def test_idle_client_sends_keepalives_that_the_server_ignores() -> None:
+    with BridgeServer("127.0.0.1", 0) as srv:
+        conn = UnityConnection("127.0.0.1", srv.port, subscriptions={"a": wire.POSE_STAMPED})
+        conn.connect()
+        srv.wait_for_subscribers("a")
+        before = srv.clients()[0].frames_in  # keepalive on connect + __subscribe
+        assert before == 2
+        conn.keepalive_if_idle(interval=0.0)
+        conn.keepalive_if_idle(interval=3600.0)  # not idle that long: nothing sent
+        deadline = time.monotonic() + 5
+        while srv.clients()[0].frames_in == before and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert srv.clients()[0].frames_in == before + 1
+        assert srv.clients()[0].closed_reason == ""
+        conn.close()
+
+
+def test_serve_cli_accepts_a_client(tmp_path: Path) -> None:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    proc = subprocess.Popen([sys.executable, "-m", "uwval", "bridge", "serve", "--port",
+                             str(port), "--duration", "30", "--protocol", "ros1"], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + 30
+        conn = UnityConnection("127.0.0.1", port, protocol="ROS1")
+        while True:
+            try:
+                conn.connect(timeout=1.0)
+                break
+            except BridgeError:
+                if time.monotonic() > deadline or proc.poll() is not None:
+                    raise
+                time.sleep(0.2)
+        assert conn.server_version == "v0.7.0"
+        conn.close()
+    finally:
+        proc.terminate()
+        proc.wait(10)

@@ -117,6 +117,8 @@ def test_same_seed_same_log_other_seed_other_drops(tmp_path: Path) -> None:
     c, sc = session(tmp_path, "c.mcap", seed=2, **kw)
     ua, ub, uc = (read_stream(p, "/unity/model_rov_pose") for p in (a, b, c))
     assert np.array_equal(ua.t, ub.t)
+    assert ua.applied_stamp is not None
+    assert ub.applied_stamp is not None
     assert np.array_equal(ua.applied_stamp, ub.applied_stamp)
     assert np.array_equal(ua.position, ub.position)
     assert sa.dropped == sb.dropped
