@@ -38,6 +38,7 @@ from uwval.results import (
     ResultsTable,
     RunRecord,
     anova_oneway,
+    compare_pending,
     factor_levels,
     load_experiment_results,
     summarize_by_level,
@@ -147,7 +148,7 @@ def build_report(
     else:
         exp = load_experiment_results(src, manifest)
         if exp.table.df.empty and any(r.log is not None for r in exp.runs):
-            exp = _compare_manifest(exp, opts)
+            exp = compare_pending(exp, opts)
         details = []
         for run in exp.runs[:max_detail_runs]:
             details.append(_detail_for(run, opts))
@@ -173,21 +174,6 @@ def build_report(
         write_pdf(report, pdf_out)
     plots.close(report.figures())
     return ReportOutcome(html_out, pdf_out, gate, table, len(exp.runs), warnings)
-
-
-def _compare_manifest(exp: ExperimentResults, opts: Mapping[str, Any]) -> ExperimentResults:
-    """Runs known from a manifest but not compared yet: compare their logs now."""
-    from uwval.comparison import compare_logs
-
-    items = []
-    for run in exp.runs:
-        if run.log is None or not run.log.exists():
-            exp.failed.append({"name": run.name, "error": f"log {run.log} is missing"})
-            continue
-        run.comparison = compare_logs(run.log, **opts).to_json()
-        items.append((run.name, run.factors, run.comparison))
-    exp.table = ResultsTable.from_comparisons(items)
-    return exp
 
 
 def _detail_for(run: RunRecord, opts: Mapping[str, Any]) -> _RunDetail:

@@ -279,3 +279,37 @@ def test_pytest_plugin_pattern_passes_and_fails(experiment: Path, tmp_path: Path
     assert "test_fixture_reports_regressions" in out
     assert "mae run=rig topic=model_rov_pose axis=x" in out
     assert "must be <= 1e-09 m" in out
+
+
+def test_noise_level_correlation_in_the_baseline_is_not_gated(table: ResultsTable) -> None:
+    df = table.to_dataframe()
+    z_r = (df["axis"] == "yaw") & (df["metric"] == "pearson_r")
+    noisy = df.copy()
+    noisy.loc[z_r, "value"] = 0.13  # a baseline axis whose r is noise
+    base = ResultsTable.from_dataframe(noisy, table.factors)
+    now = df.copy()
+    now.loc[z_r, "value"] = -0.2
+    verdict = check_baseline(ResultsTable.from_dataframe(now, table.factors), base)
+    assert verdict.passed
+    assert any("r_min" in s for s in verdict.skipped)
+    strict = check_baseline(ResultsTable.from_dataframe(now, table.factors), base,
+                            BaselineTolerance(r_min=-1.0))
+    assert not strict.passed
+
+
+# ----------------------------------------------------------------------------- project CI
+def test_default_experiment_passes_the_projects_own_gate(tmp_path: Path) -> None:
+    """The project's CI gate: simulate the embedded default experiment (8 runs through the
+    simulator, the TCP bridge and the recorder), compare, and check it against the embedded
+    thresholds and the golden baseline (regenerate it with
+    ``uwval simulate data/experiments/default.toml -o DIR && uwval check DIR
+    --write-baseline data/baselines/default.json``)."""
+    out = tmp_path / "default"
+    sim = _uwval("simulate", str(REPO / "data" / "experiments" / "default.toml"), "-o",
+                 str(out))
+    assert sim.returncode == 0, sim.stderr[-3000:]
+    res = _uwval("check", str(out), "--thresholds",
+                 str(REPO / "data" / "thresholds" / "default.toml"), "--baseline",
+                 str(REPO / "data" / "baselines" / "default.json"))
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert "PASS" in res.stdout

@@ -20,13 +20,15 @@ Thresholds live in a TOML file (format documented in ``THRESHOLDS_FORMAT`` and
     atol_m = 0.002                     # absolute slack, metres
     atol_deg = 0.05                    # absolute slack, degrees
     atol_r = 0.01                      # Pearson r may drop this much
+    r_min = 0.9                        # baseline r below this (noise-level axis): not gated
     metrics = ["mae", "rmse", "max", "p95", "pearson_r"]
 
 A rule that matches no row is itself a failure (a typo must not pass silently). Against a
 baseline (a results table saved as JSON/CSV), error metrics regress when
 ``value > base * (1 + rtol) + atol``, Pearson r when ``value < base - atol_r``, bias when
-``|value| > |base| * (1 + rtol) + atol``; a run, topic or axis present in the baseline but
-missing from the results is a failure too.
+``|value| > |base| * (1 + rtol) + atol``; a baseline r below ``r_min`` is not gated (an
+axis that barely moves has a noise-level, meaningless correlation); a run, topic or axis
+present in the baseline but missing from the results is a failure too.
 """
 
 from __future__ import annotations
@@ -90,6 +92,9 @@ class BaselineTolerance:
     atol_m: float = 0.002
     atol_deg: float = 0.05
     atol_r: float = 0.01
+    #: Pearson r below this in the baseline is not gated: such a series is noise-level
+    #: (an axis that barely moves), whose correlation is meaningless run to run.
+    r_min: float = 0.9
     metrics: tuple[str, ...] = DEFAULT_BASELINE_METRICS
 
     def atol(self, unit: str) -> float:
@@ -272,12 +277,12 @@ def _str_list(v: Any, where: str) -> list[str]:
 
 
 def _parse_tolerance(base: Mapping[str, Any], where: str) -> BaselineTolerance:
-    allowed = {"rtol", "atol_m", "atol_deg", "atol_r", "metrics"}
+    allowed = {"rtol", "atol_m", "atol_deg", "atol_r", "r_min", "metrics"}
     extra = sorted(set(base) - allowed)
     if extra:
         raise ConfigError(f"{where}: unknown key(s) {extra} (allowed: {sorted(allowed)})")
     vals: dict[str, Any] = {}
-    for key in ("rtol", "atol_m", "atol_deg", "atol_r"):
+    for key in ("rtol", "atol_m", "atol_deg", "atol_r", "r_min"):
         if key in base:
             v = base[key]
             if isinstance(v, bool) or not isinstance(v, (int, float)) or v < 0:
@@ -383,6 +388,10 @@ def check_baseline(table: ResultsTable, baseline: ResultsTable,
             result.skipped.append(f"{metric} {row['run']}/{row['topic']}/{row['axis']}: "
                                   "undefined in the baseline")
             continue
+        if metric in LOWER_IS_WORSE and b < tol.r_min:
+            result.skipped.append(f"{metric} {row['run']}/{row['topic']}/{row['axis']}: "
+                                  f"baseline r {b:.3g} < r_min {tol.r_min:g} (noise-level axis)")
+            continue
         result.checked += 1
         if metric in LOWER_IS_WORSE:
             bound, op, bad = b - tol.atol_r, ">=", math.isnan(v) or v < b - tol.atol_r
@@ -398,6 +407,13 @@ def check_baseline(table: ResultsTable, baseline: ResultsTable,
             kind = "undefined" if math.isnan(v) else "baseline"
             result.violations.append(Violation(kind, value=v, bound=bound, op=op, **common))
     return result
+
+
+def baseline_from(table: ResultsTable, metrics: Sequence[str] = DEFAULT_BASELINE_METRICS,
+                  meta: Mapping[str, Any] | None = None) -> ResultsTable:
+    """The rows a golden baseline needs (the gated metrics, every run/topic/axis)."""
+    df = table.df[table.df["metric"].isin(list(metrics))]
+    return ResultsTable.from_dataframe(df, table.factors, {**table.meta, **dict(meta or {})})
 
 
 def check(table: ResultsTable, thresholds: Thresholds | str | Path | None = None,

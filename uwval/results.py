@@ -721,6 +721,30 @@ class ExperimentResults:
     failed: list[dict[str, Any]] = field(default_factory=list)
 
 
+def compare_pending(exp: ExperimentResults, options: Mapping[str, Any] | None = None
+                    ) -> ExperimentResults:
+    """Compare the logs of runs that have no comparison yet (a manifest without results).
+
+    Runs whose log is missing are added to ``failed``; the table is rebuilt from all runs.
+    """
+    from uwval.comparison import compare_logs
+
+    opts = dict(options or {})
+    for run in exp.runs:
+        if run.comparison is not None:
+            continue
+        if run.log is None or not run.log.exists():
+            exp.failed.append({"name": run.name, "error": f"log {run.log} is missing"})
+            continue
+        run.comparison = _as_json_obj(compare_logs(run.log, **opts))
+        if run.log not in exp.sources:
+            exp.sources.append(run.log)
+    exp.table = ResultsTable.from_comparisons(
+        [(r.name, r.factors, r.comparison) for r in exp.runs if r.comparison is not None],
+        meta=exp.table.meta)
+    return exp
+
+
 def _read_json(path: Path) -> Any:
     try:
         return json.loads(path.read_text())

@@ -57,6 +57,12 @@ def report(
             command=shlex.join(["uwval", *sys.argv[1:]]),
         )
     if results_out is not None:
+        import uwval
+
+        outcome.table.meta.update({
+            "uwval_version": uwval.__version__, "source": str(source),
+            "command": shlex.join(["uwval", *sys.argv[1:]]),
+        })
         outcome.table.save(results_out)
     for w in outcome.warnings:
         console.print(f"[yellow]note:[/] {w}")
@@ -77,20 +83,41 @@ def check(
     json_out: Annotated[bool, typer.Option("--json", help="Print the verdict as JSON.")
                         ] = False,
     limit: Annotated[int, typer.Option(help="Violations listed at most (0 = all).")] = 200,
+    write_baseline: Annotated[Path | None, typer.Option(
+        help="Write these results as a golden baseline (JSON/CSV) instead of checking.")
+    ] = None,
 ) -> None:
     """CI gate: exit 1 and list what regressed when a threshold or the baseline is broken.
 
     Exit codes: 0 pass, 1 regression, 2 bad input (unreadable results or thresholds).
     """
     from uwval.gate import check as run_check
-    from uwval.results import load_experiment_results
+    from uwval.results import compare_pending, load_experiment_results
 
-    if thresholds is None and baseline is None:
+    if thresholds is None and baseline is None and write_baseline is None:
         raise ConfigError("uwval check needs --thresholds FILE.toml and/or --baseline FILE.json")
     exp = load_experiment_results(results)
+    if exp.table.df.empty and any(r.log is not None for r in exp.runs):
+        with console.status(f"comparing {len(exp.runs)} logs of {results}..."):
+            exp = compare_pending(exp)
     if exp.table.df.empty:
-        raise ConfigError(f"{results}: no compared results (run `uwval compare-batch` or "
-                          "`uwval report` on it first)")
+        raise ConfigError(f"{results}: no compared results and no logs to compare")
+    if write_baseline is not None:
+        import uwval
+        from uwval.gate import baseline_from
+
+        golden = baseline_from(exp.table, meta={
+            "uwval_version": uwval.__version__, "source": str(results),
+            "command": shlex.join(["uwval", *sys.argv[1:]]),
+            "regenerate": "uwval simulate data/experiments/default.toml -o DIR && "
+                          "uwval check DIR --write-baseline data/baselines/default.json",
+        })
+        written = golden.save(write_baseline)
+        console.print(f"[green]wrote[/] baseline {', '.join(map(str, written))} "
+                      f"({len(golden.runs)} runs, {len(golden)} values)")
+        if exp.failed:
+            raise typer.Exit(1)
+        return
     verdict = run_check(exp.table, thresholds, baseline)
     if json_out:
         typer.echo(json.dumps(verdict.to_json(), indent=1))
