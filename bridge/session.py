@@ -166,8 +166,7 @@ def run_session(
 
         def connect() -> None:
             conn.connect()
-            for t in topics:
-                server.wait_for_subscribers(t, 1)
+            _wait_registered(server, conn, topics)
 
         connect()
         flight = _Flight()
@@ -184,7 +183,7 @@ def run_session(
         def receive_until(count: int) -> None:
             while flight.received < count:
                 frames = conn.poll(_POLL_TIMEOUT_S)
-                if not frames and not conn._pending and flight.received < count:
+                if not frames and not conn.has_pending and flight.received < count:
                     raise BridgeError(
                         f"Unity client waited {_POLL_TIMEOUT_S} s for message "
                         f"{flight.received + 1} of {count}; the endpoint sent nothing")
@@ -207,7 +206,10 @@ def run_session(
             for name, (pos, quat) in poses.items():
                 recorder.gazebo_pose(name, t_ns, pos, quat)
                 stats.sent += 1
-                if gazebo.publish(name, t_ns, pos, quat):
+                # Other clients (a live Unity on the same endpoint) get it too; what
+                # counts here is whether our Unity-like client is linked.
+                gazebo.publish(name, t_ns, pos, quat)
+                if conn.connected:
                     flight.stamps.append(t_ns)
                 else:
                     stats.lost_disconnected += 1
@@ -226,9 +228,9 @@ def run_session(
                     pending = next(it, None)
                 receive_until(len(flight.stamps))
                 stats.lost_disconnected += scene.discard_after(td)
+                me = _local_address(conn)
                 conn.close()
-                for t in topics:  # the endpoint notices the closed socket
-                    _wait_no_subscriber(server, t)
+                _wait_gone(server, me)  # the endpoint noticed the closed socket
                 stats.disconnects += 1
                 down_until = td + int(faults.reconnect_delay_s * 1e9)
             if down_until is not None and down_until <= frame_ns:
@@ -285,9 +287,33 @@ def run_session(
     return stats
 
 
-def _wait_no_subscriber(server: BridgeServer, topic: str, timeout: float = 5.0) -> None:
+def _local_address(conn: UnityConnection) -> str:
+    """``ip:port`` of the client's socket, as the endpoint lists it."""
+    if conn.sock is None:
+        raise BridgeError("Unity client is not connected")
+    host, port = conn.sock.getsockname()[:2]
+    return f"{host}:{port}"
+
+
+def _wait_registered(server: BridgeServer, conn: UnityConnection, topics: Sequence[str],
+                     timeout: float = 5.0) -> None:
+    """Wait until the endpoint has processed this connection's ``__subscribe`` commands."""
+    me = _local_address(conn)
     deadline = time.monotonic() + timeout
-    while server.subscriber_count(topic):
+    while True:
+        mine = [c for c in server.clients() if c.address == me]
+        if mine and set(topics) <= set(mine[0].subscriptions):
+            return
         if time.monotonic() > deadline:
-            raise BridgeError(f"endpoint did not notice the closed client on {topic!r}")
-        time.sleep(0.0005)
+            raise BridgeError(f"endpoint did not register the Unity client's subscriptions "
+                              f"({', '.join(topics)}) within {timeout} s")
+        time.sleep(0.0002)
+
+
+def _wait_gone(server: BridgeServer, address: str, timeout: float = 5.0) -> None:
+    """Wait until the endpoint dropped the client at ``address`` (after we closed it)."""
+    deadline = time.monotonic() + timeout
+    while any(c.address == address for c in server.clients()):
+        if time.monotonic() > deadline:
+            raise BridgeError(f"endpoint did not notice that client {address} closed")
+        time.sleep(0.0002)

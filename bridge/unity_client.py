@@ -105,7 +105,13 @@ class UnityConnection:
 
     @property
     def connected(self) -> bool:
+        """True while the socket is open."""
         return self.sock is not None
+
+    @property
+    def has_pending(self) -> bool:
+        """True when complete frames are parsed but not yet returned by :meth:`poll`."""
+        return bool(self._pending)
 
     def connect(self, timeout: float = 5.0) -> None:
         """Connect, read and check the handshake, send a keepalive, register topics."""

@@ -175,3 +175,45 @@ def test_ticks_from_streams_merges_and_converts() -> None:
     np.testing.assert_allclose(out[2][1]["gui_camera_pose"][0], pos[2], atol=1e-12)
     with pytest.raises(BridgeError, match="1 names for 2 streams"):
         list(ticks_from_streams(veh, cam, names=["a"]))
+
+
+def test_live_peer_on_the_session_endpoint_gets_the_poses_too(tmp_path: Path) -> None:
+    import socket
+    import threading
+    import time
+
+    from bridge import protocol as wire
+    from bridge.unity_client import UnityConnection
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    got: list[int] = []
+
+    def live_unity() -> None:
+        conn = UnityConnection("127.0.0.1", port,
+                               subscriptions={"model_rov_pose": wire.POSE_STAMPED})
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline:
+            try:
+                conn.connect(timeout=1.0)
+                break
+            except BridgeError:
+                time.sleep(0.02)
+        while conn.connected and len(got) < 60:
+            try:
+                frames = conn.poll(2.0)
+            except BridgeError:
+                break
+            got.extend(wire.decode_pose_stamped(f.payload)[0] for f in frames)
+        conn.close()
+
+    peer = threading.Thread(target=live_unity)
+    peer.start()
+    _, stats = session(tmp_path, n=75, realtime=True, port=port)  # 1.5 s, paced
+    peer.join(30)
+    assert stats.received == 150  # our own Unity-like client missed nothing
+    assert len(got) >= 30  # the live peer joined within the run and got poses
+    t, _, _ = motion(75)
+    assert set(got) <= set(t.tolist())
+    assert got == sorted(got)
