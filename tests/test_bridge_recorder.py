@@ -107,3 +107,25 @@ def test_sigkill_leaves_everything_up_to_the_last_flush_readable(tmp_path: Path)
         except Exception:
             pass  # the truncated tail
     assert xs == [float(k) for k in range(got)]
+
+
+def test_scan_cli_reports_complete_and_truncated_logs(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from uwval.cli import _register, app
+
+    _register()
+    path = tmp_path / "ok.mcap"
+    rec = BridgeRecorder(open_mcap_writer(path))
+    for k in range(30):
+        rec.gazebo_pose("model_rov_pose", k, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
+    rec.close()
+    res = CliRunner().invoke(app, ["bridge", "scan", str(path)])
+    assert res.exit_code == 0
+    assert "complete, 30 messages" in res.output
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(path.read_bytes()[:-200])  # lose the summary and footer
+    res = CliRunner().invoke(app, ["bridge", "scan", str(cut)])
+    assert res.exit_code == 1
+    assert "truncated" in res.output
+    assert "/gazebo/model_rov_pose: 30" in res.output

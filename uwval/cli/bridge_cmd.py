@@ -157,3 +157,20 @@ def unity(
     console.print(f"[green]wrote[/] {output}: {len(applied)} transforms, "
                   f"{client.received} messages received, {client.connection.connects} "
                   f"connection(s)")
+
+
+@bridge_app.command("scan")
+def scan(
+    log: Annotated[Path, typer.Argument(help="MCAP log, possibly cut off by a crash.")],
+) -> None:
+    """Say whether a recorded MCAP is complete, or what survived a crash (per topic)."""
+    from bridge.recorder import scan_mcap
+
+    if not log.exists():
+        raise BridgeError(f"{log}: no such file or directory")
+    report = scan_mcap(log)
+    print(report.describe())
+    for topic, n in sorted(report.messages.items()):
+        print(f"  {topic}: {n}")
+    if not report.complete:
+        raise typer.Exit(1)
