@@ -35,7 +35,13 @@ class Alignment:
         """Transform (N, 3) positions and (N, 4) xyzw orientations."""
         if self.mode == "none":
             return position, orientation
-        pos = (self.scale * position) @ self.rotation.T + self.translation
+        # column by column instead of a BLAS matmul: an (N, 3) @ (3, 3) product gains nothing
+        # from BLAS threads and suffers badly from them on a loaded machine
+        r = self.rotation * self.scale
+        pos = np.empty_like(position)
+        for i in range(3):
+            pos[:, i] = (r[i, 0] * position[:, 0] + r[i, 1] * position[:, 1]
+                         + r[i, 2] * position[:, 2] + self.translation[i])
         q_a = quat_from_matrix(self.rotation[None])[0]
         quat = quat_multiply(np.broadcast_to(q_a, orientation.shape), orientation)
         return pos, quat
@@ -70,7 +76,7 @@ def umeyama(x: F64, y: F64, with_scale: bool = False) -> tuple[F64, F64, float]:
     xc = x - mean_x
     yc = y - mean_y
     sigma_x = float(np.einsum("ij,ij->", xc, xc)) / n
-    cov_xy = (yc.T @ xc) / n
+    cov_xy = np.einsum("ni,nj->ij", yc, xc) / n  # no BLAS threads for a 3x3 result
     u, d, v = np.linalg.svd(cov_xy)
     if np.count_nonzero(d > np.finfo(d.dtype).eps) < 2:
         raise AlignmentError(
