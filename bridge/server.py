@@ -451,7 +451,7 @@ class BridgeServer:
         elif cmd in (wire.REQUEST, wire.RESPONSE):
             try:
                 srv_id = int(params["srv_id"])
-            except (KeyError, TypeError, ValueError):
+            except (KeyError, TypeError, ValueError, OverflowError):
                 raise wire.ProtocolError(f"{cmd} at byte {frame.offset} lacks an integer srv_id"
                                       ) from None
             c.pending_srv = (srv_id, cmd == wire.REQUEST)

@@ -258,13 +258,27 @@ fuzz_chunks = st.one_of(
               st.integers(min_value=0, max_value=2**32 - 1)),  # any (oversized) length
     st.builds(lambda d: struct.pack("<I", len(d)) + d,
               st.binary(max_size=20)),  # truncated
+    st.builds(  # system commands with arbitrary (often wrong) JSON or bytes
+        lambda cmd, body, nul: (lambda d, p: struct.pack("<I", len(d)) + d
+                                + struct.pack("<I", len(p)) + p)(
+            cmd.encode() + (b"\x00" if nul else b""), body),
+        st.sampled_from(["__subscribe", "__publish", "__ros_service", "__unity_service",
+                         "__request", "__response", "__topic_list", "__log", "__warn",
+                         "__error", "__handshake", "__nope"]),
+        st.one_of(st.binary(max_size=30), st.recursive(
+            st.none() | st.booleans() | st.floats() | st.integers() | st.text(max_size=8),
+            lambda kids: st.lists(kids, max_size=3) | st.dictionaries(
+                st.sampled_from(["topic", "message_name", "srv_id", "text", "latch"]), kids,
+                max_size=4),
+            max_leaves=6).map(lambda v: json.dumps(v).encode())),
+        st.booleans()),
 )
 
 
 _fuzz_ids = itertools.count()
 
 
-@settings(max_examples=25, deadline=None,
+@settings(max_examples=40, deadline=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(chunks=st.lists(fuzz_chunks, min_size=1, max_size=8))
 def test_fuzzed_client_never_hurts_the_server_or_other_clients(
@@ -288,3 +302,6 @@ def test_fuzzed_client_never_hurts_the_server_or_other_clients(
     assert good.read() == (topic, b"after")
     good.close()
     fresh.close()
+    # Every client the server closed was closed for a protocol reason, never a crash.
+    assert not [c.closed_reason for c in server.closed_clients()
+                if c.closed_reason.startswith("internal error")]
