@@ -63,24 +63,33 @@ def median(xs: Sequence[float]) -> float:
     return float(statistics.median(xs))
 
 
+#: A minimal launcher (python -S): wait4's ru_maxrss of a child is inherited across exec
+#: from the process that forked it, so measuring from this (large) process would report our
+#: own peak. The launcher is small; it posix_spawns the command and reports its wall time,
+#: peak RSS (MiB) and exit code.
+_LAUNCHER = (
+    "import os, sys, time\n"
+    "t0 = time.perf_counter()\n"
+    "pid = os.posix_spawn(sys.argv[1], sys.argv[1:], dict(os.environ),"
+    " file_actions=[(os.POSIX_SPAWN_OPEN, 1, os.devnull, os.O_WRONLY, 0)])\n"
+    "_, status, ru = os.wait4(pid, 0)\n"
+    "print(time.perf_counter() - t0, ru.ru_maxrss / 1024.0, os.waitstatus_to_exitcode(status))\n"
+)
+
+
 def run_command(cmd: Sequence[str], env: dict[str, str] | None = None) -> tuple[float, float]:
-    """Run a command; return (wall seconds, peak RSS MiB of the child) via /usr/bin/time-free
-    accounting: wait4's ru_maxrss of that child alone."""
-    t0 = time.perf_counter()
-    proc = subprocess.Popen(list(cmd), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
-    _, status, ru = _wait4(proc.pid)
-    wall = time.perf_counter() - t0
-    if status != 0:
-        err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
-        raise RuntimeError(f"{' '.join(cmd)} failed ({status}): {err[-2000:]}")
-    return wall, ru.ru_maxrss / 1024.0
+    """Run a command; return (wall seconds, peak RSS MiB of that command alone)."""
+    import shutil
 
-
-def _wait4(pid: int) -> tuple[int, int, Any]:
-    import os
-
-    p, status, ru = os.wait4(pid, 0)
-    return p, os.waitstatus_to_exitcode(status), ru
+    exe = cmd[0] if "/" in cmd[0] else (shutil.which(cmd[0]) or cmd[0])
+    out = subprocess.run([sys.executable, "-S", "-c", _LAUNCHER, exe, *cmd[1:]],
+                         capture_output=True, text=True, env=env)
+    if out.returncode != 0 or not out.stdout.strip():
+        raise RuntimeError(f"launcher for {' '.join(cmd)} failed: {out.stderr[-2000:]}")
+    wall, rss, code = out.stdout.split()
+    if int(code) != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed with exit code {code}: {out.stderr[-2000:]}")
+    return float(wall), float(rss)
 
 
 def peak_rss_mib() -> float:

@@ -43,7 +43,28 @@ def _root() -> None:
     """uwval: simulate, bridge, record, compare, report and gate Gazebo/Unity pose logs."""
 
 
-def _register() -> None:
+#: Which module defines each top-level command, so that ``uwval compare`` imports only the
+#: compare module (start-up time is part of the whole-command cost of small jobs).
+COMMAND_HOME = {
+    "compare": "uwval.cli.compare_cmd",
+    "doctor": "uwval.cli.compare_cmd",
+    "inspect": "uwval.cli.io_cmd",
+    "simulate": "uwval.cli.simulate_cmd",
+    "bridge": "uwval.cli.bridge_cmd",
+    "report": "uwval.cli.report_cmd",
+    "check": "uwval.cli.report_cmd",
+    "demo": "uwval.cli.demo_cmd",
+    "teleop": "uwval.cli.teleop_cmd",
+    "bench": "uwval.cli.bench_cmd",
+}
+
+
+def _register(argv: list[str] | None = None) -> None:
+    """Import the command modules: only the one needed when ``argv`` names a known command."""
+    first = next((a for a in (argv or []) if not a.startswith("-")), None)
+    if first in COMMAND_HOME:
+        importlib.import_module(COMMAND_HOME[first])
+        return
     for name in COMMAND_MODULES:
         try:
             importlib.import_module(name)
@@ -54,7 +75,7 @@ def _register() -> None:
 
 def main(argv: list[str] | None = None) -> None:
     """Console entry point: run the app, printing UwvalErrors as clean messages."""
-    _register()
+    _register(sys.argv[1:] if argv is None else argv)
     try:
         app(args=argv, standalone_mode=True)
     except UwvalError as exc:
