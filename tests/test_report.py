@@ -229,3 +229,13 @@ def test_pdf_pages_render_and_are_not_blank(experiment_report: tuple[Path, Path,
         for words in ("Verdict", "Summary: absolute error, MAE and Pearson r", "Factor: current",
                       "Provenance"):
             assert words in text.stdout
+
+
+def test_cli_report_names_a_corrupt_manifest(tmp_path: Path) -> None:
+    (tmp_path / "exp").mkdir()
+    (tmp_path / "exp" / "manifest.json").write_text('{"runs": [')
+    res = subprocess.run([sys.executable, "-m", "uwval", "report", str(tmp_path / "exp"), "-o",
+                          str(tmp_path / "r.html")], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 2
+    assert "manifest.json: not valid JSON" in res.stderr
+    assert not (tmp_path / "r.html").exists()

@@ -524,8 +524,15 @@ def summarize_by_level(
         "n": g.count(), "n_undefined": g.apply(lambda s: int(s.isna().sum())),
         "mean": g.mean(), "std": g.std(ddof=1), "min": g.min(), "median": g.median(),
         "max": g.max(),
-    })
-    return _order_axes(out.reset_index())
+    }).reset_index()
+    # levels ascending, then topics in table order (vehicle first), then axes x..yaw
+    topic_rank = {t: i for i, t in enumerate(table.topics)}
+    axis_rank = {a: i for i, a in enumerate(AXES)}
+    key = (out[factor].map(lambda v: _level_key(v)), out["topic"].map(topic_rank),
+           out["axis"].map(axis_rank))
+    order = sorted(range(len(out)), key=lambda i: (key[0].iloc[i], key[1].iloc[i],
+                                                   key[2].iloc[i]))
+    return out.iloc[order].reset_index(drop=True)
 
 
 def main_effects(table: ResultsTable, metric: str = "mae",
