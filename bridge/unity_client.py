@@ -371,7 +371,8 @@ class UnityClient:
     drains the socket, applies the latest pose per topic and hands every
     :class:`AppliedTransform` to ``on_frame``; on a lost connection it waits
     ``reconnect_delay_s`` and reconnects, re-registering its subscriptions as Unity does.
-    Latency and drops come from ``faults`` (on the wall clock since connect).
+    Latency, drops and link drops (``faults.disconnects``, seconds after the start) come
+    from ``faults``, on the wall clock.
     """
 
     def __init__(self, host: str = wire.DEFAULT_HOST, port: int = wire.DEFAULT_PORT, *,
@@ -402,18 +403,28 @@ class UnityClient:
         t0 = time.monotonic_ns()
         end = t0 + int(duration_s * 1e9)
         next_connect = t0
+        delay_ns = int(self.reconnect_delay_s * 1e9)
+        # Injected link drops, on the wall clock since the start of the run.
+        drops = sorted(t0 + int(d * 1e9) for d in self.faults.disconnects)
         for frame_ns in self.scene.frame_times(t0, end):
             if stop is not None and stop.is_set():
                 break
             now = time.monotonic_ns()
             if frame_ns > now:
                 time.sleep((frame_ns - now) * 1e-9)
+            while drops and drops[0] <= time.monotonic_ns():
+                drops.pop(0)
+                if self.connection.connected:
+                    self.connection.close()
+                    self.scene.discard_after(time.monotonic_ns())
+                    self.disconnects += 1
+                    next_connect = time.monotonic_ns() + delay_ns
             if not self.connection.connected and time.monotonic_ns() >= next_connect:
                 try:
                     self.connection.connect(connect_timeout)
                     self.faults.reset_connection()
                 except BridgeError:
-                    next_connect = time.monotonic_ns() + int(self.reconnect_delay_s * 1e9)
+                    next_connect = time.monotonic_ns() + delay_ns
             if self.connection.connected:
                 try:
                     for f in self.connection.poll(0.0):
@@ -425,9 +436,10 @@ class UnityClient:
                         else:
                             self.scene.arrive(pose, arr)
                     self.connection.keepalive_if_idle()
-                except BridgeError:
+                except BridgeError:  # lost link or a malformed frame: drop and reconnect
+                    self.connection.close()
                     self.disconnects += 1
-                    next_connect = time.monotonic_ns() + int(self.reconnect_delay_s * 1e9)
+                    next_connect = time.monotonic_ns() + delay_ns
             for tr in self.scene.render(time.monotonic_ns()):
                 applied.append(tr)
                 if on_frame is not None:

@@ -218,3 +218,23 @@ def test_serve_cli_accepts_a_client(tmp_path: Path) -> None:
     finally:
         proc.terminate()
         proc.wait(10)
+
+
+def test_injected_link_drop_then_unity_like_reconnect(live_server: BridgeServer) -> None:
+    client = UnityClient("127.0.0.1", live_server.port, reconnect_delay_s=0.3,
+                         faults=FaultModel(disconnects=[0.4]))
+    applied = client.run_realtime(1.5)
+    assert client.disconnects == 1
+    assert client.connection.connects == 2
+    times = np.array([a.frame_t_ns for a in applied if a.topic == "model_rov_pose"])
+    stamps = np.array([a.applied_stamp_ns for a in applied if a.topic == "model_rov_pose"])
+    # Frozen while offline: one stamp held for about the 0.3 s reconnect delay...
+    change = np.flatnonzero(np.diff(stamps)) + 1
+    starts = np.concatenate(([0], change))
+    ends = np.concatenate((change, [len(stamps)])) - 1
+    spans = times[ends] - times[starts]
+    longest = int(np.argmax(spans))
+    assert spans[longest] >= 250_000_000
+    # ...then fresh poses again after reconnecting.
+    assert ends[longest] < len(stamps) - 1
+    assert stamps[-1] > stamps[ends[longest]]
