@@ -147,6 +147,11 @@ class BridgeServer:
         """Stop accepting, close every client and join the threads."""
         self._stopping.set()
         if self._accept_thread is not None:
+            # Wake accept() at once with a throwaway connection instead of waiting it out.
+            with contextlib.suppress(OSError), socket.create_connection(
+                    (self.host if self.host not in ("", "0.0.0.0") else "127.0.0.1",
+                     self.port), timeout=0.5):
+                pass
             self._accept_thread.join(timeout=2)
         if self._listener is not None:
             self._listener.close()
@@ -287,6 +292,9 @@ class BridgeServer:
             except TimeoutError:
                 continue
             except OSError:
+                break
+            if self._stopping.is_set():
+                conn.close()
                 break
             conn.settimeout(None)
             conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)

@@ -187,6 +187,7 @@ def run_session(
                     raise BridgeError(
                         f"Unity client waited {_POLL_TIMEOUT_S} s for message "
                         f"{flight.received + 1} of {count}; the endpoint sent nothing")
+                batch, arrivals = [], []
                 for f in frames:
                     pose = decode_pose_frame(f, proto)
                     flight.received += 1
@@ -197,7 +198,9 @@ def run_session(
                         continue
                     stats.delivered += 1
                     latencies.append(arrival - pose.stamp_ns)
-                    scene.arrive(pose, arrival)
+                    batch.append(pose)
+                    arrivals.append(arrival)
+                scene.arrive_many(batch, arrivals)
 
         def publish(tick: Tick) -> None:
             t_ns, poses = int(tick[0]), tick[1]

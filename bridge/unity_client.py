@@ -324,10 +324,18 @@ class RenderLoop:
 
     def arrive(self, pose: ReceivedPose, arrival_ns: int) -> None:
         """A pose reached Unity (virtual ``arrival_ns``): convert it into Unity axes now."""
-        pos_u, quat_u = convert_arrays(pose.position[None, :], pose.orientation[None, :],
+        self.arrive_many([pose], [arrival_ns])
+
+    def arrive_many(self, poses: Sequence[ReceivedPose], arrivals_ns: Sequence[int]) -> None:
+        """Several poses reached Unity, in arrival order; converted in one vectorised call."""
+        if not poses:
+            return
+        pos_u, quat_u = convert_arrays(np.array([p.position for p in poses]),
+                                       np.array([p.orientation for p in poses]),
                                        "enu", self.unity_map)
-        self._pending.setdefault(pose.topic, []).append(
-            (arrival_ns, pose.stamp_ns, pos_u[0], quat_u[0]))
+        for k, (pose, arrival) in enumerate(zip(poses, arrivals_ns, strict=True)):
+            self._pending.setdefault(pose.topic, []).append(
+                (int(arrival), pose.stamp_ns, pos_u[k], quat_u[k]))
 
     def discard_after(self, t_ns: int) -> int:
         """Forget poses arriving after ``t_ns`` (in flight when the connection dropped)."""
