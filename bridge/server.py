@@ -450,6 +450,12 @@ class BridgeServer:
             if not topic:
                 self._reply(c, wire.ERROR, {"text": f"{cmd}: can't register a blank topic name"})
                 return
+            if name.count("/") != 1 or not all(name.split("/")):
+                # ROS-TCP-Endpoint cannot resolve such a class and does not register it.
+                self._reply(c, wire.ERROR, {"text": f"{cmd}({topic}, {name}) - Unknown "
+                                                    f"message class '{name}' (expected "
+                                                    "pkg/Type)"})
+                return
             table = {wire.SUBSCRIBE: c.subscriptions, wire.PUBLISH: c.publications,
                      wire.ROS_SERVICE: c.ros_services, wire.UNITY_SERVICE: c.unity_services}[cmd]
             with self._lock:

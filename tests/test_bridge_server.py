@@ -305,3 +305,17 @@ def test_fuzzed_client_never_hurts_the_server_or_other_clients(
     # Every client the server closed was closed for a protocol reason, never a crash.
     assert not [c.closed_reason for c in server.closed_clients()
                 if c.closed_reason.startswith("internal error")]
+
+
+def test_message_names_must_be_pkg_type(server: BridgeServer) -> None:
+    c = RawClient(server.port)
+    c.handshake()
+    c.command("__subscribe", {"topic": "t", "message_name": "geometry_msgs/msg/PoseStamped"})
+    dest, params = c.read_json()
+    assert dest == "__error"
+    assert "Unknown message class 'geometry_msgs/msg/PoseStamped'" in str(params["text"])
+    assert server.subscriber_count("t") == 0
+    c.command("__subscribe", {"topic": "", "message_name": "geometry_msgs/PoseStamped"})
+    dest, params = c.read_json()
+    assert dest == "__error"
+    assert "blank topic" in str(params["text"])
