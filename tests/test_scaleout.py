@@ -109,3 +109,21 @@ def test_logs_on_an_object_store_url_are_fetched(tmp_path: Path) -> None:
                                     if k in {r["name"] for r in batch.runs}}
     assert batch.failed[0]["name"] == "gone"
     assert "missing.mcap: no such object" in batch.failed[0]["error"]
+
+
+def test_compare_batch_cli(tmp_path: Path) -> None:
+    exp = data_path("experiments", "default.toml")
+    run_experiment(exp, tmp_path / "sweep", SessionOptions(), executor="inline", progress=False)
+    res = subprocess.run(
+        [sys.executable, "-m", "uwval", "compare", "--batch", str(tmp_path / "sweep"), "-o",
+         str(tmp_path / "res"), "--workers", "2"],
+        capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL)
+    assert res.returncode == 0, res.stderr
+    assert "compared 8 logs" in res.stdout
+    import pandas as pd
+
+    df = pd.read_csv(tmp_path / "res" / "results.csv")
+    assert set(df["run"]) == {f.stem for f in (tmp_path / "sweep" / "runs").glob("*.mcap")}
+    assert {"force", "torque", "current"} <= set(df.columns)
+    mae_x = df[(df["axis"] == "x") & (df["metric"] == "mae")]
+    assert len(mae_x) == 16  # 8 runs x (vehicle, camera)

@@ -4,9 +4,30 @@ The core package: pose streams, frames, log I/O, alignment, metrics and the CLI.
 It imports none of ``simulator``, ``bridge`` or ``reports`` (only the CLI wires them in).
 """
 
+from typing import Any
+
 from uwval.errors import UwvalError
 from uwval.posestream import PoseStream
 
 __version__ = "0.1.0"
 
-__all__ = ["PoseStream", "UwvalError", "__version__"]
+__all__ = [
+    "ComparisonResult",
+    "LogComparison",
+    "PoseStream",
+    "UwvalError",
+    "__version__",
+    "compare",
+    "compare_logs",
+]
+
+_LAZY = {"compare", "compare_logs", "ComparisonResult", "LogComparison"}
+
+
+def __getattr__(name: str) -> Any:
+    """``uwval.compare`` etc., imported on first use (keeps ``import uwval`` lean)."""
+    if name in _LAZY:
+        import uwval.comparison as comparison
+
+        return getattr(comparison, name)
+    raise AttributeError(f"module 'uwval' has no attribute {name!r}")

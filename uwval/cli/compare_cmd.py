@@ -33,24 +33,35 @@ def _fmt(v: Any, digits: int = 4) -> str:
     if v is None:
         return "-"
     if isinstance(v, float):
+        if v != 0 and abs(v) < 1e-3:  # keep small errors short and legible: 5.03e-04
+            return f"{v:.{digits - 1}e}"
         return f"{v:.{digits}g}"
     return str(v)
 
 
 def _print_table(doc: dict[str, Any], title: str) -> None:
+    from rich import box
     from rich.console import Console
     from rich.markup import escape
     from rich.table import Table
 
     console = Console()
-    table = Table(title=escape(title), title_justify="left")
-    for col in ("axis", "unit", "MAE", "RMSE", "max", "p95", "bias", "Pearson r"):
-        table.add_column(col, justify="right" if col not in ("axis", "unit") else "left")
+    table = Table(title=escape(title), title_justify="left", box=box.SIMPLE_HEAD,
+                  pad_edge=False)
+    # short on purpose (fits 80 columns): p95, std, p-value and CI are in --json
+    for col in ("axis", "MAE", "RMSE", "max", "bias", "Pearson r"):
+        table.add_column(col, justify="left" if col == "axis" else "right", no_wrap=True)
     for ax, s in doc["axes"].items():
-        r = _fmt(s.get("pearson_r")) if s.get("pearson_r") is not None else "n/a (constant)"
-        table.add_row(ax, s.get("unit", ""), _fmt(s["mae"]), _fmt(s["rmse"]), _fmt(s["max"]),
-                      _fmt(s["p95"]), _fmt(s["bias"]), r)
+        r = f"{s['pearson_r']:.6f}" if s.get("pearson_r") is not None else "n/a"
+        unit = s.get("unit", "")
+        table.add_row(escape(f"{ax} [{unit}]") if unit else ax, _fmt(s["mae"]), _fmt(s["rmse"]),
+                      _fmt(s["max"]), _fmt(s["bias"]), r)
     console.print(table)
+    undefined = [ax for ax, s in doc["axes"].items() if s.get("pearson_r") is None]
+    if undefined:
+        reasons = {doc["axes"][ax].get("pearson_reason") or "undefined" for ax in undefined}
+        console.print(f"Pearson r n/a for {', '.join(undefined)}: {'; '.join(sorted(reasons))}",
+                      highlight=False)
     pn, rot, counts = doc["position_error_norm"], doc["rotation_error_deg"], doc["counts"]
     console.print(
         f"samples {doc['n_samples']} (matched {counts['matched']}, masked {counts['masked']}, "
@@ -95,9 +106,25 @@ def compare_command(
     align: Annotated[str, typer.Option(help="none, se3, sim3 (Umeyama) or origin")] = "none",
     as_json: Annotated[bool, typer.Option("--json", help="Print the JSON result")] = False,
     output: Annotated[Path | None, typer.Option("-o", "--output",
-                                                help="Also write the JSON result here")] = None,
+                                                help="Also write the JSON result here (with "
+                                                "--batch: the results directory)")] = None,
+    batch: Annotated[bool, typer.Option("--batch", help="LOG_A is an experiment directory or "
+                                        "manifest: compare every log into one results table")
+                     ] = False,
+    executor: Annotated[str, typer.Option(help="--batch: local (process pool), dask or inline")
+                        ] = "local",
+    workers: Annotated[int | None, typer.Option(help="--batch: worker processes")] = None,
+    scheduler: Annotated[str | None, typer.Option(help="--batch: Dask scheduler address")
+                         ] = None,
 ) -> None:
     """Compare the Gazebo and Unity pose streams: per-axis errors, Pearson r, evo's APE stats."""
+    if batch:
+        _batch(log_a, output, executor=executor, workers=workers, scheduler=scheduler,
+               options={"gazebo_topic": gazebo_topic, "unity_topic": unity_topic, "fmt": fmt,
+                        "frame": frame, "sync": sync, "max_gap": max_gap, "max_diff": max_diff,
+                        "offset": _parse_offset(offset), "max_offset": max_offset,
+                        "align": align})
+        return
     from uwval.comparison.logs import compare_logs
 
     result = compare_logs(
@@ -114,6 +141,27 @@ def compare_command(
         return
     for name, res in result.results.items():
         _print_table(res.to_json(), f"{name}: {res.other.describe()} vs {res.reference.describe()}")
+
+
+def _batch(source: Path, output: Path | None, *, executor: str, workers: int | None,
+           scheduler: str | None, options: dict[str, Any]) -> None:
+    """``compare --batch``: every log of a sweep -> comparisons.json + the results table."""
+    from rich.console import Console
+
+    from uwval.batch import compare_batch
+
+    console = Console()
+    opts = {k: v for k, v in options.items() if v is not None}
+    result = compare_batch(source, executor=executor, workers=workers, scheduler=scheduler,
+                           options=opts)
+    out = output or (source if source.is_dir() else source.parent) / "results"
+    written = result.save(out)
+    console.print(f"[green]compared {len(result.runs)} logs[/] -> "
+                  + ", ".join(str(p) for p in written))
+    for f in result.failed:
+        console.print(f"[red]{f['name']} failed:[/] {f['error']}", highlight=False)
+    if result.failed:
+        raise typer.Exit(1)
 
 
 @app.command("doctor")
