@@ -67,21 +67,53 @@ class _Client:
     unity_services: dict[str, str] = field(default_factory=dict)
     ros_services: dict[str, str] = field(default_factory=dict)
     pending_srv: tuple[int, bool] | None = None  # (srv_id, is_request) for the next frame
+    send_lock: threading.Lock = field(default_factory=threading.Lock)  # one writer at a time
+    partial: bytes = b""  # unsent tail of a frame already partly on the wire
+    partial_frames: int = 0
     nul: bool = False  # peer appends NULs (ROS 2 Unity): answer the same way
     threads: list[threading.Thread] = field(default_factory=list)
 
     def enqueue(self, item: bytes) -> bool:
-        """Queue one atomic item; drop the oldest when full. False if the client is closed."""
+        """Send or queue one atomic item; False if the client is closed.
+
+        Fast path: when nothing is queued and no write is in progress, the caller sends
+        the item itself with a non-blocking send (no thread hand-off, which is what keeps
+        one-way latency low); whatever the socket does not take is finished by the writer
+        thread first. Otherwise the item is queued; a full queue drops its oldest item.
+        """
         with self.cond:
             if self.closed:
                 return False
+            assert self.stats is not None
+            if (_DONTWAIT and not self.queue and not self.partial
+                    and self.send_lock.acquire(blocking=False)):
+                try:
+                    try:
+                        sent = self.sock.send(item, _DONTWAIT)
+                    except OSError:  # would block, or broken: the writer thread handles it
+                        sent = 0
+                    if sent:
+                        self.stats.bytes_out += sent
+                        if sent == len(item):
+                            self.stats.frames_out += 1
+                            return True
+                        # Part of a frame is on the wire: the rest goes next, never dropped.
+                        self.partial = item[sent:]
+                        self.partial_frames = 1
+                        self.cond.notify()
+                        return True
+                finally:
+                    self.send_lock.release()
             if len(self.queue) >= self.max_queue:
                 self.queue.popleft()
-                assert self.stats is not None
                 self.stats.dropped += 1
             self.queue.append(item)
             self.cond.notify()
         return True
+
+
+#: Flag for a non-blocking send (Linux/macOS); 0 disables the direct-send fast path.
+_DONTWAIT = getattr(socket, "MSG_DONTWAIT", 0)
 
 
 class BridgeServer:
@@ -319,19 +351,26 @@ class BridgeServer:
         assert c.stats is not None
         while True:
             with c.cond:
-                while not c.queue and not c.closed:
+                while not c.queue and not c.partial and not c.closed:
                     c.cond.wait()
                 if c.closed:
                     return
-                items = list(c.queue)
-                c.queue.clear()
-            data = b"".join(items)
-            try:
-                c.sock.sendall(data)
-            except OSError as exc:
-                self._close(c, f"send failed: {exc}")
-                return
-            c.stats.frames_out += len(items)
+            # Hold send_lock while taking items so a direct send cannot overtake them.
+            with c.send_lock:
+                with c.cond:
+                    items = ([c.partial] if c.partial else []) + list(c.queue)
+                    n_frames = len(c.queue) + c.partial_frames
+                    c.queue.clear()
+                    c.partial, c.partial_frames = b"", 0
+                if not items:
+                    continue
+                data = b"".join(items)
+                try:
+                    c.sock.sendall(data)
+                except OSError as exc:
+                    self._close(c, f"send failed: {exc}")
+                    return
+            c.stats.frames_out += n_frames
             c.stats.bytes_out += len(data)
 
     def _read_loop(self, c: _Client) -> None:
