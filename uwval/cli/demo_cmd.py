@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.console import Console
@@ -67,22 +67,27 @@ def demo(
         raise typer.Exit(1)
 
 
-def _print_summary(runs: list[dict]) -> None:  # type: ignore[type-arg]
-    """Per run: factor levels, position MAE and Pearson r of the vehicle topic."""
-    table = Table(title="vehicle pose: Unity vs Gazebo", show_lines=False)
+def _print_summary(runs: list[dict[str, Any]]) -> None:
+    """Per run: factor levels, vehicle position/yaw MAE, Pearson r and max position error."""
+    from rich import box
+
+    table = Table(title="vehicle pose, Unity vs Gazebo (per run)", box=box.SIMPLE_HEAD,
+                  pad_edge=False)
     factor_names = sorted({k for r in runs for k in r["factors"]})
-    for name in ["run", *factor_names]:
-        table.add_column(name)
-    for col in ["MAE x (m)", "MAE yaw (deg)", "r x", "|e| max (m)"]:
-        table.add_column(col, justify="right")
-    for r in runs:
+    table.add_column("run", no_wrap=True)
+    units = {"force": "N", "torque": "N m", "current": "m/s"}
+    for name in factor_names:
+        table.add_column(f"{name} {units.get(name, '')}".strip(), justify="right", no_wrap=True)
+    for col in ("MAE x m", "MAE yaw deg", "r x", "max |e| m"):
+        table.add_column(col, justify="right", no_wrap=True)
+    for i, r in enumerate(runs):
         c = r["comparison"]
         axes = c["axes"]
         rx = axes["x"]["pearson_r"]
         table.add_row(
-            r["name"], *[f"{r['factors'].get(k, '')}" for k in factor_names],
+            f"{i:02d}", *[f"{r['factors'].get(k, '')}" for k in factor_names],
             f"{axes['x']['mae']:.2e}", f"{axes['yaw']['mae']:.2e}",
-            "n/a" if rx is None else f"{rx:.4f}",
+            "n/a" if rx is None else f"{rx:.5f}",
             f"{c['position_error_norm']['max']:.2e}",
         )
     console.print(table)
