@@ -252,7 +252,7 @@ def test_bounded_queue_drops_oldest_and_counts(server: BridgeServer) -> None:
     # Drain: frames arrive whole and in order (a drop never splits a frame, even when a
     # frame was partly sent directly), the newest is never dropped, and every published
     # frame was either received or counted as dropped.
-    seqs = []
+    seqs: list[int] = []
     while not seqs or seqs[-1] != n - 1:
         dest, payload = slow.read()
         assert dest == "flood"
