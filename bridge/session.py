@@ -45,12 +45,14 @@ _POLL_TIMEOUT_S = 10.0
 class SessionStats:
     """What happened in one bridged run (counts are messages unless named otherwise).
 
-    ``sent`` poses published by the Gazebo side; ``received`` read by the Unity client from
-    the socket; ``dropped`` by the fault model; ``lost_disconnected`` sent while Unity was
-    disconnected or in flight when it dropped; ``server_dropped`` by the endpoint's bounded
-    queues; ``applied`` Unity transforms logged (one per topic per frame once a pose
-    arrived); latency figures are on the virtual clock, seconds: ``latency_*`` arrival minus
-    header stamp, ``render_lag_*`` frame time minus the applied stamp.
+    ``sent`` poses published by the Gazebo side (``sent = delivered + dropped +
+    lost_disconnected``); ``received`` read by the Unity client from the socket;
+    ``delivered`` reached the scene; ``dropped`` by the fault model; ``lost_disconnected``
+    sent while Unity was disconnected or still in flight when the link dropped;
+    ``server_dropped`` by the endpoint's bounded queues; ``applied`` Unity transforms logged
+    (one per topic per frame once a pose arrived); ``frames`` render frames. Latencies are on
+    the virtual clock, seconds: ``latency_*`` arrival minus header stamp, ``render_lag_*``
+    frame time minus the applied stamp.
     """
 
     ticks: int = 0
@@ -149,6 +151,7 @@ def run_session(
     recorder = BridgeRecorder(writer, unity_map=scene.unity_map, flush_every=flush_every)
     stats.unity_map = scene.unity_map
     lookahead_ns = 0 if realtime else int(lookahead_s * 1e9)
+    max_delay_ns = int(round((latency_s + latency_jitter_s) * 1e9))
     latencies: list[int] = []
     lags: list[int] = []
     applied_per_topic: dict[str, int] = {t: 0 for t in topics}
@@ -230,7 +233,9 @@ def run_session(
                     last_tick_ns = int(pending[0])
                     pending = next(it, None)
                 receive_until(len(flight.stamps))
-                stats.lost_disconnected += scene.discard_after(td)
+                in_flight = scene.discard_after(td)  # read from the socket, not yet arrived
+                stats.delivered -= in_flight
+                stats.lost_disconnected += in_flight
                 me = _local_address(conn)
                 conn.close()
                 _wait_gone(server, me)  # the endpoint noticed the closed socket
@@ -256,8 +261,8 @@ def run_session(
                 publish(pending)
                 last_tick_ns = int(pending[0])
                 pending = next(it, None)
-            if pending is None and frame_ns > last_tick_ns:
-                break
+            # Render until the first frame after the last message could have arrived.
+            last_frame = pending is None and frame_ns > last_tick_ns + max_delay_ns
             if conn.connected:
                 receive_until(flight.needed_by(frame_ns))
             pace(frame_ns)
@@ -267,6 +272,8 @@ def run_session(
                                     tr.applied_stamp_ns)
                 applied_per_topic[tr.topic] = applied_per_topic.get(tr.topic, 0) + 1
                 lags.append(frame_ns - tr.applied_stamp_ns)
+            if last_frame:
+                break
             frame_ns = next(frames)
         if conn.connected:
             receive_until(len(flight.stamps))
