@@ -151,7 +151,7 @@ def run_session(
     recorder = BridgeRecorder(writer, unity_map=scene.unity_map, flush_every=flush_every)
     stats.unity_map = scene.unity_map
     lookahead_ns = 0 if realtime else int(lookahead_s * 1e9)
-    max_delay_ns = int(round((latency_s + latency_jitter_s) * 1e9))
+    max_delay_ns = round((latency_s + latency_jitter_s) * 1e9)
     latencies: list[int] = []
     lags: list[int] = []
     applied_per_topic: dict[str, int] = {t: 0 for t in topics}
