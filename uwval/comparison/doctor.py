@@ -141,18 +141,38 @@ def diagnose(ref_pos: F64, ref_quat: F64, oth_pos: F64, oth_quat: F64,
         if np.array_equal(conv.world_axes, aw) and np.array_equal(conv.body_axes, ab):
             best = name
     configured_name = get_convention(configured).name
+    # Motion along few axes (a pure surge, no rotation) leaves the map ambiguous: several
+    # maps fit equally. Judge by how well each convention fits, relative to the motion.
+    rc = rp - rp.mean(axis=0)
+    spread = float(np.sqrt(np.einsum("ij,ij->", rc, rc) / max(1, rc.shape[0])))
+
+    def cost(name: str) -> float:
+        sc = scores[name]
+        return sc["position_rms_m"] / max(spread, 1e-3) + sc["rotation_rms_deg"] / 10.0
+
+    cfg_cost = cost(configured_name)
+    cfg_fits = cfg_cost < 0.2  # within 20 % of the motion, or ~2 deg of rotation
     warning = None
     if best is None:
-        warning = (
-            "the other stream matches no known convention: fitted world map "
-            f"[{describe_map(aw)}], body map [{describe_map(ab)}]"
-        )
-    elif best != configured_name:
-        cfg, bst = scores[configured_name], scores[best]
-        warning = (
-            f"configured frame {configured_name!r} fits worse than {best!r} "
-            f"({CONVENTIONS[best].description}): rotation RMS {cfg['rotation_rms_deg']:.3g} deg "
-            f"vs {bst['rotation_rms_deg']:.3g} deg, position RMS {cfg['position_rms_m']:.3g} m "
-            f"vs {bst['position_rms_m']:.3g} m"
-        )
+        fitting = sorted((cost(n), n) for n in CONVENTIONS if cost(n) < 0.2)
+        if cfg_fits:
+            best = configured_name  # ambiguous fit, and the configured map explains the data
+        elif fitting:
+            best = fitting[0][1]  # ambiguous fit, but a known map explains the data
+        else:
+            warning = (
+                "the other stream matches no known convention: fitted world map "
+                f"[{describe_map(aw)}], body map [{describe_map(ab)}]"
+            )
+    if best is not None and best != configured_name:
+        if cfg_fits and cfg_cost <= 2.0 * cost(best) + 0.05:
+            best = configured_name  # both fit: the motion cannot tell them apart
+        else:
+            cfg, bst = scores[configured_name], scores[best]
+            warning = (
+                f"configured frame {configured_name!r} fits worse than {best!r} "
+                f"({CONVENTIONS[best].description}): rotation RMS "
+                f"{cfg['rotation_rms_deg']:.3g} deg vs {bst['rotation_rms_deg']:.3g} deg, "
+                f"position RMS {cfg['position_rms_m']:.3g} m vs {bst['position_rms_m']:.3g} m"
+            )
     return FrameDiagnosis(best, configured_name, aw, ab, scores, warning, int(rp.shape[0]))

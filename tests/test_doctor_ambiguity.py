@@ -1,0 +1,44 @@
+"""Frame doctor on one-dimensional motion: ambiguous fits must not raise false alarms."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from uwval.comparison.doctor import diagnose
+from uwval.frames import convert_arrays
+
+
+def _surge_only(n: int = 500) -> tuple[np.ndarray, np.ndarray]:
+    t = np.linspace(0.0, 5.0, n)
+    pos = np.stack([0.5 * t**2, np.zeros(n), np.zeros(n)], axis=1)
+    quat = np.tile([0.0, 0.0, 0.0, 1.0], (n, 1))
+    return pos, quat
+
+
+def test_pure_surge_in_the_configured_frame_gives_no_warning() -> None:
+    pos, quat = _surge_only()
+    up, uq = convert_arrays(pos, quat, "enu", "unity-flu")
+    d = diagnose(pos, quat, up, uq, configured="unity-flu")
+    assert d.warning is None
+    assert d.best == "unity-flu"
+
+
+def test_pure_surge_in_the_wrong_frame_names_the_right_one() -> None:
+    pos, quat = _surge_only()
+    up, uq = convert_arrays(pos, quat, "enu", "unity-flu")
+    d = diagnose(pos, quat, up, uq, configured="unity-enu")
+    assert d.best == "unity-flu"
+    assert d.warning is not None
+    assert "unity-flu" in d.warning
+
+
+def test_general_motion_still_identifies_each_convention() -> None:
+    rng = np.random.default_rng(3)
+    pos = np.cumsum(rng.normal(size=(400, 3)), axis=0)
+    q = rng.normal(size=(400, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    for name in ("unity-flu", "unity-enu", "ned"):
+        op, oq = convert_arrays(pos, q, "enu", name)
+        d = diagnose(pos, q, op, oq, configured="enu")
+        assert d.best == name
+        assert d.warning is not None and name in d.warning
