@@ -5,9 +5,9 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 
+import executor_tasks as tasks
 import pytest
 
-import executor_tasks as tasks
 from uwval.executors import run_tasks
 
 HAS_DASK = importlib.util.find_spec("distributed") is not None

@@ -133,27 +133,15 @@ def enu_from_unity(stream: PoseStream) -> PoseStream:
 # ------------------------------------------------------------------ Unity Euler angles
 
 
-def _rx(a: F64) -> F64:
+def _axis_rotation(a: F64, axis: int) -> F64:
+    """(N, 3, 3) right-handed rotation matrices by angles ``a`` (rad) about ``axis``."""
     c, s = np.cos(a), np.sin(a)
-    m = np.zeros(a.shape + (3, 3))
-    m[..., 0, 0] = 1
-    m[..., 1, 1], m[..., 1, 2], m[..., 2, 1], m[..., 2, 2] = c, -s, s, c
-    return m
-
-
-def _ry(a: F64) -> F64:
-    c, s = np.cos(a), np.sin(a)
-    m = np.zeros(a.shape + (3, 3))
-    m[..., 1, 1] = 1
-    m[..., 0, 0], m[..., 0, 2], m[..., 2, 0], m[..., 2, 2] = c, s, -s, c
-    return m
-
-
-def _rz(a: F64) -> F64:
-    c, s = np.cos(a), np.sin(a)
-    m = np.zeros(a.shape + (3, 3))
-    m[..., 2, 2] = 1
-    m[..., 0, 0], m[..., 0, 1], m[..., 1, 0], m[..., 1, 1] = c, -s, s, c
+    i, j = [k for k in range(3) if k != axis]
+    m = np.zeros((*a.shape, 3, 3))
+    m[..., axis, axis] = 1
+    # about y the sine terms swap sign (z x -> cyclic order z, x)
+    sgn = -1.0 if axis == 1 else 1.0
+    m[..., i, i], m[..., i, j], m[..., j, i], m[..., j, j] = c, -sgn * s, sgn * s, c
     return m
 
 
@@ -164,7 +152,7 @@ def quat_from_unity_euler(euler_deg: F64) -> F64:
     The quaternion is in Unity's own axes (x, y, z, w).
     """
     e = np.radians(np.asarray(euler_deg, dtype=np.float64))
-    r = _ry(e[..., 1]) @ _rx(e[..., 0]) @ _rz(e[..., 2])
+    r = _axis_rotation(e[..., 1], 1) @ _axis_rotation(e[..., 0], 0) @ _axis_rotation(e[..., 2], 2)
     return quat_from_matrix(r)
 
 

@@ -19,7 +19,7 @@ def matrix_from_quat(q: F64) -> F64:
     xx, yy, zz = x * x, y * y, z * z
     xy, xz, yz = x * y, x * z, y * z
     wx, wy, wz = w * x, w * y, w * z
-    m = np.empty(q.shape[:-1] + (3, 3))
+    m = np.empty((*q.shape[:-1], 3, 3))
     m[..., 0, 0] = 1 - 2 * (yy + zz)
     m[..., 0, 1] = 2 * (xy - wz)
     m[..., 0, 2] = 2 * (xz + wy)
@@ -41,9 +41,9 @@ def quat_from_matrix(m: F64) -> F64:
     tr = m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]
     diag = np.stack([m[..., 0, 0], m[..., 1, 1], m[..., 2, 2], tr], axis=-1)
     k = np.argmax(diag, axis=-1)
-    q = np.empty(m.shape[:-2] + (4,))
+    q = np.empty((*m.shape[:-2], 4))
     # candidate for each branch; pick per sample (cheap: 4 vectorised evaluations)
-    cands = np.empty((4,) + q.shape)
+    cands = np.empty((4, *q.shape))
     s = np.sqrt(np.maximum(1 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2], 1e-300)) * 2
     cands[0] = np.stack(
         [0.25 * s, (m[..., 0, 1] + m[..., 1, 0]) / s, (m[..., 0, 2] + m[..., 2, 0]) / s,
