@@ -141,10 +141,10 @@ def _read_pair(path_a: str | Path, path_b: str | Path, gazebo_topic: str | None,
                frame: str | None) -> tuple[PoseStream, PoseStream]:
     """Read the two files; two TUM files are parsed concurrently when that pays off."""
     if is_tum(path_a, fmt) and is_tum(path_b, fmt):
-        from uwval.io.tum import read_tum
+        from uwval.io.tum import read_tum_pair
 
-        return (read_tum(path_a, topic=gazebo_topic or ""),
-                read_tum(path_b, frame=frame or "enu", topic=unity_topic or ""))
+        return read_tum_pair(path_a, path_b, frame_b=frame or "enu",
+                             topic_a=gazebo_topic or "", topic_b=unity_topic or "")
     ga = gazebo_topic
     ub = unity_topic
     if ga is None and not is_tum(path_a, fmt) and DEFAULT_GAZEBO_TOPIC in _topics_of(path_a):

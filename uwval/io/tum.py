@@ -1,16 +1,24 @@
 """TUM trajectory text files: ``timestamp tx ty tz qx qy qz qw`` per line (evo's format).
 
-The reader is vectorised: one ``numpy.fromstring`` call parses the whole file (no per-line
-Python loop), comment lines (``#``) are removed first, and the stamp column is turned into
-int64 nanoseconds by an exact split of each double into whole seconds and fraction, so that
-converting back with :func:`seconds_from_ns` gives bit-for-bit the double evo parses
-(which keeps evo-compatible stamp association exact). Poses are taken as ENU/FLU unless the
-caller states another convention.
+The reader is vectorised: the text is parsed in ~1 MB blocks of whole lines by numpy's C
+``loadtxt`` reader (no per-line Python loop; bounded text in memory) straight into one
+preallocated (N, 8) table; comments, blank lines and malformed lines take a thorough path
+that names the bad line. :func:`read_tum_pair` parses two large files concurrently (the
+second in a forked child). The stamp column is turned into int64 nanoseconds by an exact
+split of each double into whole seconds and fraction, so that converting back with
+:func:`seconds_from_ns` gives bit-for-bit the double evo parses (which keeps evo-compatible
+stamp association exact). Poses are taken as ENU/FLU unless the caller states another
+convention.
 """
 
 from __future__ import annotations
 
+import contextlib
+import io
+import os
+import pickle
 import re
+import signal
 from pathlib import Path
 
 import numpy as np
@@ -92,14 +100,14 @@ def _first_bad_line(data: bytes, strict: bool = False) -> str:
     return "" if strict else "malformed TUM file (could not parse as numbers)"
 
 
-_CHUNK = 1 << 22  # bytes parsed per numpy call: bounds the text held in memory at once
+_CHUNK = 1 << 20  # bytes parsed per block: bounds the text and temporaries held at once
 
 
 def parse_tum_file(path: Path) -> NDArray[np.float64]:
-    """Parse a TUM file into an (N, 8) float64 table, chunk by chunk.
+    """Parse a TUM file into an (N, 8) float64 table, block by block.
 
     Only about ``_CHUNK`` bytes of text are held at a time (plain reads: an mmap would count
-    the whole file as resident memory) and the table is sized from the first chunk's bytes
+    the whole file as resident memory) and the table is sized from the first block's bytes
     per line, so peak memory is about the table itself. Leading comment lines are skipped;
     files with comments further down take the whole-text path. Any line that is not 8
     numbers raises :class:`LogReadError` naming the line and its byte offset.
@@ -117,48 +125,56 @@ def parse_tum_file(path: Path) -> NDArray[np.float64]:
             if head[start:end].strip()[:1] not in (b"", b"#"):
                 break
             start = end
-        body = head[start:]
-        per_line = max(1.0, len(body) / max(1, body.count(b"\n")))
+        carry = head[start:]
+        per_line = max(1.0, len(carry) / max(1, carry.count(b"\n")))
         table = np.empty((int((size - start) / per_line * 1.05) + 16, 8), dtype=np.float64)
         rows = 0
-        carry = body
-        while True:
-            more = fh.read(_CHUNK) if len(carry) < _CHUNK or not carry.endswith(b"\n") else b""
+        eof = False
+        while not eof:
+            more = fh.read(_CHUNK)
+            eof = not more
             text = carry + more if more else carry
-            if not text:
-                break
-            if more:
+            if not eof:
                 cut = text.rfind(b"\n") + 1
                 if cut == 0:  # no newline yet: a very long line, read on
                     carry = text
                     continue
                 text, carry = text[:cut], text[cut:]
-            else:
-                carry = b""
-            if b"#" in text:
+            elif text and not text.endswith(b"\n"):
+                text += b"\n"
+            if not text.strip():
+                continue
+            block = _parse_block(text) if b"#" not in text else None
+            if block is None:  # comments, blank lines or bad lines: the thorough path
                 fh.seek(0)
                 return _parse_whole(fh.read(), str(path))
-            try:
-                values = np.fromstring(text, dtype=np.float64, sep=" ")
-            except ValueError:
-                values = np.empty(1)  # not numbers: located on the whole-text path
-            k = values.size // 8
-            if values.size % 8 or (k != text.count(b"\n") and k != _nonblank_lines(text)):
-                fh.seek(0)
-                return _parse_whole(fh.read(), str(path))
+            k = block.shape[0]
             if rows + k > table.shape[0]:
                 table = np.resize(table, (2 * (rows + k), 8))
-            table[rows:rows + k] = values.reshape(k, 8)
+            table[rows:rows + k] = block
             rows += k
-            del values, text
+            del block, text
     if rows == 0:
         raise LogReadError(f"{path}: no poses (empty TUM file)")
     return table[:rows]
 
 
-def _nonblank_lines(text: bytes) -> int:
-    lines = text.count(b"\n") + (0 if text.endswith(b"\n") else 1)
-    return lines - text.count(b"\n\n") - (1 if text.startswith(b"\n") else 0)
+def _parse_block(text: bytes) -> NDArray[np.float64] | None:
+    """Complete lines (no comments) -> (n, 8) table, or None if they are not lines of 8 numbers.
+
+    ``np.loadtxt``'s C reader (numpy >= 1.23) checks the column count per line and converts
+    with CPython's correctly rounded strtod: values equal ``float(token)`` bit for bit, and
+    it is ~1.4x faster than ``np.fromstring(sep=" ")`` here. None sends the caller to the
+    whole-text path, which names the bad line.
+    """
+    try:
+        values = np.loadtxt(io.BytesIO(text), dtype=np.float64, comments=None, ndmin=2,
+                            encoding="latin-1", quotechar=None)
+    except ValueError:
+        return None
+    if values.shape[1] != 8:
+        return None
+    return values
 
 
 def _parse_whole(data: bytes, source: str) -> NDArray[np.float64]:
@@ -188,12 +204,115 @@ def read_tum(path: str | Path, *, frame: str = "enu", topic: str = "") -> PoseSt
     views of the parsed table, so a 360,000-pose file costs one 23 MB table.
     """
     p = Path(path)
+    return _stream_from_table(p, _load_table(p), frame, topic)
+
+
+#: Both files at least this large: parse the second one in a forked child, concurrently.
+PARALLEL_MIN_BYTES = 4 << 20
+
+
+def read_tum_pair(path_a: str | Path, path_b: str | Path, *, frame_a: str = "enu",
+                  frame_b: str = "enu", topic_a: str = "", topic_b: str = "",
+                  parallel: bool | None = None) -> tuple[PoseStream, PoseStream]:
+    """Read two TUM files, as ``(read_tum(path_a, ...), read_tum(path_b, ...))``.
+
+    Parsing text holds the GIL (threads do not help), so for large files (``parallel=None``:
+    both >= :data:`PARALLEL_MIN_BYTES`, on systems with ``os.fork``) the second file is parsed
+    in a forked child while this process parses the first; the child sends its (N, 8) table
+    back through a pipe. Results and errors are the same as reading one after the other
+    (the first file's error wins).
+    """
+    pa, pb = Path(path_a), Path(path_b)
+    if parallel is None:
+        parallel = hasattr(os, "fork") and all(
+            p.is_file() and p.stat().st_size >= PARALLEL_MIN_BYTES for p in (pa, pb))
+    if not parallel:
+        return (read_tum(pa, frame=frame_a, topic=topic_a),
+                read_tum(pb, frame=frame_b, topic=topic_b))
+    with _ForkedTable(pb) as pending:
+        table_a = _load_table(pa)
+        table_b = pending.result()
+    return (_stream_from_table(pa, table_a, frame_a, topic_a),
+            _stream_from_table(pb, table_b, frame_b, topic_b))
+
+
+class _ForkedTable:
+    """Parse one TUM file in a forked child; ``result()`` returns its table (or re-raises).
+
+    Protocol on the pipe: a pickled header, ``("ok", rows)`` followed by ``rows * 64`` bytes
+    of the float64 table, or ``("error", exception)``. Leaving the ``with`` block without
+    ``result()`` (the first file failed) kills and reaps the child.
+    """
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.pid = -1
+        self.reader: io.BufferedReader | None = None
+
+    def __enter__(self) -> _ForkedTable:
+        read_fd, write_fd = os.pipe()
+        pid = os.fork()
+        if pid == 0:  # child: parse, send, leave without running the parent's cleanup
+            code = 0
+            try:
+                os.close(read_fd)
+                with os.fdopen(write_fd, "wb") as out:
+                    try:
+                        table = _load_table(self.path)
+                    except Exception as exc:  # sent to the parent, re-raised there
+                        pickle.dump(("error", exc), out)
+                    else:
+                        pickle.dump(("ok", table.shape[0]), out)
+                        out.write(np.ascontiguousarray(table).data.cast("B"))
+            except BaseException:  # the parent sees a short read and reports it
+                code = 1
+            finally:
+                os._exit(code)
+        os.close(write_fd)
+        self.pid = pid
+        self.reader = os.fdopen(read_fd, "rb")
+        return self
+
+    def result(self) -> F64:
+        assert self.reader is not None
+        try:
+            kind, payload = pickle.load(self.reader)
+        except (EOFError, pickle.UnpicklingError):
+            kind, payload = "error", LogReadError(f"{self.path}: the parser process failed")
+        if kind == "error":
+            raise payload
+        table = np.empty((int(payload), 8), dtype=np.float64)
+        view = table.data.cast("B")
+        got = 0
+        while got < view.nbytes:
+            n = self.reader.readinto(view[got:])
+            if not n:
+                raise LogReadError(f"{self.path}: the parser process stopped early")
+            got += n
+        return table
+
+    def __exit__(self, *exc: object) -> None:
+        if self.reader is not None:
+            self.reader.close()
+        if self.pid > 0:
+            if exc[0] is not None:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(self.pid, signal.SIGKILL)
+            os.waitpid(self.pid, 0)
+
+
+def _load_table(p: Path) -> F64:
+    """The (N, 8) table of a TUM file, file-system errors as :class:`LogReadError`."""
     if not p.exists():
         raise LogReadError(f"{p}: no such file or directory")
     try:
-        table = parse_tum_file(p)
+        return parse_tum_file(p)
     except OSError as exc:
         raise LogReadError(f"{p}: cannot read: {exc}") from exc
+
+
+def _stream_from_table(p: Path, table: F64, frame: str, topic: str) -> PoseStream:
+    """Stamps to ns, then a PoseStream: views of the table when clean, else repaired."""
     t = ns_from_seconds(table[:, 0])
     pos, quat = table[:, 1:4], table[:, 4:8]
     name = topic or "tum"
