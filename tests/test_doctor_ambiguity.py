@@ -42,3 +42,15 @@ def test_general_motion_still_identifies_each_convention() -> None:
         d = diagnose(pos, q, op, oq, configured="enu")
         assert d.best == name
         assert d.warning is not None and name in d.warning
+
+
+def test_pearson_undefined_for_round_off_noise_series() -> None:
+    from uwval.comparison.stats import pearson
+
+    rng = np.random.default_rng(0)
+    noise = rng.normal(0.0, 1e-14, 500)  # a roll that does not move: quaternion round-off
+    out = pearson(noise, rng.normal(0.0, 1e-14, 500))
+    assert out["pearson_r"] is None
+    assert "constant" in out["pearson_reason"]
+    moving = np.linspace(0.0, 1e-6, 500)  # a micro-metre of real motion still counts
+    assert pearson(moving, moving + rng.normal(0, 1e-9, 500))["pearson_r"] > 0.99

@@ -84,6 +84,10 @@ def betainc_regularized(a: float, b: float, x: float) -> float:
     return 1.0 - math.exp(log_front) * _betacf(b, a, 1.0 - x) / b
 
 
+#: Series whose standard deviation is below this (in their unit, m or deg) are constant.
+CONSTANT_FLOOR = 1e-9
+
+
 def pearson(a: F64, b: F64) -> dict[str, Any]:
     """Pearson r of two series with two-sided p-value and 95 % CI (Fisher z).
 
@@ -103,11 +107,13 @@ def pearson(a: F64, b: F64) -> dict[str, Any]:
     ym = y - y.mean()
     sxx = float(np.einsum("i,i->", xm, xm))
     syy = float(np.einsum("i,i->", ym, ym))
-    # a series is constant when its spread is at rounding level relative to its magnitude
+    # a series is constant when its spread is at rounding level relative to its magnitude,
+    # or below CONSTANT_FLOOR absolutely (1e-9 m or deg: quaternion round-off on an axis
+    # that does not move gives ~1e-14 deg of noise, whose r would be meaningless)
     scale_x = max(float(np.abs(x).max()), 1e-300)
     scale_y = max(float(np.abs(y).max()), 1e-300)
     const = [name for name, s2, sc in (("reference", sxx, scale_x), ("other", syy, scale_y))
-             if math.sqrt(s2) <= 1e-12 * sc * math.sqrt(n)]
+             if math.sqrt(s2) <= max(1e-12 * sc, CONSTANT_FLOOR) * math.sqrt(n)]
     if const:
         out["pearson_reason"] = f"undefined: {' and '.join(const)} series is constant"
         return out
