@@ -258,6 +258,11 @@ def compare(
     aligned_oth = PoseStream(t=t, position=oth_pos, orientation=oth_quat, frame="enu",
                              topic=other.topic, source=other.source)
     latency = latency_stats(other, offset_s)
+    if latency is not None and estimate is not None:
+        # the motion cannot tell a clock offset from a delay: the estimate absorbs both
+        latency["note"] = ("the offset was estimated from the motion and absorbs the mean "
+                           "latency; give --offset S (the known clock offset) for absolute "
+                           "latency")
     stats: dict[str, Any] = {
         "schema": JSON_SCHEMA_VERSION,
         "n_samples": n,
