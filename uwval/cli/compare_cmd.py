@@ -2,11 +2,14 @@
 
 Imports of the engine happen inside the commands, so registering them costs nothing at
 start-up, and the TUM ``--sync nearest`` path loads no pandas, scipy or matplotlib.
+:func:`fast_compare` runs ``uwval compare`` without typer's per-parameter coercion layer
+(which imports pydantic and builds a validator per option: ~0.1 s and ~15 MB per run).
 """
 
 from __future__ import annotations
 
 import json
+import re
 import sys
 from pathlib import Path
 from typing import Annotated, Any
@@ -212,3 +215,52 @@ def doctor_command(
                           f"{escape(diag['best_description'])}")
         if diag["warning"]:
             console.print(f"[yellow]warning:[/] {escape(diag['warning'])}", highlight=False)
+
+
+#: Options ``fast_compare`` understands: option -> (parameter of compare_command, kind).
+_FAST_OPTIONS: dict[str, tuple[str, str]] = {
+    "--gazebo-topic": ("gazebo_topic", "str"), "--unity-topic": ("unity_topic", "str"),
+    "--format": ("fmt", "str"), "--frame": ("frame", "str"), "--sync": ("sync", "str"),
+    "--max-gap": ("max_gap", "float"), "--max-diff": ("max_diff", "float"),
+    "--offset": ("offset", "str"), "--max-offset": ("max_offset", "float"),
+    "--align": ("align", "str"), "--output": ("output", "path"), "-o": ("output", "path"),
+}
+_PLAIN_FLOAT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
+
+
+def fast_compare(argv: list[str]) -> bool:
+    """Run ``uwval compare`` from the arguments after ``compare``, if they are plain.
+
+    The same :func:`compare_command` runs, so output and errors are identical; only the
+    command-line parsing is lighter. Returns False without doing anything when an argument
+    is not a plain value of a known option (help, a typo, a repeated option, a number typer
+    might read differently...): the caller then lets typer parse, which owns usage errors.
+    """
+    kwargs: dict[str, Any] = {}
+    positional: list[str] = []
+    args = iter(argv)
+    for arg in args:
+        if arg == "--json" and "as_json" not in kwargs:
+            kwargs["as_json"] = True
+            continue
+        if arg.startswith("-"):
+            name, has_value, value = arg.partition("=")
+            spec = _FAST_OPTIONS.get(name)
+            if not has_value:
+                value = next(args, "")
+            if spec is None or spec[0] in kwargs or not value:
+                return False
+            dest, kind = spec
+            if kind == "float":
+                if not _PLAIN_FLOAT.fullmatch(value):
+                    return False
+                kwargs[dest] = float(value)
+            else:
+                kwargs[dest] = Path(value) if kind == "path" else value
+        else:
+            positional.append(arg)
+    if len(positional) not in (1, 2):
+        return False
+    compare_command(Path(positional[0]), Path(positional[1]) if len(positional) == 2 else None,
+                    **kwargs)
+    return True

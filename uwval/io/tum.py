@@ -1,6 +1,6 @@
 """TUM trajectory text files: ``timestamp tx ty tz qx qy qz qw`` per line (evo's format).
 
-The reader is vectorised: the text is parsed in ~1 MB blocks of whole lines by numpy's C
+The reader is vectorised: the text is parsed in 256 KiB blocks of whole lines by numpy's C
 ``loadtxt`` reader (no per-line Python loop; bounded text in memory) straight into one
 preallocated (N, 8) table; comments, blank lines and malformed lines take a thorough path
 that names the bad line. :func:`read_tum_pair` parses two large files concurrently (the
@@ -15,11 +15,14 @@ from __future__ import annotations
 
 import contextlib
 import io
+import mmap
 import os
 import pickle
 import re
 import signal
+from collections.abc import Iterator
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 from numpy.typing import NDArray
@@ -100,15 +103,57 @@ def _first_bad_line(data: bytes, strict: bool = False) -> str:
     return "" if strict else "malformed TUM file (could not parse as numbers)"
 
 
-_CHUNK = 1 << 20  # bytes parsed per block: bounds the text and temporaries held at once
+_CHUNK = 1 << 18  # bytes parsed per block: bounds the text and temporaries held at once
+_MIN_LINE = 16  # bytes of the shortest pose line "0 0 0 0 0 0 0 0\n": bounds the row count
 
 
-def parse_tum_file(path: Path) -> NDArray[np.float64]:
-    """Parse a TUM file into an (N, 8) float64 table, block by block.
+class _WholeTextNeededError(Exception):
+    """A block is not plain lines of 8 numbers: parse the whole text thoroughly instead."""
 
-    Only about ``_CHUNK`` bytes of text are held at a time (plain reads: an mmap would count
-    the whole file as resident memory) and the table is sized from the first block's bytes
-    per line, so peak memory is about the table itself. Leading comment lines are skipped;
+
+def _skip_header(head: bytes) -> int:
+    """Offset of the first line of ``head`` that is neither blank nor a comment."""
+    start = 0
+    while start < len(head):
+        end = head.find(b"\n", start)
+        end = len(head) if end < 0 else end + 1
+        if head[start:end].strip()[:1] not in (b"", b"#"):
+            break
+        start = end
+    return start
+
+
+def _iter_blocks(fh: BinaryIO, carry: bytes) -> Iterator[F64]:
+    """(k, 8) tables of consecutive blocks of whole lines, read ``_CHUNK`` bytes at a time.
+
+    Raises :class:`_WholeTextNeededError` at the first block with comments, or that is not lines
+    of 8 numbers (the caller then parses the whole text and names the bad line).
+    """
+    eof = False
+    while not eof:
+        more = fh.read(_CHUNK)
+        eof = not more
+        text = carry + more if more else carry
+        if not eof:
+            cut = text.rfind(b"\n") + 1
+            if cut == 0:  # no newline yet: a very long line, read on
+                carry = text
+                continue
+            text, carry = text[:cut], text[cut:]
+        if not text.strip():
+            continue
+        block = _parse_block(text) if b"#" not in text else None
+        if block is None:
+            raise _WholeTextNeededError
+        yield block
+
+
+def _read_columns(path: Path, out: tuple[I64, F64] | None = None) -> tuple[I64, F64]:
+    """Parse a TUM file into stamps (N,) int64 ns and poses (N, 7) ``tx ty tz qx qy qz qw``.
+
+    Blocks are converted straight into the two final arrays (``out`` when given: capacity
+    at least ``size // _MIN_LINE + 1`` rows; else sized from the first block's bytes per
+    line), so peak memory is about the arrays themselves. Leading comment lines are skipped;
     files with comments further down take the whole-text path. Any line that is not 8
     numbers raises :class:`LogReadError` naming the line and its byte offset.
     """
@@ -118,45 +163,66 @@ def parse_tum_file(path: Path) -> NDArray[np.float64]:
             raise LogReadError(f"{path}: file is empty")
         fh.seek(0)
         head = fh.read(_CHUNK)
-        start = 0
-        while start < len(head):  # skip blank and comment lines at the top
-            end = head.find(b"\n", start)
-            end = len(head) if end < 0 else end + 1
-            if head[start:end].strip()[:1] not in (b"", b"#"):
-                break
-            start = end
+        start = _skip_header(head)
         carry = head[start:]
-        per_line = max(1.0, len(carry) / max(1, carry.count(b"\n")))
-        table = np.empty((int((size - start) / per_line * 1.05) + 16, 8), dtype=np.float64)
+        if out is None:
+            per_line = max(1.0, len(carry) / max(1, carry.count(b"\n")))
+            cap = int((size - start) / per_line * 1.05) + 16
+            t, pose = np.empty(cap, dtype=np.int64), np.empty((cap, 7), dtype=np.float64)
+        else:
+            t, pose = out
         rows = 0
-        eof = False
-        while not eof:
-            more = fh.read(_CHUNK)
-            eof = not more
-            text = carry + more if more else carry
-            if not eof:
-                cut = text.rfind(b"\n") + 1
-                if cut == 0:  # no newline yet: a very long line, read on
-                    carry = text
-                    continue
-                text, carry = text[:cut], text[cut:]
-            elif text and not text.endswith(b"\n"):
-                text += b"\n"
-            if not text.strip():
-                continue
-            block = _parse_block(text) if b"#" not in text else None
-            if block is None:  # comments, blank lines or bad lines: the thorough path
-                fh.seek(0)
-                return _parse_whole(fh.read(), str(path))
-            k = block.shape[0]
-            if rows + k > table.shape[0]:
-                table = np.resize(table, (2 * (rows + k), 8))
-            table[rows:rows + k] = block
-            rows += k
-            del block, text
+        try:
+            for block in _iter_blocks(fh, carry):
+                k = block.shape[0]
+                if rows + k > t.shape[0]:  # estimate too small (lines got longer)
+                    t = np.concatenate([t[:rows], np.empty(rows + 2 * k, dtype=np.int64)])
+                    pose = np.concatenate([pose[:rows], np.empty((rows + 2 * k, 7))])
+                t[rows:rows + k] = _stamps_ns(block[:, 0], path, rows)
+                pose[rows:rows + k] = block[:, 1:]
+                rows += k
+        except _WholeTextNeededError:
+            fh.seek(0)
+            table = _parse_whole(fh.read(), str(path))
+            rows = table.shape[0]
+            if out is None:
+                return _stamps_ns(table[:, 0], path, 0), table[:, 1:]
+            t[:rows] = _stamps_ns(table[:, 0], path, 0)
+            pose[:rows] = table[:, 1:]
     if rows == 0:
         raise LogReadError(f"{path}: no poses (empty TUM file)")
-    return table[:rows]
+    return t[:rows], pose[:rows]
+
+
+_MAX_STAMP_S = 9.2e9  # int64 nanoseconds reach 2**63 ns ~ 9.22e9 s (year 2262)
+
+
+def _stamps_ns(seconds: F64, path: Path, first_row: int) -> I64:
+    """Stamps of pose lines ``first_row...`` as int64 ns; NaN/inf/out-of-range is an error."""
+    ok = np.abs(seconds) < _MAX_STAMP_S  # False for NaN too
+    if not bool(ok.all()):
+        k = int(np.flatnonzero(~ok)[0])
+        raise LogReadError(f"{path}: pose line {first_row + k + 1}: timestamp {seconds[k]!r} "
+                           "is not a finite time in seconds (|t| < 9.2e9)")
+    return ns_from_seconds(seconds)
+
+
+def parse_tum_file(path: Path) -> NDArray[np.float64]:
+    """Parse a TUM file into an (N, 8) float64 table (stamps in seconds as written).
+
+    Same block reader and errors as :func:`read_tum`, which keeps stamps as int64 ns instead.
+    """
+    with open(path, "rb") as fh:
+        head = fh.read(_CHUNK)
+        start = _skip_header(head)
+        try:
+            blocks = list(_iter_blocks(fh, head[start:]))
+        except _WholeTextNeededError:
+            fh.seek(0)
+            return _parse_whole(fh.read(), str(path))
+    if not blocks:
+        raise LogReadError(f"{path}: no poses (empty TUM file)")
+    return np.concatenate(blocks)
 
 
 def _parse_block(text: bytes) -> NDArray[np.float64] | None:
@@ -201,10 +267,10 @@ def read_tum(path: str | Path, *, frame: str = "enu", topic: str = "") -> PoseSt
     Unsorted or duplicate stamps and slightly non-unit quaternions are repaired and counted in
     ``stream.repairs``; NaN values and badly non-unit quaternions raise errors naming the file.
     Clean files (the common case) skip the repair pass: positions and orientations stay
-    views of the parsed table, so a 360,000-pose file costs one 23 MB table.
+    views of one (N, 7) array, so a 360,000-pose file costs 20 MB of poses + 3 MB of stamps.
     """
     p = Path(path)
-    return _stream_from_table(p, _load_table(p), frame, topic)
+    return _stream(p, *_load(p), frame, topic)
 
 
 #: Both files at least this large: parse the second one in a forked child, concurrently.
@@ -218,9 +284,9 @@ def read_tum_pair(path_a: str | Path, path_b: str | Path, *, frame_a: str = "enu
 
     Parsing text holds the GIL (threads do not help), so for large files (``parallel=None``:
     both >= :data:`PARALLEL_MIN_BYTES`, on systems with ``os.fork``) the second file is parsed
-    in a forked child while this process parses the first; the child sends its (N, 8) table
-    back through a pipe. Results and errors are the same as reading one after the other
-    (the first file's error wins).
+    in a forked child while this process parses the first; the child writes its arrays into
+    shared memory (no copy back). Results and errors are the same as reading one after the
+    other (the first file's error wins).
     """
     pa, pb = Path(path_a), Path(path_b)
     if parallel is None:
@@ -229,18 +295,18 @@ def read_tum_pair(path_a: str | Path, path_b: str | Path, *, frame_a: str = "enu
     if not parallel:
         return (read_tum(pa, frame=frame_a, topic=topic_a),
                 read_tum(pb, frame=frame_b, topic=topic_b))
-    with _ForkedTable(pb) as pending:
-        table_a = _load_table(pa)
-        table_b = pending.result()
-    return (_stream_from_table(pa, table_a, frame_a, topic_a),
-            _stream_from_table(pb, table_b, frame_b, topic_b))
+    with _ForkedParse(pb) as pending:
+        first = _load(pa)
+        second = pending.result()
+    return _stream(pa, *first, frame_a, topic_a), _stream(pb, *second, frame_b, topic_b)
 
 
-class _ForkedTable:
-    """Parse one TUM file in a forked child; ``result()`` returns its table (or re-raises).
+class _ForkedParse:
+    """Parse one TUM file in a forked child into shared memory; ``result()`` collects it.
 
-    Protocol on the pipe: a pickled header, ``("ok", rows)`` followed by ``rows * 64`` bytes
-    of the float64 table, or ``("error", exception)``. Leaving the ``with`` block without
+    The arrays live in an anonymous shared mapping sized for the most rows the file could
+    hold (pages the child does not write cost nothing). The pipe carries a pickled
+    ``("ok", rows)`` or ``("error", exception)``. Leaving the ``with`` block without
     ``result()`` (the first file failed) kills and reaps the child.
     """
 
@@ -248,23 +314,27 @@ class _ForkedTable:
         self.path = path
         self.pid = -1
         self.reader: io.BufferedReader | None = None
+        cap = self.path.stat().st_size // _MIN_LINE + 2
+        self.shared = mmap.mmap(-1, cap * 8 * 8)
+        self.t = np.frombuffer(self.shared, dtype=np.int64, count=cap)
+        self.pose = np.frombuffer(self.shared, dtype=np.float64, count=cap * 7,
+                                  offset=cap * 8).reshape(cap, 7)
 
-    def __enter__(self) -> _ForkedTable:
+    def __enter__(self) -> _ForkedParse:
         read_fd, write_fd = os.pipe()
         pid = os.fork()
-        if pid == 0:  # child: parse, send, leave without running the parent's cleanup
+        if pid == 0:  # child: parse, report, leave without running the parent's cleanup
             code = 0
             try:
                 os.close(read_fd)
                 with os.fdopen(write_fd, "wb") as out:
                     try:
-                        table = _load_table(self.path)
+                        t, _ = _load(self.path, (self.t, self.pose))
                     except Exception as exc:  # sent to the parent, re-raised there
                         pickle.dump(("error", exc), out)
                     else:
-                        pickle.dump(("ok", table.shape[0]), out)
-                        out.write(np.ascontiguousarray(table).data.cast("B"))
-            except BaseException:  # the parent sees a short read and reports it
+                        pickle.dump(("ok", t.shape[0]), out)
+            except BaseException:  # the parent sees no report and says so
                 code = 1
             finally:
                 os._exit(code)
@@ -273,7 +343,7 @@ class _ForkedTable:
         self.reader = os.fdopen(read_fd, "rb")
         return self
 
-    def result(self) -> F64:
+    def result(self) -> tuple[I64, F64]:
         assert self.reader is not None
         try:
             kind, payload = pickle.load(self.reader)
@@ -281,15 +351,8 @@ class _ForkedTable:
             kind, payload = "error", LogReadError(f"{self.path}: the parser process failed")
         if kind == "error":
             raise payload
-        table = np.empty((int(payload), 8), dtype=np.float64)
-        view = table.data.cast("B")
-        got = 0
-        while got < view.nbytes:
-            n = self.reader.readinto(view[got:])
-            if not n:
-                raise LogReadError(f"{self.path}: the parser process stopped early")
-            got += n
-        return table
+        rows = int(payload)
+        return self.t[:rows], self.pose[:rows]
 
     def __exit__(self, *exc: object) -> None:
         if self.reader is not None:
@@ -301,22 +364,21 @@ class _ForkedTable:
             os.waitpid(self.pid, 0)
 
 
-def _load_table(p: Path) -> F64:
-    """The (N, 8) table of a TUM file, file-system errors as :class:`LogReadError`."""
+def _load(p: Path, out: tuple[I64, F64] | None = None) -> tuple[I64, F64]:
+    """Stamps and poses of a TUM file, file-system errors as :class:`LogReadError`."""
     if not p.exists():
         raise LogReadError(f"{p}: no such file or directory")
     try:
-        return parse_tum_file(p)
+        return _read_columns(p, out)
     except OSError as exc:
         raise LogReadError(f"{p}: cannot read: {exc}") from exc
 
 
-def _stream_from_table(p: Path, table: F64, frame: str, topic: str) -> PoseStream:
-    """Stamps to ns, then a PoseStream: views of the table when clean, else repaired."""
-    t = ns_from_seconds(table[:, 0])
-    pos, quat = table[:, 1:4], table[:, 4:8]
+def _stream(p: Path, t: I64, pose: F64, frame: str, topic: str) -> PoseStream:
+    """A PoseStream of views into ``pose`` when the data are clean, else a repaired one."""
+    pos, quat = pose[:, 0:3], pose[:, 3:7]
     name = topic or "tum"
-    if _clean(t, table, quat):
+    if _clean(t, pose, quat):
         return PoseStream(t=t, position=pos, orientation=quat, frame=frame, topic=name,
                           source=str(p))
     # something needs repair: first make sure it is not a misparse (a line of 7 numbers next
@@ -330,9 +392,9 @@ def _stream_from_table(p: Path, table: F64, frame: str, topic: str) -> PoseStrea
         raise PoseStreamError(f"{exc} (TUM file: sample k is on the k-th pose line)") from None
 
 
-def _clean(t: I64, table: F64, quat: F64) -> bool:
+def _clean(t: I64, pose: F64, quat: F64) -> bool:
     """True when nothing needs repairing: finite, strictly increasing, unit quaternions."""
-    if not bool(np.isfinite(table).all()):
+    if not bool(np.isfinite(pose).all()):
         return False
     if t.size > 1 and not bool((np.diff(t) > 0).all()):
         return False
