@@ -118,3 +118,193 @@ def test_large_file_is_parsed_in_chunks(tmp_path: Path, monkeypatch: pytest.Monk
     (tmp_path / "c.tum").write_text((tmp_path / "c.tum").read_text() + "1e99 1 2\n")
     with pytest.raises(LogReadError, match=f"line {n + 2}"):
         read_tum(tmp_path / "c.tum")
+
+
+# ---- the block parser: bit-exact against float(), whatever the layout -----------------------
+
+_FORMATS = (repr, "{:.9f}".format, "{:.17g}".format, "{:.3e}".format, "{:+.6f}".format,
+            lambda x: str(round(x)))
+_value = st.floats(-1e6, 1e6, allow_nan=False, allow_infinity=False)
+_stamp = st.floats(0.0, 4e9, allow_nan=False, allow_infinity=False)
+
+
+@st.composite
+def _tum_text(draw: st.DrawFn) -> tuple[str, list[list[str]]]:
+    """TUM text with random number formats, separators, line endings, comments, blank lines."""
+    n = draw(st.integers(1, 30))
+    newline = draw(st.sampled_from(["\n", "\r\n"]))
+    lines, tokens = [], []
+    for _ in range(n):
+        if draw(st.booleans()) and draw(st.booleans()):
+            lines.append(draw(st.sampled_from(["# comment", "", "   ", "#"])))
+        row = [draw(st.sampled_from(_FORMATS))(draw(_stamp))]
+        row += [draw(st.sampled_from(_FORMATS))(draw(_value)) for _ in range(7)]
+        seps = [draw(st.sampled_from([" ", "\t", "  ", " \t"])) for _ in range(7)]
+        lines.append("".join(tok + sep for tok, sep in zip(row, [*seps, ""], strict=True)))
+        tokens.append(row)
+    return newline.join(lines) + draw(st.sampled_from(["", newline])), tokens
+
+
+@settings(max_examples=150, deadline=None)
+@given(_tum_text(), st.sampled_from([64, 200, 1 << 18]))
+def test_block_parser_equals_float_bit_for_bit(tmp_path_factory: pytest.TempPathFactory,
+                                               case: tuple[str, list[list[str]]],
+                                               chunk: int) -> None:
+    import uwval.io.tum as tum
+
+    text, tokens = case
+    f = tmp_path_factory.mktemp("tum") / "h.tum"
+    f.write_bytes(text.encode())
+    expected = np.array([[float(tok) for tok in row] for row in tokens])
+    old = tum._CHUNK
+    tum._CHUNK = chunk  # small blocks: lines cut at every possible place
+    try:
+        table = tum.parse_tum_file(f)
+        t, pose = tum._read_columns(f)
+    finally:
+        tum._CHUNK = old
+    assert table.view(np.int64).tolist() == expected.view(np.int64).tolist()
+    assert t.tolist() == ns_from_seconds(expected[:, 0]).tolist()
+    assert pose.view(np.int64).tolist() == expected[:, 1:].view(np.int64).tolist()
+
+
+def test_block_parser_matches_numpy_loadtxt_on_a_large_clean_file(tmp_path: Path) -> None:
+    # many blocks of the fast path (no comments), compared with np.loadtxt on the whole text
+    rng = np.random.default_rng(5)
+    n = 20_000
+    t = 1_700_000_000_000_000_000 + np.arange(n, dtype=np.int64) * 10**7
+    s = PoseStream.from_arrays(t, rng.normal(size=(n, 3)) * 100,
+                               quat_from_rpy(rng.normal(size=(n, 3))))
+    write_tum(tmp_path / "big.tum", s)
+    import uwval.io.tum as tum
+
+    reference = np.loadtxt(tmp_path / "big.tum")
+    table = tum.parse_tum_file(tmp_path / "big.tum")
+    assert table.shape == (n, 8)
+    assert np.array_equal(table.view(np.int64), reference.view(np.int64))
+
+
+def test_crlf_and_tabs_are_read(tmp_path: Path) -> None:
+    f = tmp_path / "w.tum"
+    f.write_bytes(b"1.5\t1 2 3 0 0 0 1\r\n2.5 4\t5 6 0 0 1 0\r\n")
+    s = read_tum(f)
+    assert s.t.tolist() == [1_500_000_000, 2_500_000_000]
+    np.testing.assert_array_equal(s.position, [[1, 2, 3], [4, 5, 6]])
+
+
+@pytest.mark.parametrize("stamp", ["nan", "inf", "1e10"])
+def test_bad_stamps_are_errors_naming_the_pose_line(tmp_path: Path, stamp: str) -> None:
+    f = tmp_path / "s.tum"
+    f.write_text(f"# h\n1 0 0 0 0 0 0 1\n{stamp} 0 0 0 0 0 0 1\n")
+    with pytest.raises(LogReadError, match=r"s.tum: pose line 2: timestamp"):
+        read_tum(f)
+
+
+# ---- two files at once: the forked reader gives what reading one after the other gives -----
+
+def _pair(tmp_path: Path, n: int = 3000) -> tuple[Path, Path]:
+    rng = np.random.default_rng(7)
+    t = 1_700_000_000_000_000_000 + np.arange(n, dtype=np.int64) * 10**7
+    a = PoseStream.from_arrays(t, rng.normal(size=(n, 3)), quat_from_rpy(rng.normal(size=(n, 3))))
+    b = a.with_(t=t + 3_000_000, position=a.position + 0.01)
+    write_tum(tmp_path / "a.tum", a)
+    write_tum(tmp_path / "b.tum", b)
+    return tmp_path / "a.tum", tmp_path / "b.tum"
+
+
+def test_parallel_pair_equals_sequential_reads(tmp_path: Path) -> None:
+    from uwval.io.tum import read_tum_pair
+
+    a, b = _pair(tmp_path)
+    pa, pb = read_tum_pair(a, b, frame_b="ned", topic_a="ref", parallel=True)
+    sa, sb = read_tum(a, topic="ref"), read_tum(b, frame="ned")
+    for got, want in ((pa, sa), (pb, sb)):
+        np.testing.assert_array_equal(got.t, want.t)
+        assert got.position.tobytes() == want.position.tobytes()
+        assert got.orientation.tobytes() == want.orientation.tobytes()
+        assert (got.frame, got.topic, got.source) == (want.frame, want.topic, want.source)
+
+
+def test_parallel_pair_repairs_like_read_tum(tmp_path: Path) -> None:
+    from uwval.io.tum import read_tum_pair
+
+    a, b = _pair(tmp_path, 50)
+    b.write_text("3 0 0 0 0 0 0 1\n1 0 0 0 0 0 0 1\n2 0 0 0 0 0 0 1\n")
+    _, pb = read_tum_pair(a, b, parallel=True)
+    assert pb.t.tolist() == [1_000_000_000, 2_000_000_000, 3_000_000_000]
+    assert pb.repairs["sorted"] == 1
+
+
+def _children() -> set[int]:
+    """Live child processes of this one (Linux), to check the forked parser is reaped."""
+    import os
+
+    path = Path(f"/proc/{os.getpid()}/task/{os.getpid()}/children")
+    return {int(x) for x in path.read_text().split()} if path.exists() else set()
+
+
+def test_parallel_pair_errors_name_the_file_and_reap_the_child(tmp_path: Path) -> None:
+    from uwval.io.tum import read_tum_pair
+
+    a, b = _pair(tmp_path, 50)
+    before = _children()
+    b.write_text("1.0 0 0 0 0 0 0 1\n2.0 0 0 x 0 0 0 1\n")
+    with pytest.raises(LogReadError, match=r"b.tum: line 2"):
+        read_tum_pair(a, b, parallel=True)
+    a.write_text("1.0 0 0 0 0 0 1\n")  # both bad: the first file's error, as sequential reads
+    with pytest.raises(LogReadError, match=r"a.tum: line 1"):
+        read_tum_pair(a, b, parallel=True)
+    _pair(tmp_path, 50)
+    with pytest.raises(LogReadError, match=r"missing\.tum: no such file"):
+        read_tum_pair(a, tmp_path / "missing.tum", parallel=True)
+    assert _children() == before
+
+
+def test_compare_of_large_tum_pair_is_parallel_and_unchanged(tmp_path: Path,
+                                                              monkeypatch: pytest.MonkeyPatch
+                                                              ) -> None:
+    # compare_logs reads two TUM files through read_tum_pair: the JSON is the same whether the
+    # second file is parsed in a forked child or not
+    import uwval.io.tum as tum
+    from uwval.comparison.logs import compare_logs
+
+    a, b = _pair(tmp_path)
+    forked = compare_logs(a, b, sync="nearest").to_json()
+    monkeypatch.setattr(tum, "PARALLEL_MIN_BYTES", 1 << 40)
+    sequential = compare_logs(a, b, sync="nearest").to_json()
+    assert forked == sequential
+    assert forked["counts"]["matched"] == 3000
+
+
+# ---- the light command-line path --------------------------------------------------------------
+
+def test_fast_compare_prints_what_typer_prints(tmp_path: Path,
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    from typer.testing import CliRunner
+
+    from uwval.cli import _register, app
+    from uwval.cli.compare_cmd import fast_compare
+
+    _register()
+    a, b = _pair(tmp_path, 400)
+    args = [str(a), str(b), "--sync", "nearest", "--max-diff=0.005", "--align", "se3", "--json",
+            "-o", str(tmp_path / "out.json")]
+    assert fast_compare(args)
+    fast_out = capsys.readouterr().out
+    fast_file = (tmp_path / "out.json").read_text()
+    result = CliRunner().invoke(app, ["compare", *args])
+    assert result.exit_code == 0, result.output
+    assert fast_out == result.stdout
+    assert fast_file == (tmp_path / "out.json").read_text()
+    assert '"matched"' in fast_out
+
+
+@pytest.mark.parametrize("args", [["--help"], ["a.tum", "b.tum", "--sync"],
+                                  ["a.tum", "b.tum", "--bogus", "1"],
+                                  ["a.tum", "b.tum", "--sync", "nearest", "--sync", "interp"],
+                                  ["a.tum", "b.tum", "--max-diff", "1_0"],
+                                  ["a.tum", "b.tum", "c.tum"], []])
+def test_fast_compare_leaves_anything_unusual_to_typer(args: list[str]) -> None:
+    from uwval.cli.compare_cmd import fast_compare
+
+    assert fast_compare(args) is False

@@ -176,6 +176,8 @@ def _read_columns(path: Path, out: tuple[I64, F64] | None = None) -> tuple[I64, 
             for block in _iter_blocks(fh, carry):
                 k = block.shape[0]
                 if rows + k > t.shape[0]:  # estimate too small (lines got longer)
+                    if out is not None:  # cannot be from the file as it was sized
+                        raise LogReadError(f"{path}: the file grew while being read")
                     t = np.concatenate([t[:rows], np.empty(rows + 2 * k, dtype=np.int64)])
                     pose = np.concatenate([pose[:rows], np.empty((rows + 2 * k, 7))])
                 t[rows:rows + k] = _stamps_ns(block[:, 0], path, rows)
@@ -185,6 +187,8 @@ def _read_columns(path: Path, out: tuple[I64, F64] | None = None) -> tuple[I64, 
             fh.seek(0)
             table = _parse_whole(fh.read(), str(path))
             rows = table.shape[0]
+            if out is not None and rows > t.shape[0]:
+                raise LogReadError(f"{path}: the file grew while being read") from None
             if out is None:
                 return _stamps_ns(table[:, 0], path, 0), table[:, 1:]
             t[:rows] = _stamps_ns(table[:, 0], path, 0)
@@ -314,7 +318,11 @@ class _ForkedParse:
         self.path = path
         self.pid = -1
         self.reader: io.BufferedReader | None = None
-        cap = self.path.stat().st_size // _MIN_LINE + 2
+        try:
+            size = self.path.stat().st_size
+        except OSError:  # reported by the child's read, as read_tum would
+            size = 0
+        cap = size // _MIN_LINE + 2
         self.shared = mmap.mmap(-1, cap * 8 * 8)
         self.t = np.frombuffer(self.shared, dtype=np.int64, count=cap)
         self.pose = np.frombuffer(self.shared, dtype=np.float64, count=cap * 7,
