@@ -153,11 +153,13 @@ class BridgeServer:
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> BridgeServer:
         """Bind, listen and start accepting clients in a background thread."""
+        if not 0 <= self.port <= 65535:
+            raise BridgeError(f"port must be 0-65535, got {self.port}")
         sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
             sock.bind((self.host, self.port))
-        except OSError as exc:
+        except (OSError, OverflowError) as exc:
             sock.close()
             raise BridgeError(f"cannot listen on {self.host}:{self.port}: {exc}") from exc
         sock.listen(16)

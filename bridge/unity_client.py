@@ -18,6 +18,7 @@ clock (:meth:`UnityClient.run_realtime`, e.g. against ``uwval bridge replay``):
 from __future__ import annotations
 
 import contextlib
+import math
 import socket
 import threading
 import time
@@ -118,7 +119,7 @@ class UnityConnection:
         self.close()
         try:
             sock = socket.create_connection((self.host, self.port), timeout=timeout)
-        except OSError as exc:
+        except (OSError, OverflowError) as exc:
             raise BridgeError(f"cannot connect to {self.host}:{self.port}: {exc}") from exc
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self.sock = sock
@@ -250,12 +251,19 @@ class FaultModel:
     _last_arrival_ns: int = field(default=-(2**62), init=False, repr=False)
 
     def __post_init__(self) -> None:
-        if self.latency_s < 0 or self.latency_jitter_s < 0:
-            raise BridgeError("latency and latency jitter must be >= 0 s")
+        # ``not x >= 0`` also rejects NaN (which compares false with everything).
+        if not (self.latency_s >= 0 and self.latency_jitter_s >= 0) or not (
+                math.isfinite(self.latency_s) and math.isfinite(self.latency_jitter_s)):
+            raise BridgeError(f"latency and latency jitter must be finite and >= 0 s, got "
+                              f"{self.latency_s} and {self.latency_jitter_s}")
         if not 0.0 <= self.drop_prob <= 1.0:
             raise BridgeError(f"drop probability must be in [0, 1], got {self.drop_prob}")
-        if self.reconnect_delay_s <= 0:
-            raise BridgeError("reconnect delay must be > 0 s")
+        if not (0 < self.reconnect_delay_s < math.inf):
+            raise BridgeError(f"reconnect delay must be finite and > 0 s, "
+                              f"got {self.reconnect_delay_s}")
+        if not all(math.isfinite(d) and d >= 0 for d in self.disconnects):
+            raise BridgeError(f"disconnect times must be finite and >= 0 s, "
+                              f"got {list(self.disconnects)}")
         self._rng = np.random.default_rng(self.seed)
 
     def arrival_ns(self, send_ns: int) -> int | None:
@@ -290,10 +298,13 @@ class RenderLoop:
     def __init__(self, topics: Sequence[str], *, unity_map: str = "unity-flu",
                  frame_rate: float = 60.0, frame_jitter_s: float = 0.0,
                  clock_offset_s: float = 0.0, seed: int = 0) -> None:
-        if frame_rate <= 0:
-            raise BridgeError(f"frame rate must be positive, got {frame_rate}")
-        if frame_jitter_s < 0:
-            raise BridgeError(f"frame jitter must be >= 0 s, got {frame_jitter_s}")
+        # Written as ``not (ok)`` so that NaN fails too; an infinite rate never advances.
+        if not (0 < frame_rate < math.inf):
+            raise BridgeError(f"frame rate must be finite and positive, got {frame_rate}")
+        if not (0 <= frame_jitter_s < math.inf):
+            raise BridgeError(f"frame jitter must be finite and >= 0 s, got {frame_jitter_s}")
+        if not math.isfinite(clock_offset_s):
+            raise BridgeError(f"Unity clock offset must be finite, got {clock_offset_s} s")
         conv = get_convention(unity_map)
         if not conv.name.startswith("unity"):
             raise BridgeError(f"{unity_map!r} is not a Unity map; use unity-flu or unity-enu")

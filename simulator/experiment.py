@@ -237,7 +237,8 @@ def _bool(doc: dict[str, Any], key: str, where: str) -> bool:
 
 
 def _factor(name: str, spec: Any, where: str) -> Factor:
-    fw = f"{where}: [factors.{name}]"
+    # No square brackets: the CLI prints messages through rich, which reads "[x]" as markup.
+    fw = f"{where}: factor table factors.{name}"
     if not isinstance(spec, dict):
         raise ConfigError(f"{fw} must be a table with 'levels'")
     kind = spec.get("kind", name)
@@ -321,7 +322,7 @@ def experiment_from_mapping(
     baseline: dict[str, Signal] = {}
     bdoc = doc.get("baseline", {})
     if not isinstance(bdoc, dict):
-        raise ConfigError(f"{where}: [baseline] must be a table")
+        raise ConfigError(f"{where}: 'baseline' must be a table")
     for key, val in bdoc.items():
         if key in _WRENCH_KINDS:
             baseline[key] = signal_from_spec(val, f"{where}: baseline.{key}")
@@ -339,7 +340,7 @@ def experiment_from_mapping(
             )
     fdoc = doc.get("factors", {})
     if not isinstance(fdoc, dict):
-        raise ConfigError(f"{where}: [factors] must be a table of tables")
+        raise ConfigError(f"{where}: 'factors' must be a table of tables")
     factors = [_factor(k, v, where) for k, v in fdoc.items()]
     name = doc.get("name", Path(source).stem if source else "experiment")
     return Experiment(

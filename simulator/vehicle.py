@@ -294,7 +294,7 @@ def vehicle_from_mapping(doc: dict[str, Any], *, source: str = "") -> Vehicle:
         raise ConfigError(f'{where}: volume must be a number (m^3) or "neutral", got {vol!r}')
     hydro = doc.get("hydrodynamics", {})
     if not isinstance(hydro, dict):
-        raise ConfigError(f"{where}: [hydrodynamics] must be a table of gz parameter names")
+        raise ConfigError(f"{where}: 'hydrodynamics' must be a table of gz parameter names")
     for k, val in hydro.items():
         if isinstance(val, bool) or not isinstance(val, (int, float)):
             raise ConfigError(f"{where}: hydrodynamics parameter {k} must be a number, got {val!r}")

@@ -32,6 +32,20 @@ class SessionOptions:
     protocol: str = "ROS2"
     log_format: str = "mcap"
 
+    def __post_init__(self) -> None:
+        """Check every option now, before any simulation runs (one clean error, not one
+        failed run per experiment run). The bridge's own classes own the rules."""
+        from bridge import protocol as wire
+        from bridge.unity_client import FaultModel, RenderLoop
+
+        if self.log_format not in FORMAT_SUFFIX:
+            raise ConfigError(f"--format {self.log_format!r}: choose one of "
+                              f"{', '.join(FORMAT_SUFFIX)}")
+        wire.check_protocol(self.protocol)
+        FaultModel(latency_s=self.latency_s, drop_prob=self.drop_prob)
+        RenderLoop([], unity_map=self.unity_map, frame_rate=self.frame_rate,
+                   frame_jitter_s=self.jitter_s, clock_offset_s=self.unity_clock_offset_s)
+
 
 @dataclass(frozen=True)
 class RunJob:
@@ -51,6 +65,15 @@ def log_path_for(out_dir: Path, name: str, log_format: str) -> Path:
     return out_dir / "runs" / f"{name}{FORMAT_SUFFIX[log_format]}"
 
 
+def ensure_parent_dir(path: Path) -> None:
+    """Create ``path``'s directory, or raise a ConfigError naming it (no traceback)."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot create its directory {path.parent}: "
+                          f"{exc.strerror or exc}") from None
+
+
 def run_one(job: RunJob) -> dict[str, Any]:
     """Simulate one run, stream it through the bridge, record both sides; return its record.
 
@@ -64,7 +87,7 @@ def run_one(job: RunJob) -> dict[str, Any]:
     opts = job.session
     sim = simulate(spec.vehicle, spec.inputs, spec.duration_s, **spec.simulate_kwargs())
     path = Path(job.log_path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    ensure_parent_dir(path)
     metadata = {
         "run": spec.name,
         "factors": json.dumps(spec.factors),

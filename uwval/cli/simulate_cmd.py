@@ -17,7 +17,7 @@ from rich.console import Console
 
 from uwval.cli import app
 from uwval.cli.pipeline import FORMAT_SUFFIX, RunJob, SessionOptions, log_path_for, run_one
-from uwval.errors import ConfigError, UwvalError
+from uwval.errors import ConfigError
 from uwval.executors import run_tasks
 
 console = Console()
@@ -36,6 +36,29 @@ def parse_vector(text: str, what: str) -> tuple[float, float, float]:
     return parts[0], parts[1], parts[2]
 
 
+def factor_level(vec: tuple[float, float, float]) -> float:
+    """One number for a run's force/torque/current factor (log metadata, results tables).
+
+    The component when the vector lies on one axis (``10,0,0`` -> 10, ``0,0,-1`` -> -1, so
+    the usual one-axis runs keep their sign), otherwise its Euclidean norm.
+    """
+    nonzero = [v for v in vec if v != 0.0]
+    if len(nonzero) <= 1:
+        return nonzero[0] if nonzero else 0.0
+    return float(sum(v * v for v in vec) ** 0.5)
+
+
+def check_output_suffix(output: Path, log_format: str) -> None:
+    """Refuse a log name whose suffix says another format (``--format rosbag1 -o x.mcap``):
+    readers pick the format by suffix, so such a log could not be compared."""
+    known = {".mcap": "mcap", ".bag": "rosbag1"}
+    said = known.get(output.suffix.lower())
+    if said is not None and FORMAT_SUFFIX[log_format] != output.suffix.lower():
+        raise ConfigError(f"-o {output}: the suffix {output.suffix} means {said}, but --format "
+                          f"is {log_format}; name the log {output.with_suffix('')}"
+                          f"{FORMAT_SUFFIX[log_format]} or change --format")
+
+
 def run_experiment(
     experiment: Path,
     out_dir: Path,
@@ -51,7 +74,11 @@ def run_experiment(
 
     exp = load_experiment(experiment)
     specs = exp.runs()
-    out_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"{out_dir}: cannot create the output directory: "
+                          f"{exc.strerror or exc}") from None
     jobs = [
         RunJob(spec, str(log_path_for(out_dir, spec.name, session.log_format)), session)
         for spec in specs
@@ -114,6 +141,8 @@ def simulate(
     unity_clock_offset: Annotated[float, typer.Option(help="Unity clock minus sim clock, s.")
                                   ] = 0.0,
     seed: Annotated[int, typer.Option(help="Seed for jitter/drops (and the experiment).")] = 0,
+    as_json: Annotated[bool, typer.Option("--json", help="One run: print its record (bridge "
+                                          "statistics, sim info, options) as JSON.")] = False,
     realtime: Annotated[bool, typer.Option(help="Pace the virtual clock to the wall clock.")
                         ] = False,
     executor: Annotated[str, typer.Option(help="local (process pool), dask or inline.")
@@ -129,8 +158,6 @@ def simulate(
         drop_prob=drop, unity_clock_offset_s=unity_clock_offset, realtime=realtime,
         log_format=log_format,
     )
-    if log_format not in FORMAT_SUFFIX:
-        raise ConfigError(f"--format {log_format!r}: choose one of {', '.join(FORMAT_SUFFIX)}")
     if experiment is not None:
         if output.suffix in (".mcap", ".bag", ".db3"):
             output = output.with_suffix("")
@@ -147,22 +174,25 @@ def simulate(
         return
     from simulator import RunSpec, constant_inputs, load_vehicle
 
-    if duration <= 0:
-        raise ConfigError(f"--duration must be positive, got {duration}")
+    if not 0 < duration < float("inf"):
+        raise ConfigError(f"--duration must be a positive number of seconds, got {duration}")
+    check_output_suffix(output, log_format)
     f, tq, c = (parse_vector(force, "force"), parse_vector(torque, "torque"),
                 parse_vector(current, "current"))
     spec = RunSpec(
-        name=output.stem, factors={"force": f[0], "torque": tq[2], "current": c[0]},
+        name=output.stem,
+        factors={"force": factor_level(f), "torque": factor_level(tq),
+                 "current": factor_level(c)},
         vehicle=load_vehicle(vehicle), inputs=constant_inputs(f, tq, c),
         duration_s=duration, seed=seed, publish_rate=publish_rate,
     )
     t0 = time.perf_counter()
     with console.status(f"simulating {duration:g} s and bridging over TCP..."):
-        try:
-            record = run_one(RunJob(spec, str(output), session))
-        except UwvalError:
-            raise
+        record = run_one(RunJob(spec, str(output), session))
     b = record["bridge"]
+    if as_json:
+        typer.echo(json.dumps(record, indent=2))
+        return
     console.print(
         f"[green]wrote[/] {output} in {time.perf_counter() - t0:.2f} s: "
         f"{b.get('sent', 0)} poses sent, {b.get('received', 0)} received, "
