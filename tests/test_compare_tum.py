@@ -265,13 +265,28 @@ def test_compare_of_large_tum_pair_is_parallel_and_unchanged(tmp_path: Path,
                                                               ) -> None:
     # compare_logs reads two TUM files through read_tum_pair: the JSON is the same whether the
     # second file is parsed in a forked child or not
+    import os
+
     import uwval.io.tum as tum
     from uwval.comparison.logs import compare_logs
 
     a, b = _pair(tmp_path)
+    forks: list[int] = []
+    real_fork = os.fork
+
+    def counting_fork() -> int:
+        pid = real_fork()
+        if pid:
+            forks.append(pid)
+        return pid
+
+    monkeypatch.setattr(tum, "PARALLEL_MIN_BYTES", 0)
+    monkeypatch.setattr(tum.os, "fork", counting_fork)
     forked = compare_logs(a, b, sync="nearest").to_json()
+    assert len(forks) == 1
     monkeypatch.setattr(tum, "PARALLEL_MIN_BYTES", 1 << 40)
     sequential = compare_logs(a, b, sync="nearest").to_json()
+    assert len(forks) == 1
     assert forked == sequential
     assert forked["counts"]["matched"] == 3000
 
@@ -308,3 +323,32 @@ def test_fast_compare_leaves_anything_unusual_to_typer(args: list[str]) -> None:
     from uwval.cli.compare_cmd import fast_compare
 
     assert fast_compare(args) is False
+
+
+def test_pair_is_read_in_this_process_when_other_threads_run(tmp_path: Path,
+                                                              monkeypatch: pytest.MonkeyPatch
+                                                              ) -> None:
+    # forking a multi-threaded process can deadlock the child: read sequentially instead
+    import threading
+
+    import uwval.io.tum as tum
+
+    a, b = _pair(tmp_path, 50)
+    monkeypatch.setattr(tum, "PARALLEL_MIN_BYTES", 0)
+    forks: list[int] = []
+
+    def no_fork() -> int:
+        forks.append(1)
+        raise AssertionError("forked")
+
+    stop = threading.Event()
+    worker = threading.Thread(target=stop.wait)
+    worker.start()
+    try:
+        monkeypatch.setattr(tum.os, "fork", no_fork)
+        ra, rb = tum.read_tum_pair(a, b)
+    finally:
+        stop.set()
+        worker.join()
+    assert not forks
+    assert len(ra) == len(rb) == 50

@@ -20,6 +20,7 @@ import os
 import pickle
 import re
 import signal
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 from typing import BinaryIO
@@ -287,14 +288,17 @@ def read_tum_pair(path_a: str | Path, path_b: str | Path, *, frame_a: str = "enu
     """Read two TUM files, as ``(read_tum(path_a, ...), read_tum(path_b, ...))``.
 
     Parsing text holds the GIL (threads do not help), so for large files (``parallel=None``:
-    both >= :data:`PARALLEL_MIN_BYTES`, on systems with ``os.fork``) the second file is parsed
+    both >= :data:`PARALLEL_MIN_BYTES`, ``os.fork`` available, no other threads running in
+    this process) the second file is parsed
     in a forked child while this process parses the first; the child writes its arrays into
     shared memory (no copy back). Results and errors are the same as reading one after the
     other (the first file's error wins).
     """
     pa, pb = Path(path_a), Path(path_b)
     if parallel is None:
-        parallel = hasattr(os, "fork") and all(
+        # fork only a single-threaded process: another thread could hold a lock (an import,
+        # a logging handler) that the child would then wait for forever
+        parallel = hasattr(os, "fork") and threading.active_count() == 1 and all(
             p.is_file() and p.stat().st_size >= PARALLEL_MIN_BYTES for p in (pa, pb))
     if not parallel:
         return (read_tum(pa, frame=frame_a, topic=topic_a),
