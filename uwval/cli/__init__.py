@@ -75,8 +75,16 @@ def _register(argv: list[str] | None = None) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     """Console entry point: run the app, printing UwvalErrors as clean messages."""
-    _register(sys.argv[1:] if argv is None else argv)
+    args = sys.argv[1:] if argv is None else argv
+    _register(args)
     try:
+        if args[:1] == ["compare"]:
+            # plain compare arguments skip typer's parsing layer (start-up time is most of
+            # a small compare); anything unusual falls through to typer below
+            from uwval.cli.compare_cmd import fast_compare
+
+            if fast_compare(list(args[1:])):
+                return
         app(args=argv, standalone_mode=True)
     except UwvalError as exc:
         err_console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)

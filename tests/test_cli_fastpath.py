@@ -1,0 +1,39 @@
+"""The compare fast path parses exactly the options typer declares (no drift)."""
+
+from __future__ import annotations
+
+import typer.main
+
+from uwval.cli import app
+from uwval.cli.compare_cmd import _FAST_OPTIONS, fast_compare
+
+
+def _compare_params() -> dict[str, str]:
+    import uwval.cli.compare_cmd  # noqa: F401  (registers the command)
+
+    group = typer.main.get_command(app)
+    cmd = group.commands["compare"]  # type: ignore[attr-defined]
+    out = {}
+    for p in cmd.params:
+        for opt in getattr(p, "opts", []):
+            if opt.startswith("-"):
+                out[opt] = p.name
+    return out
+
+
+def test_every_fast_option_is_a_typer_option_with_the_same_destination() -> None:
+    params = _compare_params()
+    for opt, (dest, _) in _FAST_OPTIONS.items():
+        assert params.get(opt) == dest, opt
+
+
+def test_every_value_option_of_compare_is_known_to_the_fast_path_or_declined() -> None:
+    params = _compare_params()
+    declined = {"--batch", "--help", "--executor", "--workers", "--scheduler"}
+    for opt in params:
+        if opt == "--json":
+            continue
+        if opt in declined:  # typer must handle these: the fast path declines, runs nothing
+            assert fast_compare(["missing.mcap", opt, "2"]) is False
+            continue
+        assert opt in _FAST_OPTIONS, f"{opt} added to compare but not to the fast path"
