@@ -244,8 +244,8 @@ class BridgeServer:
             done = threading.Event()
             box: list[bytes] = []
             self._waiting[srv_id] = (done, box)
-        client.enqueue(wire.encode_command(wire.REQUEST, {"srv_id": srv_id})
-                       + wire.encode_frame(name, request))
+        client.enqueue(wire.encode_command(wire.REQUEST, {"srv_id": srv_id}, nul=client.nul)
+                       + wire.encode_frame(name, request, nul=client.nul))
         if not done.wait(timeout):
             with self._lock:
                 self._waiting.pop(srv_id, None)
@@ -258,8 +258,8 @@ class BridgeServer:
         cmd = {"info": wire.LOG, "log": wire.LOG, "warn": wire.WARN, "error": wire.ERROR}[level]
         with self._lock:
             clients = list(self._clients.values())
-        for c in clients:
-            c.enqueue(wire.encode_command(cmd, {"text": text}))
+        for c in clients:  # in each peer's own NUL convention, as every other reply
+            c.enqueue(wire.encode_command(cmd, {"text": text}, nul=c.nul))
 
     def wait_for_subscribers(self, topic: str, count: int = 1, timeout: float = 5.0) -> None:
         """Block until ``count`` connected clients subscribe to ``topic``."""

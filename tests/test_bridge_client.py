@@ -238,3 +238,39 @@ def test_injected_link_drop_then_unity_like_reconnect(live_server: BridgeServer)
     # ...then fresh poses again after reconnecting.
     assert ends[longest] < len(stamps) - 1
     assert stamps[-1] > stamps[ends[longest]]
+
+
+def test_unity_timings_are_ros_tcp_connectors() -> None:
+    """Keepalive after 1 s without sending, reconnect 1 s after a lost link (DESIGN.md 6)."""
+    from bridge import unity_client as uc
+
+    assert uc.KEEPALIVE_INTERVAL_S == 1.0
+    assert uc.RECONNECT_DELAY_S == 1.0
+    assert UnityClient().reconnect_delay_s == 1.0
+    assert FaultModel().reconnect_delay_s == 1.0
+
+
+def test_render_loop_sends_one_keepalive_per_idle_second() -> None:
+    """Nothing to send for ~1.6 s: exactly one keepalive, at about 1 s (not one per frame)."""
+    with BridgeServer("127.0.0.1", 0) as srv:
+        client = UnityClient("127.0.0.1", srv.port, topics=("a",))
+        seen: dict[str, int] = {}
+
+        def sample() -> None:
+            srv.wait_for_subscribers("a")
+            t_reg = time.monotonic()
+            seen["registered"] = srv.clients()[0].frames_in  # keepalive + __subscribe
+            time.sleep(max(0.0, t_reg + 0.7 - time.monotonic()))
+            seen["at_0.7s"] = srv.clients()[0].frames_in
+            time.sleep(max(0.0, t_reg + 1.5 - time.monotonic()))
+            seen["at_1.5s"] = srv.clients()[0].frames_in
+
+        sampler = threading.Thread(target=sample)
+        sampler.start()
+        client.run_realtime(1.7)
+        sampler.join()
+        assert seen["registered"] == 2
+        assert seen["at_0.7s"] == 2  # not idle for 1 s yet
+        assert seen["at_1.5s"] == 3  # one keepalive
+        # the endpoint took the keepalive as one (no protocol error closed the link)
+        assert all("protocol" not in c.closed_reason for c in srv.closed_clients())

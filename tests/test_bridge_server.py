@@ -332,3 +332,29 @@ def test_message_names_must_be_pkg_type(server: BridgeServer) -> None:
     dest, params = c.read_json()
     assert dest == "__error"
     assert "blank topic" in str(params["text"])
+
+
+def _raw_frame(c: RawClient) -> tuple[bytes, bytes]:
+    """One frame exactly as sent (destination and payload bytes, NULs kept)."""
+    (dlen,) = struct.unpack("<I", c._exact(4))
+    dest = c._exact(dlen)
+    (plen,) = struct.unpack("<I", c._exact(4))
+    return dest, c._exact(plen)
+
+
+@pytest.mark.parametrize("nul", [True, False])
+def test_replies_mirror_the_peers_nul_convention(server: BridgeServer, nul: bool) -> None:
+    """A ROS 2 Unity appends NULs and gets NUL-terminated commands back; a peer without
+    them gets none (both are accepted on the way in)."""
+    c = RawClient(server.port, nul=nul)
+    dest, payload = _raw_frame(c)
+    assert dest == b"__handshake"  # before the endpoint knows the peer's convention
+    c.command("__frobnicate", {})
+    dest, payload = _raw_frame(c)
+    tail = b"\x00" if nul else b""
+    assert dest == b"__error" + tail
+    assert payload.endswith(b"}" + tail)
+    assert "__frobnicate" in json.loads(payload.rstrip(b"\x00"))["text"]
+    server.send_log("warn", "hello")
+    assert _raw_frame(c) == (b"__warn" + tail, b'{"text":"hello"}' + tail)
+    c.close()
