@@ -54,7 +54,8 @@ def demo(
 
     html = output / "report.html"
     pdf_path = output / "report.pdf" if pdf else None
-    build_report(results_dir, html, pdf=pdf_path, manifest=output / "manifest.json")
+    with console.status("writing the HTML" + (" and PDF" if pdf_path else "") + " report..."):
+        build_report(results_dir, html, pdf=pdf_path, manifest=output / "manifest.json")
     console.print(f"[green]report[/] {html}" + (f" and {pdf_path}" if pdf_path else ""))
 
     from uwval.gate import check_results, load_thresholds
