@@ -14,7 +14,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from bridge.gazebo import GazeboPublisher, ticks_from_streams
+from bridge.gazebo import GazeboPublisher, Tick, ticks_from_streams
 from bridge.server import BridgeServer
 from uwval.errors import BridgeError
 from uwval.io import read_stream
@@ -42,11 +42,31 @@ def ros_topic_name(log_topic: str) -> str:
     return log_topic.strip("/").split("/")[-1]
 
 
+def check_replay_options(speed: float, loops: int) -> None:
+    """Raise BridgeError unless ``speed`` >= 0 (0/inf: as fast as possible) and ``loops``
+    >= 0 (0: forever)."""
+    if not speed >= 0:  # also NaN
+        raise BridgeError(f"replay speed must be >= 0, got {speed}")
+    if loops < 0:
+        raise BridgeError(f"replay loops must be >= 0 (0 = forever), got {loops}")
+
+
+def load_replay_ticks(path: str | Path, topics: Sequence[str] = DEFAULT_REPLAY_TOPICS
+                      ) -> list[Tick]:
+    """Read a log's Gazebo topics into ticks named by their ROS topic basenames."""
+    streams = [read_stream(path, t) for t in topics]
+    ticks = list(ticks_from_streams(*streams, names=[ros_topic_name(t) for t in topics]))
+    if not ticks:
+        raise BridgeError(f"{path}: nothing to replay on {', '.join(topics)}")
+    return ticks
+
+
 def replay_log(path: str | Path, server: BridgeServer, *,
                topics: Sequence[str] = DEFAULT_REPLAY_TOPICS, speed: float = 1.0,
                loops: int = 1, wait_for_subscriber_s: float | None = 30.0,
                should_stop: Callable[[], bool] | None = None,
-               progress: Callable[[int, int], None] | None = None) -> ReplayStats:
+               progress: Callable[[int, int], None] | None = None,
+               ticks: list[Tick] | None = None) -> ReplayStats:
     """Publish a log's Gazebo poses through ``server`` at recorded speed x ``speed``.
 
     Args:
@@ -60,14 +80,12 @@ def replay_log(path: str | Path, server: BridgeServer, *,
             topic (None: do not wait).
         should_stop: polled between ticks; True ends the replay.
         progress: called with (ticks done, ticks per pass).
+        ticks: already loaded with :func:`load_replay_ticks` (then ``path`` is not read).
     """
-    if speed < 0:
-        raise BridgeError(f"replay speed must be >= 0, got {speed}")
-    streams = [read_stream(path, t) for t in topics]
+    check_replay_options(speed, loops)
+    if ticks is None:
+        ticks = load_replay_ticks(path, topics)
     names = [ros_topic_name(t) for t in topics]
-    ticks = list(ticks_from_streams(*streams, names=names))
-    if not ticks:
-        raise BridgeError(f"{path}: nothing to replay on {', '.join(topics)}")
     publisher = GazeboPublisher(server, topics=names)
     if wait_for_subscriber_s is not None:
         server.wait_for_subscribers(names[0], 1, timeout=wait_for_subscriber_s)

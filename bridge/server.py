@@ -134,6 +134,10 @@ class BridgeServer:
         self.protocol = wire.check_protocol(protocol)
         self.queue_size = int(queue_size)
         self.max_frame = int(max_frame)
+        if self.queue_size < 1:
+            raise BridgeError(f"queue size must be >= 1 item, got {queue_size}")
+        if self.max_frame < 1:
+            raise BridgeError(f"max frame size must be >= 1 byte, got {max_frame}")
         self._listener: socket.socket | None = None
         self._accept_thread: threading.Thread | None = None
         self._stopping = threading.Event()

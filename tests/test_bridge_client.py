@@ -274,3 +274,89 @@ def test_render_loop_sends_one_keepalive_per_idle_second() -> None:
         assert seen["at_1.5s"] == 3  # one keepalive
         # the endpoint took the keepalive as one (no protocol error closed the link)
         assert all("protocol" not in c.closed_reason for c in srv.closed_clients())
+
+
+@pytest.mark.parametrize("speed", [1.0, 3.0])
+def test_replay_paces_at_recorded_and_scaled_speed(tmp_path: Path, speed: float) -> None:
+    """Recorded stamps go out unchanged; wall spacing is the recorded spacing / speed."""
+    from bridge.replay import replay_log
+
+    log = tmp_path / "gz.mcap"
+    rec = BridgeRecorder(open_mcap_writer(log))
+    q = np.array([0.0, 0.0, 0.0, 1.0])
+    n, period_ns = 31, 20_000_000  # 0.6 s at 50 Hz
+    for k in range(n):
+        rec.gazebo_pose("model_rov_pose", 5_000_000_000 + k * period_ns,
+                        np.array([k, 0.0, 0.0]), q)
+    rec.close()
+    with BridgeServer("127.0.0.1", 0) as srv:
+        conn = UnityConnection("127.0.0.1", srv.port,
+                               subscriptions={"model_rov_pose": wire.POSE_STAMPED})
+        conn.connect()
+        arrivals: list[tuple[int, int]] = []  # (wall ns, header stamp ns)
+
+        def receive() -> None:
+            deadline = time.monotonic() + 30
+            while len(arrivals) < n and time.monotonic() < deadline:
+                for f in conn.poll(0.05):
+                    stamp = wire.decode_pose_stamped(f.payload, "ROS2")[0]
+                    arrivals.append((time.monotonic_ns(), stamp))
+
+        reader = threading.Thread(target=receive)
+        reader.start()
+        stats = replay_log(log, srv, topics=["/gazebo/model_rov_pose"], speed=speed,
+                           wait_for_subscriber_s=5)
+        reader.join()
+        conn.close()
+    assert stats.ticks == stats.published == stats.delivered == n
+    assert stats.log_duration_s == pytest.approx(0.6)
+    stamps = np.array([s for _, s in arrivals])
+    np.testing.assert_array_equal(stamps, 5_000_000_000 + np.arange(n) * period_ns)
+    wall = np.array([w for w, _ in arrivals], dtype=np.float64) * 1e-9
+    expected = 0.6 / speed
+    # sleeping never ends early: the pass takes at least the scaled log duration...
+    assert stats.wall_time_s >= 0.97 * expected
+    assert wall[-1] - wall[0] >= 0.95 * expected
+    # ...and the typical spacing is the scaled recorded one (median: robust to load)
+    assert float(np.median(np.diff(wall))) == pytest.approx(0.02 / speed, rel=0.25)
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (("serve", "--port", "99999"), "--port"),
+        (("serve", "--port", "0", "--duration", "nan"), "--duration"),
+        (("serve", "--port", "0", "--queue-size", "0"), "queue size"),
+        (("serve", "--port", "0", "--max-frame", "-5"), "max frame"),
+        (("serve", "--port", "0", "--protocol", "ros3"), "--protocol"),
+        (("replay", "{log}", "--port", "0", "--speed", "nan"), "speed"),
+        (("replay", "{log}", "--port", "0", "--loops", "-1"), "loops"),
+        (("replay", "{log}", "--port", "0", "--topic", "/nope"), "/nope"),
+        (("replay", "{tmp}/garbage.mcap", "--port", "0"), "garbage.mcap"),
+        (("unity", "-o", "{tmp}/u.mcap", "--duration", "inf"), "--duration"),
+        (("unity", "-o", "{tmp}/u.mcap", "--port", "-1"), "--port"),
+        (("unity", "-o", "{tmp}/u.mcap", "--unity-map", "ned"), "Unity map"),
+        (("unity", "-o", "/proc/uwval-no-such-dir/u.mcap", "--duration", "0.1"),
+         "/proc/uwval-no-such-dir/u.mcap"),
+        (("scan", "{tmp}/none.mcap"), "none.mcap"),
+    ],
+)
+def test_bridge_cli_bad_input_is_one_clean_line(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], args: tuple[str, ...],
+        needle: str) -> None:
+    from uwval.cli import main
+
+    log = tmp_path / "gz.mcap"
+    rec = BridgeRecorder(open_mcap_writer(log))
+    rec.gazebo_pose("model_rov_pose", 0, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
+    rec.close()
+    (tmp_path / "garbage.mcap").write_bytes(b"not an mcap at all")
+    argv = [a.replace("{log}", str(log)).replace("{tmp}", str(tmp_path)) for a in args]
+    with pytest.raises(SystemExit) as stop:
+        main(["bridge", *argv])
+    captured = capsys.readouterr()
+    assert stop.value.code == 2, captured
+    lines = [ln for ln in captured.err.splitlines() if ln.strip()]
+    # one line: nothing was served or printed before the error
+    assert len(lines) == 1 and lines[0].startswith("error:"), captured.err
+    assert needle in lines[0]

@@ -41,6 +41,21 @@ def _logging(verbose: bool) -> None:
                         handlers=[RichHandler(console=console, show_path=False)], force=True)
 
 
+def _check_port(port: int) -> int:
+    if not 0 <= port <= 65535:
+        raise BridgeError(f"--port must be 0-65535, got {port}")
+    return port
+
+
+def _check_seconds(value: float, option: str, *, zero_ok: bool) -> float:
+    """A finite number of seconds, > 0 (or >= 0 with ``zero_ok``), else a clean error."""
+    ok = value >= 0 if zero_ok else value > 0
+    if not (ok and value < float("inf")):
+        raise BridgeError(f"{option} must be a finite number of seconds "
+                          f"{'>= 0' if zero_ok else '> 0'}, got {value}")
+    return value
+
+
 def _protocol(name: str) -> Protocol:
     from bridge.protocol import ProtocolError, check_protocol
 
@@ -66,6 +81,8 @@ def serve(
     """Run the ROS-TCP endpoint that Unity's ROS-TCP-Connector connects to."""
     from bridge.server import BridgeServer
 
+    _check_port(port)
+    _check_seconds(duration, "--duration", zero_ok=True)
     _logging(verbose)
     server = BridgeServer(host, port, protocol=_protocol(protocol),
                           queue_size=queue_size, max_frame=max_frame).start()
@@ -100,14 +117,24 @@ def replay(
     verbose: Annotated[bool, typer.Option("--verbose/--quiet")] = False,
 ) -> None:
     """Serve a recorded Gazebo-side log to connecting Unity clients."""
-    from bridge.replay import DEFAULT_REPLAY_TOPICS, replay_log
+    from bridge.replay import (
+        DEFAULT_REPLAY_TOPICS,
+        check_replay_options,
+        load_replay_ticks,
+        replay_log,
+    )
     from bridge.server import BridgeServer
 
+    _check_port(port)
+    check_replay_options(speed, loops)
+    _check_seconds(wait, "--wait", zero_ok=True)
+    proto = _protocol(protocol)
     _logging(verbose)
     topics = tuple(topic) if topic else DEFAULT_REPLAY_TOPICS
     if not log.exists():
         raise BridgeError(f"{log}: no such file or directory")
-    with BridgeServer(host, port, protocol=_protocol(protocol)) as server:
+    ticks = load_replay_ticks(log, topics)  # bad logs fail before the endpoint opens
+    with BridgeServer(host, port, protocol=proto) as server:
         console.print(f"replaying {log} on {host}:{server.port} ({server.protocol}) at "
                       f"{speed:g}x; waiting up to {wait:g} s for a Unity client")
         with Progress(TextColumn("{task.description}"), BarColumn(),
@@ -121,7 +148,7 @@ def replay(
             try:
                 stats = replay_log(log, server, topics=topics, speed=speed, loops=loops,
                                    wait_for_subscriber_s=wait if wait > 0 else None,
-                                   progress=on_progress)
+                                   progress=on_progress, ticks=ticks)
             except KeyboardInterrupt:
                 console.print("[yellow]replay interrupted[/]")
                 return
@@ -144,6 +171,8 @@ def unity(
     from bridge.recorder import BridgeRecorder, open_mcap_writer
     from bridge.unity_client import UnityClient
 
+    _check_port(port)
+    _check_seconds(duration, "--duration", zero_ok=False)
     client = UnityClient(host, port, unity_map=unity_map, frame_rate=frame_rate,
                          clock_offset_s=clock_offset,
                          protocol=_protocol(protocol))
