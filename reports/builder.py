@@ -39,6 +39,7 @@ from uwval.results import (
     RunRecord,
     anova_oneway,
     compare_pending,
+    factor_label,
     factor_levels,
     load_experiment_results,
     summarize_by_level,
@@ -257,7 +258,7 @@ def _summary_section(table: ResultsTable) -> Section:
     sec = Section("summary", "Summary: absolute error, MAE and Pearson r")
     levels = factor_levels(table)
     if levels:
-        sec.blocks.append(Text([f"{f}: " + ", ".join(fmt_num(v) for v in lv)
+        sec.blocks.append(Text([f"{factor_label(f)}: " + ", ".join(fmt_num(v) for v in lv)
                                 for f, lv in levels.items()], kind="list"))
     t = Table("All runs", ["topic", "axis", "unit", "MAE mean", "MAE worst", "max |error| worst",
                            "p95 |error| worst", "Pearson r mean", "Pearson r lowest",
@@ -309,13 +310,14 @@ def _factor_sections(table: ResultsTable) -> list[Section]:
         return []
     out = []
     for f in vary:
-        sec = Section(f"factor-{f}", f"Factor: {f}")
+        sec = Section(f"factor-{f}", f"Factor: {factor_label(f)}")
         summ = summarize_by_level(table, f)
         if not summ.empty:
             piv = summ.pivot_table(index=[f, "topic", "axis"], columns="metric",
                                    values=["mean", "max", "min"], sort=False)
-            t = Table(f"Per level of {f}", [f, "topic", "axis", "MAE mean", "max |error| worst",
-                                            "Pearson r mean", "Pearson r lowest", "runs"], [])
+            t = Table(f"Per level of {f}",
+                      [factor_label(f), "topic", "axis", "MAE mean", "max |error| worst",
+                       "Pearson r mean", "Pearson r lowest", "runs"], [])
             counts = summ[summ["metric"] == "mae"].set_index([f, "topic", "axis"])["n"]
             for key, row in piv.iterrows():
                 level, topic, axis = cast(tuple[Any, Any, Any], key)
@@ -358,7 +360,8 @@ def _factor_sections(table: ResultsTable) -> list[Section]:
                     if piv.empty:
                         continue
                     t = Table(f"{topic} {axis} ({AXIS_UNITS[axis]}): {a} (rows) x {b} (columns)",
-                              [f"{a} \\ {b}", *[fmt_num(c) for c in piv.columns]], [])
+                              [f"{factor_label(a)} \\ {factor_label(b)}",
+                               *[fmt_num(c) for c in piv.columns]], [])
                     for level, row in piv.iterrows():
                         t.rows.append([fmt_num(level), *[fmt_num(v) for v in row.to_numpy()]])
                     tw.blocks.append(t)
@@ -370,7 +373,8 @@ def _runs_section(table: ResultsTable) -> Section:
     sec = Section("runs", "Runs")
     rf = table.run_factors()
     for topic in table.topics:
-        cols = ["run", *table.factors, *[f"MAE {a} ({AXIS_UNITS[a]})" for a in AXES],
+        cols = ["run", *[factor_label(f) for f in table.factors],
+                *[f"MAE {a} ({AXIS_UNITS[a]})" for a in AXES],
                 "max |e| (m)", *[f"r {a}" for a in AXES]]
         t = Table(f"{topic}", cols, [])
         df = table.df[table.df["topic"] == topic]

@@ -15,6 +15,7 @@ from jinja2 import Environment, FileSystemLoader, StrictUndefined, select_autoes
 from matplotlib.figure import Figure
 
 from reports.content import Plot, Report
+from reports.plots import freeze_ticks
 from uwval.errors import UwvalError
 
 TEMPLATES = Path(__file__).resolve().parent / "templates"
@@ -28,8 +29,10 @@ def figure_png_base64(fig: Figure, dpi: int = 90) -> str:
     """A figure as base64 PNG (for ``<img src="data:image/png;base64,...">``)."""
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi)
-    # the layout is solved now: freeze it so the PDF pass does not solve it again
+    # the layout and the ticks are solved now: freeze both so the PDF pass (which draws the
+    # same figure as vectors) neither solves the layout nor locates the ticks again
     fig.set_layout_engine("none")
+    freeze_ticks(fig)
     return base64.b64encode(buf.getvalue()).decode("ascii")
 
 

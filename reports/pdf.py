@@ -77,39 +77,86 @@ class _Pager:
             self.y -= LINE * size / 9
 
     def table(self, t: Table) -> None:
-        self.put_heading()
         rows = t.rows or [["(no rows)"] + [""] * (len(t.columns) - 1)]
-        ncols = max(1, len(t.columns))
-        size = 7.0 if ncols <= 8 else max(4.0, 7.0 - 0.25 * (ncols - 8))
+        layout = _TableLayout(t.columns, rows)
+        size, row_h = layout.font_size, 0.016 * layout.font_size / 7
+        first = min(len(rows), ROWS_PER_PAGE)
+        if self.heading:  # keep a section title on the page of its first table rows
+            self.need(0.05 + 0.02 + row_h * (first + layout.header_lines) + 0.03)
+        self.put_heading()
         for start in range(0, len(rows), ROWS_PER_PAGE):
             chunk = rows[start:start + ROWS_PER_PAGE]
-            row_h = 0.016 * size / 7
-            height = row_h * (len(chunk) + 1) + 0.03
+            n_lines = len(chunk) + layout.header_lines
+            height = row_h * n_lines + 0.03
             fig = self.need(height)
             cont = " (continued)" if start else ""
             fig.text(MARGIN, self.y, t.title + cont, fontsize=8.5, weight="bold", va="top")
             self.y -= 0.02
-            ax = fig.add_axes((MARGIN, self.y - row_h * (len(chunk) + 1), 1 - 2 * MARGIN,
-                               row_h * (len(chunk) + 1)))
+            ax = fig.add_axes((MARGIN, self.y - row_h * n_lines, 1 - 2 * MARGIN,
+                               row_h * n_lines))
             ax.axis("off")
             tab = ax.table(cellText=[[_clip(c) for c in r] for r in chunk],
-                           colLabels=[_clip(c) for c in t.columns], loc="upper left",
-                           cellLoc="right", colLoc="center", bbox=Bbox.from_bounds(0, 0, 1, 1))
+                           colLabels=layout.headers, colWidths=layout.widths,
+                           loc="upper left", cellLoc="right", colLoc="center",
+                           bbox=Bbox.from_bounds(0, 0, 1, 1))
             tab.auto_set_font_size(False)
             tab.set_fontsize(size)
             for (r, c), cell in tab.get_celld().items():
                 cell.set_linewidth(0.3)
+                cell.PAD = 0.03
                 if r == 0:
+                    cell.set_height(cell.get_height() * layout.header_lines)
                     cell.set_facecolor("#f0f2f5")
                     cell.set_text_props(weight="bold")
-                elif t.flag(start + r - 1, c) == "bad":
+                    continue
+                if not layout.numeric[c]:
+                    cell.set_text_props(ha="left")
+                    setattr(cell, "_loc", "left")  # noqa: B010 (Cell has no public setter)
+                if t.flag(start + r - 1, c) == "bad":
                     cell.set_facecolor("#ffebe9")
                 elif t.flag(start + r - 1, c) == "warn":
                     cell.set_facecolor("#fff8c5")
-            self.y -= row_h * (len(chunk) + 1) + 0.012
+            self.y -= row_h * n_lines + 0.012
         if t.caption:
             self.text(t.caption, size=7, colour="#57606a", width=140)
         self.y -= 0.008
+
+
+class _TableLayout:
+    """Column widths from the longest cell, headers wrapped to them, one font size that
+    makes the whole table fit the page width (so no header runs into its neighbour)."""
+
+    def __init__(self, columns: list[str], rows: list[list[str]]) -> None:
+        ncols = max(1, len(columns))
+        chars = []
+        for c in range(ncols):
+            cells = [len(_clip(r[c])) for r in rows if c < len(r)]
+            head = str(columns[c]) if c < len(columns) else ""
+            longest_word = max((len(w) for w in head.split()), default=1)
+            chars.append(max([*cells, longest_word, 3]))
+        self.headers = []
+        for c in range(ncols):
+            head = str(columns[c]) if c < len(columns) else ""
+            self.headers.append("\n".join(textwrap.wrap(head, width=max(chars[c], 6))) or head)
+        self.header_lines = max(1, *(h.count("\n") + 1 for h in self.headers))
+        widths = [w + 1.5 for w in chars]  # + cell padding
+        total = sum(widths)
+        self.widths = [w / total for w in widths]
+        # DejaVu Sans averages ~0.6 em per character; the usable width is A4 minus margins
+        usable_pt = A4[0] * (1 - 2 * MARGIN) * 72
+        self.font_size = max(4.0, min(7.0, usable_pt / (0.6 * total)))
+        self.numeric = [all(_is_number(r[c]) for r in rows if c < len(r)) for c in range(ncols)]
+
+
+def _is_number(cell: str) -> bool:
+    text = str(cell).strip().split(" ")[0]
+    if text in ("", "n/a", "-", "nan"):
+        return True
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def _clip(s: str, n: int = 48) -> str:

@@ -18,10 +18,11 @@ matplotlib.use("Agg")  # headless: CI machines have no display
 
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.layout_engine import ConstrainedLayoutEngine
 from numpy.typing import NDArray
 
 from uwval.posestream import PoseStream
-from uwval.results import AXES, AXIS_UNITS, ResultsTable, main_effects
+from uwval.results import AXES, AXIS_UNITS, ResultsTable, factor_label, main_effects
 from uwval.rotations import rpy_from_quat
 
 F64 = NDArray[np.float64]
@@ -45,9 +46,40 @@ class AlignedPair(Protocol):
     errors: Mapping[str, F64]
 
 
+#: Strips (inches) kept free at the bottom and top of every figure: the PDF writes the
+#: caption into the bottom one and a section heading into the top one, so neither can
+#: overlap an axis label (the layout is solved once, for the HTML image, and then frozen).
+CAPTION_STRIP_IN = 0.24
+HEADING_STRIP_IN = 0.26
+
+
 def _new_figure(w: float, h: float) -> Figure:
     # Figure() directly (not pyplot): no global state, safe in threads, freed when dropped
-    return Figure(figsize=(w, h), dpi=100, layout="constrained")
+    bottom, top = CAPTION_STRIP_IN / h, HEADING_STRIP_IN / h
+    engine = ConstrainedLayoutEngine(rect=(0.0, bottom, 1.0, 1.0 - bottom - top))
+    return Figure(figsize=(w, h), dpi=100, layout=engine)
+
+
+def freeze_ticks(fig: Figure) -> None:
+    """Pin every axis' tick positions and labels to those of the last draw.
+
+    After the HTML image is rendered, the PDF draws the same figure again; pinned ticks
+    skip the locator and formatter work (a third of a redraw) and guarantee both outputs
+    show the same ticks. The offset text (e.g. ``1e-16``) is kept.
+    """
+    from matplotlib.ticker import FixedFormatter, FixedLocator
+
+    for ax in fig.axes:
+        for axis in (ax.xaxis, ax.yaxis):
+            locs = axis.get_majorticklocs()
+            labels = [t.get_text() for t in axis.get_majorticklabels()]
+            if len(labels) != len(locs):
+                continue
+            offset = axis.get_major_formatter().get_offset()
+            fixed = FixedFormatter(labels)
+            fixed.set_offset_string(offset)
+            axis.set_major_locator(FixedLocator(locs.tolist()))
+            axis.set_major_formatter(fixed)
 
 
 def axis_series(stream: PoseStream, ref_rpy_deg: F64 | None = None) -> dict[str, F64]:
@@ -182,8 +214,8 @@ def box_mae_figure(table: ResultsTable, factor: str, topic: str,
             ax.boxplot([d if len(d) else np.array([np.nan]) for d in data],
                        tick_labels=[_fmt(lv) for lv in levels], showmeans=True)
         ax.set_title(f"{metric.upper()} {a}")
-        ax.set_xlabel(factor)
-        ax.set_ylabel(f"{metric} ({AXIS_UNITS[a]})")
+        ax.set_xlabel(factor_label(factor))
+        ax.set_ylabel(f"{metric.upper()} ({AXIS_UNITS[a]})")
         ax.grid(True, axis="y", alpha=0.3)
     fig.suptitle(f"{topic}: {metric.upper()} per level of {factor} (box: runs; triangle: mean)")
     return fig
@@ -209,8 +241,8 @@ def main_effects_figure(table: ResultsTable, topic: str, metric: str = "mae") ->
                 xs = np.arange(len(levels))
                 ax.plot(xs, rows["mean"].to_numpy(), "o-", color=AXIS_COLOURS[a], label=a)
                 ax.set_xticks(xs, [_fmt(v) for v in levels])
-            ax.set_xlabel(f)
-            ax.set_ylabel(f"mean {metric} ({'m' if r == 0 else 'deg'})")
+            ax.set_xlabel(factor_label(f))
+            ax.set_ylabel(f"mean {metric.upper()} ({'m' if r == 0 else 'deg'})")
             ax.grid(True, alpha=0.3)
             if c == 0:
                 ax.legend(loc="best", fontsize=8)

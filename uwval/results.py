@@ -38,6 +38,19 @@ AXIS_UNITS: dict[str, str] = {
     "x": "m", "y": "m", "z": "m", "roll": "deg", "pitch": "deg", "yaw": "deg",
     "position_norm": "m", "rotation": "deg",
 }
+#: Units of the paper's experiment factors (applied force, torque, water current speed).
+FACTOR_UNITS: dict[str, str] = {"force": "N", "torque": "N m", "current": "m/s"}
+
+
+def factor_label(factor: str) -> str:
+    """A factor's name with its unit for axis labels and table headers: ``force (N)``.
+
+    User factors without a known unit keep their bare name.
+    """
+    unit = FACTOR_UNITS.get(factor)
+    return f"{factor} ({unit})" if unit else factor
+
+
 #: Per-axis metrics of the compare JSON contract (``pearson_ci`` is split into low/high).
 AXIS_METRICS: tuple[str, ...] = (
     "mae", "rmse", "max", "p95", "bias", "std",

@@ -21,7 +21,7 @@ import numpy as np
 
 from uwval.errors import LogReadError
 from uwval.io.mcap_raw import scan_mcap
-from uwval.io.raw import RawLog, TopicBuilder, TopicInfo, load_yaml, norm_topic
+from uwval.io.raw import RawLog, TopicBuilder, TopicInfo, load_yaml, norm_topic, one_line
 from uwval.io.ros import normalize_type_name
 
 
@@ -67,7 +67,8 @@ def scan_log(path: Path, topics: Iterable[str] | None, *, times_only: bool = Fal
         raise
     except (struct.error, ValueError, IndexError, KeyError, OSError, EOFError) as exc:
         # Damaged bytes that the format checks above did not anticipate: still no traceback.
-        raise LogReadError(f"{path}: damaged {kind} log: {type(exc).__name__}: {exc}") from exc
+        raise LogReadError(
+            f"{path}: damaged {kind} log: {type(exc).__name__}: {one_line(exc)}") from exc
 
 
 def _scan_kind(path: Path, kind: str, topics: Iterable[str] | None, times_only: bool) -> RawLog:
@@ -90,8 +91,13 @@ def _scan_bag1(path: Path, topics: Iterable[str] | None, times_only: bool) -> Ra
     topic_list = None if topics is None else list(topics)
     try:
         return scan_bag1(path, topic_list, times_only=times_only)
-    except (BagFormatError, KeyError, IndexError, ValueError, struct.error, OSError):
-        return _scan_bag1_rosbags(path, topic_list, times_only)
+    except (BagFormatError, KeyError, IndexError, ValueError, struct.error, OSError) as fast_exc:
+        try:
+            return _scan_bag1_rosbags(path, topic_list, times_only)
+        except LogReadError as exc:
+            # The scanner's reason names a byte offset ("record data at byte 13 is cut off");
+            # rosbags' ("Header could not be read from file.") does not: say both.
+            raise LogReadError(f"{exc} (scanner: {one_line(fast_exc)})") from exc
 
 
 def _scan_bag1_rosbags(path: Path, topics: Iterable[str] | None, times_only: bool) -> RawLog:
@@ -102,7 +108,7 @@ def _scan_bag1_rosbags(path: Path, topics: Iterable[str] | None, times_only: boo
         reader = Reader(path)
         reader.open()
     except ReaderError as exc:
-        raise LogReadError(f"{path}: cannot read ROS 1 bag: {exc}") from exc
+        raise LogReadError(f"{path}: cannot read ROS 1 bag: {one_line(exc)}") from exc
     try:
         builders: dict[str, TopicBuilder] = {}
         times: dict[str, list[int]] = {}
@@ -134,7 +140,7 @@ def _scan_bag1_rosbags(path: Path, topics: Iterable[str] | None, times_only: boo
     except LogReadError:
         raise
     except Exception as exc:
-        raise LogReadError(f"{path}: damaged ROS 1 bag: {exc}") from exc
+        raise LogReadError(f"{path}: damaged ROS 1 bag: {one_line(exc)}") from exc
     finally:
         reader.close()
     infos = [
@@ -156,7 +162,7 @@ def _metadata(bagdir: Path) -> dict[str, Any] | None:
         doc = load_yaml(meta.read_text())
         info = doc["rosbag2_bagfile_information"]
     except Exception as exc:
-        raise LogReadError(f"{meta}: not a rosbag2 metadata file: {exc}") from exc
+        raise LogReadError(f"{meta}: not a rosbag2 metadata file: {one_line(exc)}") from exc
     if not isinstance(info, dict):
         raise LogReadError(f"{meta}: rosbag2_bagfile_information is not a mapping")
     return info
@@ -206,7 +212,7 @@ def _unzstd(src: Path, tmp: Path) -> Path:
         with open(src, "rb") as fi, open(out, "wb") as fo:
             zstandard.ZstdDecompressor().copy_stream(fi, fo)
     except zstandard.ZstdError as exc:
-        raise LogReadError(f"{src}: cannot decompress zstd storage file: {exc}") from exc
+        raise LogReadError(f"{src}: cannot decompress zstd storage file: {one_line(exc)}") from exc
     return out
 
 
@@ -230,13 +236,13 @@ def _query_db3(name: Path, uri: str, want: set[str] | None, compression: str) ->
     try:
         con = sqlite3.connect(uri, uri=True)
     except sqlite3.Error as exc:
-        raise LogReadError(f"{name}: cannot open sqlite3 storage: {exc}") from exc
+        raise LogReadError(f"{name}: cannot open sqlite3 storage: {one_line(exc)}") from exc
     try:
         try:
             rows = con.execute("SELECT id, name, type, serialization_format FROM topics")
             tops = rows.fetchall()
         except sqlite3.DatabaseError as exc:
-            raise LogReadError(f"{name}: not a rosbag2 sqlite3 file: {exc}") from exc
+            raise LogReadError(f"{name}: not a rosbag2 sqlite3 file: {one_line(exc)}") from exc
         stats = dict(
             (tid, (cnt, lo, hi))
             for tid, cnt, lo, hi in con.execute(
@@ -266,7 +272,7 @@ def _query_db3(name: Path, uri: str, want: set[str] | None, compression: str) ->
                 b.add_payloads(datas, stamps)
             raw[n] = b.build()
     except sqlite3.DatabaseError as exc:
-        raise LogReadError(f"{name}: damaged sqlite3 storage: {exc}") from exc
+        raise LogReadError(f"{name}: damaged sqlite3 storage: {one_line(exc)}") from exc
     finally:
         con.close()
     return RawLog(name, infos, raw)

@@ -27,7 +27,7 @@ import numpy as np
 
 from uwval.errors import LogReadError
 from uwval.frames import CONVENTIONS, quat_from_unity_euler
-from uwval.io.raw import load_yaml
+from uwval.io.raw import load_yaml, one_line
 from uwval.posestream import PoseStream
 
 TIME_NAMES = ("t", "time", "timestamp", "stamp", "time_s", "unity_time", "frame_time", "sec")
@@ -50,7 +50,7 @@ def load_mapping(path: str | Path) -> dict[str, Any]:
         text = p.read_text()
         doc = json.loads(text) if p.suffix.lower() == ".json" else load_yaml(text)
     except Exception as exc:
-        raise LogReadError(f"{p}: cannot read CSV mapping file: {exc}") from exc
+        raise LogReadError(f"{p}: cannot read CSV mapping file: {one_line(exc)}") from exc
     if not isinstance(doc, dict):
         raise LogReadError(f"{p}: CSV mapping must be a mapping of option: value")
     known = {"time", "time_unit", "position", "quaternion", "euler", "length_unit", "frame",
@@ -101,7 +101,7 @@ def read_csv(path: str | Path, *, time: str | None = None, time_unit: str = "s",
     try:
         df = pd.read_csv(p, sep=opts.get("delimiter", ","), comment="#", skipinitialspace=True)
     except Exception as exc:
-        raise LogReadError(f"{p}: cannot parse CSV: {exc}") from exc
+        raise LogReadError(f"{p}: cannot parse CSV: {one_line(exc)}") from exc
     cols = [str(c) for c in df.columns]
     df.columns = cols
     if df.empty:
@@ -155,4 +155,4 @@ def read_csv(path: str | Path, *, time: str | None = None, time_unit: str = "s",
                                       topic=topic or str(opts.get("topic", p.stem)),
                                       source=str(p))
     except Exception as exc:
-        raise LogReadError(f"{p}: {exc}") from exc
+        raise LogReadError(f"{p}: {one_line(exc)}") from exc

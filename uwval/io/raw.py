@@ -162,3 +162,8 @@ class RawLog:
                 TruncatedLogWarning,
                 stacklevel=3,
             )
+
+
+def one_line(exc: BaseException) -> str:
+    """An exception's message on one line (YAML, sqlite and pandas errors span several)."""
+    return " ".join(str(exc).split()) or type(exc).__name__
