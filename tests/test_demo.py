@@ -1,0 +1,33 @@
+"""The README's first quick-start command: ``uwval demo`` end to end, as a user runs it."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+
+
+def test_demo_end_to_end(tmp_path: Path) -> None:
+    out = tmp_path / "uwval-demo"
+    res = subprocess.run([sys.executable, "-m", "uwval", "demo", "-o", str(out)],
+                         capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL)
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    assert "uwval check: PASS" in res.stdout
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert len(manifest["runs"]) == 8
+    assert not manifest["failed"]
+    for run in manifest["runs"]:
+        assert (out / run["log"]).stat().st_size > 0
+    df = pd.read_csv(out / "results" / "results.csv")
+    assert set(df["run"]) == {r["name"] for r in manifest["runs"]}
+    # the paper's three metrics are present for every run, topic and axis
+    six = df[df["axis"].isin(["x", "y", "z", "roll", "pitch", "yaw"])]
+    for metric in ("mae", "max", "pearson_r"):
+        assert len(six[six["metric"] == metric]) == 8 * 2 * 6
+    html = (out / "report.html").read_text()
+    assert "PASS" in html
+    assert "<img" in html
+    assert (out / "report.pdf").read_bytes()[:5] == b"%PDF-"
