@@ -282,7 +282,7 @@ def vehicle_from_mapping(doc: dict[str, Any], *, source: str = "") -> Vehicle:
     if "mass" not in doc:
         raise ConfigError(f"{where}: missing parameter 'mass' (kg)")
     if "inertia" not in doc:
-        raise ConfigError(f"{where}: missing parameter 'inertia' ([ixx, iyy, izz] or table)")
+        raise ConfigError(f"{where}: missing parameter 'inertia' (a list ixx, iyy, izz or a table)")
     inertia = _parse_inertia(doc["inertia"], where)
     vol = doc.get("volume", "neutral")
     volume: float | None

@@ -16,6 +16,7 @@ import pytest
 from uwval.cli import main
 from uwval.io import read_stream
 
+REPO = Path(__file__).resolve().parents[1]
 DURATION = "3"
 MOTION = ("--force", "10,0,0", "--torque", "0,0,1", "--current", "0,0.2,0")
 
@@ -181,6 +182,8 @@ def test_experiment_manifest_carries_bridge_drops(tmp_path: Path) -> None:
         (("--publish-rate", "0"), "publish rate"),
         (("--torque", "1,2"), "--torque"),
         (("-o", "/proc/uwval-no-such-dir/run.mcap"), "/proc/uwval-no-such-dir"),
+        (("--vehicle", "{tmp}/no_inertia.toml"), "'inertia' (a list ixx, iyy, izz"),
+        (("--vehicle", "{tmp}/bad_mass.sdf"), "<inertial><mass>: expected 1 numbers"),
         (("{tmp}/missing_exp.toml",), "missing_exp.toml"),
         (("{tmp}/bad.toml",), "bad.toml"),
         (("{tmp}/empty_factor.toml",), "factors.force"),
@@ -192,6 +195,10 @@ def test_bad_input_is_one_clean_line(tmp_path: Path, capsys: pytest.CaptureFixtu
                                      args: tuple[str, ...], needle: str) -> None:
     (tmp_path / "bad.toml").write_text("name = 'x'\n[factors\n")
     (tmp_path / "empty_factor.toml").write_text("[factors]\nforce = []\n")
+    (tmp_path / "no_inertia.toml").write_text("mass = 1\n")
+    (tmp_path / "bad_mass.sdf").write_text(
+        (REPO / "data" / "vehicles" / "tethys_sdf" / "model.sdf").read_text().replace(
+            "<mass>147.8671</mass>", "<mass>heavy</mass>"))
     argv = [a.replace("{tmp}", str(tmp_path)) for a in args]
     if "-o" not in argv:
         argv += ["-o", str(tmp_path / "run.mcap")]
