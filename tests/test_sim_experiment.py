@@ -32,8 +32,8 @@ def test_default_experiment_is_the_demo_factorial() -> None:
     json.dumps([r.factors for r in runs])  # JSON scalars
     # the factor levels reach the inputs: force on body x, torque on body z, current on world y
     r = runs[-1]
-    f, tq, c = r.inputs.evaluate([0.0])
-    assert f[0].tolist() == [r.factors["force"], 0, 0]
+    fo, tq, c = r.inputs.evaluate(np.array([0.0]))
+    assert fo[0].tolist() == [r.factors["force"], 0, 0]
     assert tq[0].tolist() == [0, 0, r.factors["torque"]]
     assert c[0].tolist() == [0, r.factors["current"], 0]
     assert r.vehicle.name == "tethys"

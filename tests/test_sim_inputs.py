@@ -28,19 +28,24 @@ from simulator.inputs import signal_from_spec
 from uwval.errors import ConfigError, SimulationError
 from uwval.rotations import quat_from_rpy, rotate_vectors
 
+
+def A(values: object) -> np.ndarray:
+    """A float array (the profile and thruster types are annotated with float arrays)."""
+    return np.asarray(values, dtype=np.float64)
+
 T = np.array([0.0, 0.5, 0.999, 1.0, 1.5, 2.0, 3.0, 10.0])
 TETHYS = load_vehicle()
 
 
 def test_profiles_are_vectorised() -> None:
-    np.testing.assert_array_equal(Constant([1, 2, 3])(T), np.tile([1, 2, 3], (len(T), 1)))
-    s = Step([0, 0, 5], t0=1.0)(T)
+    np.testing.assert_array_equal(Constant(A([1, 2, 3]))(T), np.tile([1, 2, 3], (len(T), 1)))
+    s = Step(A([0, 0, 5]), t0=1.0)(T)
     np.testing.assert_array_equal(s[:, 2], [0, 0, 0, 5, 5, 5, 5, 5])
-    r = Ramp([2, 0, 0], t0=1.0, t1=3.0)(T)
+    r = Ramp(A([2, 0, 0]), t0=1.0, t1=3.0)(T)
     np.testing.assert_allclose(r[:, 0], [0, 0, 0, 0, 0.5, 1.0, 2.0, 2.0])
-    p = PulseTrain([0, 1, 0], period=2.0, duty=0.25, t0=0.0, t_end=5.0)(T)
+    p = PulseTrain(A([0, 1, 0]), period=2.0, duty=0.25, t0=0.0, t_end=5.0)(T)
     np.testing.assert_array_equal(p[:, 1], [1, 0, 0, 0, 0, 1, 0, 0])
-    both = (Step([1, 0, 0], t0=1.0) + 2 * Constant([1, 0, 0]))(T)
+    both = (Step(A([1, 0, 0]), t0=1.0) + 2 * Constant(A([1, 0, 0])))(T)
     np.testing.assert_array_equal(both[:, 0], [2, 2, 2, 3, 3, 3, 3, 3])
 
 
@@ -53,7 +58,7 @@ def test_profiles_are_vectorised() -> None:
 )
 def test_pulse_train_duty_cycle(amp: float, period: float, duty: float, t0: float) -> None:
     t = t0 + np.arange(0, 20 * period, period / 1000)
-    out = PulseTrain([amp, 0, 0], period=period, duty=duty, t0=t0)(t)[:, 0]
+    out = PulseTrain(A([amp, 0, 0]), period=period, duty=duty, t0=t0)(t)[:, 0]
     on = out != 0
     if amp != 0:
         assert abs(on.mean() - duty) < 0.01
@@ -61,7 +66,7 @@ def test_pulse_train_duty_cycle(amp: float, period: float, duty: float, t0: floa
     # nothing before t0
     early = np.linspace(0, t0, 50)
     early = early[early < t0]
-    assert not PulseTrain([amp, 0, 0], period=period, duty=duty, t0=t0)(early).any()
+    assert not PulseTrain(A([amp, 0, 0]), period=period, duty=duty, t0=t0)(early).any()
 
 
 @settings(max_examples=50, deadline=None)
@@ -70,7 +75,7 @@ def test_pulse_train_duty_cycle(amp: float, period: float, duty: float, t0: floa
 )
 def test_ramp_is_bounded_and_monotone(start: float, end: float, t0: float, width: float) -> None:
     t = np.linspace(0, t0 + 2 * width, 500)
-    r = Ramp([end, 0, 0], t0=t0, t1=t0 + width, start=[start, 0, 0])(t)[:, 0]
+    r = Ramp(A([end, 0, 0]), t0=t0, t1=t0 + width, start=A([start, 0, 0]))(t)[:, 0]
     lo, hi = min(start, end), max(start, end)
     assert r.min() >= lo - 1e-9
     assert r.max() <= hi + 1e-9
@@ -199,19 +204,19 @@ def test_thrusters_map_thrust_to_wrench() -> None:
     from simulator.thrusters import Thrusters
 
     # two surge thrusters 0.2 m either side of the centre line
-    th = Thrusters(positions=[[0, 0.2, 0], [0, -0.2, 0]], directions=[[1, 0, 0], [2, 0, 0]])
+    th = Thrusters(positions=A([[0, 0.2, 0], [0, -0.2, 0]]), directions=A([[1, 0, 0], [2, 0, 0]]))
     np.testing.assert_allclose(th.wrench([[10, 10]]), [[20, 0, 0, 0, 0, 0]], atol=1e-12)
     np.testing.assert_allclose(
         th.wrench([[10, -10]]), [[0, 0, 0, 0, 0, -4.0]], atol=1e-12
     )  # yaw right
-    prof = th.inputs([Constant([5, 0, 0]), Step([5, 0, 0], t0=1.0)])
+    prof = th.inputs([Constant(A([5, 0, 0])), Step(A([5, 0, 0]), t0=1.0)])
     f, tq, _ = prof.evaluate([0.5, 1.5])
     np.testing.assert_allclose(f[:, 0], [5, 10])
     np.testing.assert_allclose(tq[:, 2], [-1.0, 0.0], atol=1e-12)
-    r = simulate(TETHYS, th.inputs([Constant([5, 0, 0])] * 2), 5.0)
+    r = simulate(TETHYS, th.inputs([Constant(A([5, 0, 0]))] * 2), 5.0)
     ref = simulate(TETHYS, constant_inputs(force=(10, 0, 0)), 5.0)
     np.testing.assert_allclose(r.vehicle.position, ref.vehicle.position, atol=1e-12)
     with pytest.raises(ConfigError, match="zero thrust direction"):
-        Thrusters(positions=[[0, 0, 0]], directions=[[0, 0, 0]])
+        Thrusters(positions=A([[0, 0, 0]]), directions=A([[0, 0, 0]]))
     with pytest.raises(ConfigError, match="expected 2 thrust values"):
         th.wrench([[1, 2, 3]])

@@ -343,9 +343,9 @@ def rich_vehicle() -> Vehicle:
     return Vehicle(
         "rich",
         50.0,
-        [[3.0, 0.1, 0.0], [0.1, 20.0, 0.2], [0.0, 0.2, 25.0]],
+        np.array([[3.0, 0.1, 0.0], [0.1, 20.0, 0.2], [0.0, 0.2, 25.0]]),
         volume=0.05,
-        center_of_buoyancy=[0.01, -0.02, 0.05],
+        center_of_buoyancy=np.array([0.01, -0.02, 0.05]),
         hydro=hydro,
     )
 

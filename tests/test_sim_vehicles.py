@@ -198,6 +198,6 @@ def test_preset_copied_elsewhere_loads_by_path(tmp_path: Path) -> None:
 
 def test_vehicle_validation() -> None:
     with pytest.raises(ConfigError, match="symmetric"):
-        Vehicle("x", 1.0, [[1, 0.5, 0], [0, 1, 0], [0, 0, 1]])
+        Vehicle("x", 1.0, np.array([[1, 0.5, 0], [0, 1, 0], [0, 0, 1]], dtype=float))
     with pytest.raises(ConfigError, match="volume"):
         Vehicle("x", 1.0, np.eye(3), volume=-1.0)

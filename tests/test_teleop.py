@@ -78,7 +78,8 @@ def test_live_client_receives_poses_over_tcp() -> None:
                 if time.monotonic() > deadline:
                     raise
                 time.sleep(0.2)
-        stamps, xs = [], []
+        stamps: list[int] = []
+        xs: list[float] = []
         while len(stamps) < 30 and time.monotonic() < deadline:
             for frame in conn.poll(timeout=0.5):
                 if frame.destination.rstrip("\0") == "model_rov_pose":
