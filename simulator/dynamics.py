@@ -64,6 +64,15 @@ N_STATE = len(STATE_NAMES)
 _TOL = 0.0  # coefficients exactly zero in every vehicle are left out of the kernel
 
 
+def _support(coeffs: NDArray[np.floating[Any]]) -> tuple[tuple[int, ...], ...]:
+    """Indices (in row-major order) of the coefficients non-zero in any vehicle.
+
+    ``coeffs`` is (n_vehicles, 6, 6[, 6]); the kernel is generated for these terms only.
+    """
+    hot = np.argwhere(np.any(np.abs(coeffs) > _TOL, axis=0))
+    return tuple(tuple(int(i) for i in idx) for idx in hot)
+
+
 # ---------------------------------------------------------------------- reference (gz) forms
 def coriolis_matrix(ma_diag: ArrayLike, state: ArrayLike, legacy: bool = False) -> F64:
     """gz-sim's ``Cmat`` (= -C_A, Fossen 2011 eq. 6.43) from the diagonal of Ma (SNAME sign).
@@ -169,41 +178,23 @@ def build_params(
     cob = np.stack([v.center_of_buoyancy for v in vehicles])
     for i, c in enumerate("xyz"):
         put(f"rb{c}", cob[:, i])
-    ma_terms = tuple(
-        (i, j) for i in range(6) for j in range(6) if np.any(np.abs(ma[:, i, j]) > _TOL)
-    )
+    ma_terms = _support(ma)
     for i, j in ma_terms:
         # explicit: the backward difference's 1/dt folded into the coefficient
         put(f"mad_{i}{j}", ma[:, i, j] / dt)
     for i in range(6):
         put(f"a{i}", ma[:, i, i])
         put(f"na{i}", -ma[:, i, i])
-    lin_terms = tuple(
-        (i, j) for i in range(6) for j in range(6) if np.any(np.abs(lin[:, i, j]) > _TOL)
-    )
+    lin_terms = _support(lin)
     for i, j in lin_terms:
         put(f"dl_{i}{j}", lin[:, i, j])
-    qabs_terms = tuple(
-        (i, j, k)
-        for i in range(6)
-        for j in range(6)
-        for k in range(6)
-        if np.any(np.abs(qabs[:, i, j, k]) > _TOL)
-    )
+    qabs_terms = _support(qabs)
     for i, j, k in qabs_terms:
         put(f"dqa_{i}{j}{k}", qabs[:, i, j, k])
-    quad_terms = tuple(
-        (i, j, k)
-        for i in range(6)
-        for j in range(6)
-        for k in range(6)
-        if np.any(np.abs(quad[:, i, j, k]) > _TOL)
-    )
+    quad_terms = _support(quad)
     for i, j, k in quad_terms:
         put(f"dq_{i}{j}{k}", quad[:, i, j, k])
-    minv_terms = tuple(
-        (i, j) for i in range(6) for j in range(6) if np.any(np.abs(minv[:, i, j]) > 0)
-    )
+    minv_terms = _support(minv)
     for i, j in minv_terms:
         put(f"dmi_{i}{j}", dt * minv[:, i, j])
     inertia_terms = tuple(

@@ -45,7 +45,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import tomllib
 
 from simulator.inputs import (
     Constant,
@@ -55,7 +54,13 @@ from simulator.inputs import (
     Sum,
     signal_from_spec,
 )
-from simulator.vehicle import SCALAR_PARAMETERS, Vehicle, classify_hydro_name, load_vehicle
+from simulator.vehicle import (
+    SCALAR_PARAMETERS,
+    Vehicle,
+    classify_hydro_name,
+    load_vehicle,
+    read_toml,
+)
 from uwval.errors import ConfigError
 
 _WRENCH_KINDS = ("force", "torque", "current")
@@ -364,10 +369,5 @@ def experiment_from_mapping(
 def load_experiment(path: str | Path) -> Experiment:
     """Read an experiment TOML file (format in the module docstring)."""
     p = Path(path)
-    try:
-        doc = tomllib.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"experiment file {p} does not exist") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{p}: invalid TOML: {exc}") from None
-    return experiment_from_mapping(doc, source=str(p), base_dir=p.parent)
+    return experiment_from_mapping(read_toml(p, "experiment file"), source=str(p),
+                                   base_dir=p.parent)

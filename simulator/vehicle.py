@@ -321,6 +321,19 @@ def vehicle_from_mapping(doc: dict[str, Any], *, source: str = "") -> Vehicle:
         raise ConfigError(msg if where in msg else f"{where}: {msg}") from None
 
 
+def read_toml(path: Path, what: str) -> dict[str, Any]:
+    """Parse a TOML file; a missing file, unreadable file or bad TOML is a ConfigError that
+    names the file (``what`` says which kind, e.g. "vehicle file")."""
+    try:
+        return tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"{what} {path} does not exist") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{what} {path}: cannot read it: {exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: invalid TOML: {exc}") from None
+
+
 def load_vehicle_toml(path: str | Path) -> Vehicle:
     """Read a vehicle TOML file.
 
@@ -338,13 +351,7 @@ def load_vehicle_toml(path: str | Path) -> Vehicle:
         xUabsU = -6.2282
     """
     p = Path(path)
-    try:
-        doc = tomllib.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"vehicle file {p} does not exist") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{p}: invalid TOML: {exc}") from None
-    return vehicle_from_mapping(doc, source=str(p))
+    return vehicle_from_mapping(read_toml(p, "vehicle file"), source=str(p))
 
 
 def _number(val: Any, key: str, where: str) -> float:

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from test_pipeline_e2e import compare_json, uwval  # one CLI runner for the e2e tests
 
 from uwval.cli import main
 from uwval.io import read_stream
@@ -30,18 +31,6 @@ VARIANTS: dict[str, tuple[str, ...]] = {
     "enu": ("--unity-map", "unity-enu"),
     "realtime": ("--realtime",),
 }
-
-
-def uwval(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "uwval", *args], capture_output=True,
-                          text=True, timeout=timeout, stdin=subprocess.DEVNULL)
-
-
-def compare_json(*args: str) -> dict[str, Any]:
-    res = uwval("compare", *args, "--json")
-    assert res.returncode == 0, res.stderr
-    out: dict[str, Any] = json.loads(res.stdout)
-    return out
 
 
 @pytest.fixture(scope="module")
