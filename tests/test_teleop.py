@@ -94,3 +94,38 @@ def test_live_client_receives_poses_over_tcp() -> None:
     assert xs[-1] > xs[0]  # surging forward while 'i' is held
     if proc.returncode != 0:
         pytest.fail(proc.stderr.read().decode() if proc.stderr else "teleop failed")
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (("--duration", "nan"), "--duration"),
+        (("--speed", "-1"), "--speed"),
+        (("--speed", "nan"), "--speed"),
+        (("--hold", "-1"), "--hold"),
+        (("--force-step", "nan"), "--force-step"),
+        (("--port", "99999"), "port"),
+        (("--vehicle", "nautilus"), "nautilus"),
+        (("--keys", "z@0:1"), "unknown teleop key 'z'"),
+        (("--current", "a,b"), "--current"),
+        (("--publish-rate", "0"), "publish rate"),
+        (("--record", "/proc/uwval-no-such-dir/t.mcap"), "/proc/uwval-no-such-dir/t.mcap"),
+    ],
+)
+def test_bad_input_is_one_clean_line(capsys: pytest.CaptureFixture[str],
+                                     args: tuple[str, ...], needle: str) -> None:
+    from uwval.cli import main
+
+    argv = ["--keys", "i@0:1", "--duration", "1", "--speed", "0", "--port", "0"]
+    for opt, value in zip(args[::2], args[1::2], strict=True):
+        if opt in argv:
+            argv[argv.index(opt) + 1] = value
+        else:
+            argv += [opt, value]
+    with pytest.raises(SystemExit) as stop:
+        main(["teleop", *argv])
+    err = capsys.readouterr().err
+    assert stop.value.code == 2, err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error:"), err
+    assert needle in lines[0]

@@ -12,6 +12,7 @@ quits. A held key (terminal auto-repeat) keeps its wrench increment applied; rel
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import select
 import sys
@@ -122,6 +123,13 @@ def teleop(
     from simulator import InputProfile, Simulator, constant_inputs, load_vehicle
 
     interactive = keys is None
+    # Checked before anything starts: ``not (x >= 0)`` is also true for NaN.
+    for option, value in (("--duration", duration), ("--speed", speed), ("--hold", hold)):
+        if not (0 <= value < math.inf):
+            raise ConfigError(f"{option} must be a finite number >= 0, got {value}")
+    for option, value in (("--force-step", force_step), ("--torque-step", torque_step)):
+        if not math.isfinite(value):
+            raise ConfigError(f"{option} must be a finite number, got {value}")
     if interactive and not sys.stdin.isatty():
         raise ConfigError("uwval teleop needs a terminal for keys; use --keys for a script")
     if not interactive and duration <= 0:
@@ -171,7 +179,7 @@ def teleop(
                     if writer is not None:
                         writer.write_pose("/gazebo/model_rov_pose", tick_t, vp, vq, "world")
                         writer.write_pose("/gazebo/gui_camera_pose", tick_t, cp, cq, "world")
-                    if interactive and sent % int(publish_rate) == 0:
+                    if interactive and sent % max(1, round(publish_rate)) == 0:  # ~1 Hz
                         f, tq = held.wrench(tick_t * 1e-9)
                         console.print(
                             f"t {tick_t * 1e-9:7.2f} s  pos {np.round(vp, 2)}  "
