@@ -18,6 +18,7 @@ from __future__ import annotations
 import hashlib
 import platform
 import sys
+import warnings as warnings_module
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -138,24 +139,14 @@ def build_report(
     warnings: list[str] = []
     if not src.exists():
         raise ConfigError(f"{src}: no such log or results location")
-    if is_log(src):
-        from uwval.comparison import compare_logs
-
-        lc = compare_logs(src, **opts)
-        run = RunRecord(src.stem if src.is_file() else src.name, src, {}, {}, lc.to_json())
-        table = ResultsTable.from_comparisons([(run.name, {}, run.comparison)])
-        exp = ExperimentResults(table, [run], None, [src])
-        details = [_RunDetail(run, _pairs_of(lc))]
-    else:
-        exp = load_experiment_results(src, manifest)
-        if exp.table.df.empty and any(r.log is not None for r in exp.runs):
-            exp = compare_pending(exp, opts)
-        details = []
-        for run in exp.runs[:max_detail_runs]:
-            details.append(_detail_for(run, opts))
-        if len(exp.runs) > max_detail_runs:
-            warnings.append(f"per-run plots shown for the first {max_detail_runs} of "
-                            f"{len(exp.runs)} runs (--max-detail-runs)")
+    with warnings_module.catch_warnings(record=True) as caught:
+        warnings_module.simplefilter("always")
+        exp, details = _load_and_compare(src, manifest, opts, max_detail_runs, warnings)
+    # what the readers warned about (a truncated log, bytes lost) belongs in the report too
+    for w in caught:
+        if str(w.message) not in warnings:
+            warnings.append(str(w.message))
+        warnings_module.warn_explicit(w.message, w.category, w.filename, w.lineno)
     table = exp.table
     th = _resolve_thresholds(thresholds)
     gate: GateResult | None = None
@@ -175,6 +166,27 @@ def build_report(
         write_pdf(report, pdf_out)
     plots.close(report.figures())
     return ReportOutcome(html_out, pdf_out, gate, table, len(exp.runs), warnings)
+
+
+def _load_and_compare(src: Path, manifest: str | Path | None, opts: dict[str, Any],
+                      max_detail_runs: int, warnings: list[str]
+                      ) -> tuple[ExperimentResults, list[_RunDetail]]:
+    """The results to report and the runs with per-run plots (logs compared here)."""
+    if is_log(src):
+        from uwval.comparison import compare_logs
+
+        lc = compare_logs(src, **opts)
+        run = RunRecord(src.stem if src.is_file() else src.name, src, {}, {}, lc.to_json())
+        table = ResultsTable.from_comparisons([(run.name, {}, run.comparison)])
+        return ExperimentResults(table, [run], None, [src]), [_RunDetail(run, _pairs_of(lc))]
+    exp = load_experiment_results(src, manifest)
+    if exp.table.df.empty and any(r.log is not None for r in exp.runs):
+        exp = compare_pending(exp, opts)
+    details = [_detail_for(run, opts) for run in exp.runs[:max_detail_runs]]
+    if len(exp.runs) > max_detail_runs:
+        warnings.append(f"per-run plots shown for the first {max_detail_runs} of "
+                        f"{len(exp.runs)} runs (--max-detail-runs)")
+    return exp, details
 
 
 def _detail_for(run: RunRecord, opts: Mapping[str, Any]) -> _RunDetail:

@@ -207,6 +207,8 @@ def _fmt_level(v: Any) -> str:
 def load_thresholds(path: str | Path) -> Thresholds:
     """Parse a thresholds TOML file; errors name the file and the offending rule."""
     p = Path(path)
+    if p.is_dir():
+        raise ConfigError(f"{p}: is a directory, not a thresholds TOML file")
     if not p.is_file():
         raise ConfigError(f"{p}: no such thresholds file")
     try:
@@ -254,9 +256,15 @@ def _parse_rule(r: Any, where: str) -> ThresholdRule:
         v = r.get(key)
         if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))):
             raise ConfigError(f"{where}: '{key}' must be a number, got {v!r}")
+        if v is not None and not math.isfinite(v):
+            # a NaN bound compares false both ways: the rule would pass everything
+            raise ConfigError(f"{where}: '{key}' must be a finite number, got {v!r}")
         bounds[key] = None if v is None else float(v)
-    if bounds["max"] is None and bounds["min"] is None:
+    lo, hi = bounds["min"], bounds["max"]
+    if hi is None and lo is None:
         raise ConfigError(f"{where} ({metric}): give 'max' and/or 'min'")
+    if hi is not None and lo is not None and lo > hi:
+        raise ConfigError(f"{where} ({metric}): 'min' {lo:g} is above 'max' {hi:g}")
     factors = r.get("factors", {})
     if not isinstance(factors, Mapping):
         raise ConfigError(f"{where}: 'factors' must be a table, e.g. {{ current = 0.2 }}")
@@ -422,6 +430,10 @@ def check(table: ResultsTable, thresholds: Thresholds | str | Path | None = None
     if thresholds is None and baseline is None:
         raise ConfigError("uwval check needs --thresholds FILE.toml and/or --baseline FILE.json")
     th = load_thresholds(thresholds) if isinstance(thresholds, (str, Path)) else thresholds
+    if th is not None and not th.rules and baseline is None:
+        # an empty rule list would pass every table: a gate that checks nothing is a mistake
+        raise ConfigError(f"{th.source}: defines no threshold rules and no --baseline was "
+                          "given: nothing to check")
     result = GateResult()
     if th is not None:
         result = result.merge(check_thresholds(table, th))

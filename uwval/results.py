@@ -421,6 +421,8 @@ class ResultsTable:
     def load(cls, path: str | Path) -> ResultsTable:
         """Read a table written by :meth:`save` (CSV, JSON or Parquet)."""
         p = Path(path)
+        if p.is_dir():
+            raise ConfigError(f"{p}: is a directory, not a results file (.csv, .json, .parquet)")
         if not p.is_file():
             raise ConfigError(f"{p}: no such results file")
         suffix = p.suffix.lower()
@@ -449,7 +451,14 @@ class ResultsTable:
         if suffix == ".parquet":
             if not parquet_available():
                 raise ConfigError(f"{p}: reading Parquet needs pyarrow (pip install pyarrow)")
-            return cls.from_dataframe(pd.read_parquet(p))
+            try:
+                df = pd.read_parquet(p)
+            except (OSError, ValueError) as exc:  # pyarrow's ArrowInvalid is a ValueError
+                raise ConfigError(f"{p}: not a readable Parquet file: {exc}") from exc
+            try:
+                return cls.from_dataframe(df)
+            except ConfigError as exc:
+                raise ConfigError(f"{p}: {exc}") from exc
         raise ConfigError(f"{p}: unknown results format {suffix!r}")
 
     @classmethod
@@ -483,7 +492,18 @@ def _normalise(df: pd.DataFrame, factors: Sequence[str]) -> pd.DataFrame:
         if col in df.columns:
             df[col] = df[col].fillna("").astype(str)
     if "value" in df.columns:
-        df["value"] = pd.to_numeric(df["value"], errors="coerce").astype(np.float64)
+        value = pd.to_numeric(df["value"], errors="coerce").astype(np.float64)
+        # empty / None / "nan" are undefined values (e.g. Pearson r of a constant series);
+        # any other text is a damaged table, not an undefined metric
+        text = df["value"].astype(str).str.strip().str.lower()
+        bad = value.isna() & df["value"].notna() & ~text.isin(["", "nan", "none", "null"])
+        if bad.any():
+            i = int(np.flatnonzero(bad.to_numpy())[0])
+            row = df.iloc[i]
+            raise ConfigError(f"row {i + 1} ({row.get('run', '?')} {row.get('topic', '?')} "
+                              f"{row.get('axis', '?')} {row.get('metric', '?')}): value "
+                              f"{df['value'].iloc[i]!r} is not a number")
+        df["value"] = value
     for f in factors:
         if f in df.columns:
             num = pd.to_numeric(df[f], errors="coerce")

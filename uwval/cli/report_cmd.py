@@ -5,17 +5,39 @@ from __future__ import annotations
 import json
 import shlex
 import sys
+import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 from uwval.cli import app
 from uwval.errors import ConfigError
 
 console = Console()
 err_console = Console(stderr=True)
+
+
+@contextmanager
+def _warnings_as_notes() -> Iterator[None]:
+    """Print Python warnings raised inside (e.g. a truncated log) as one clean stderr line
+    each, instead of the warnings module's two-line "file:line: Category" form."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            yield
+        finally:
+            seen: set[str] = set()
+            for w in caught:
+                text = str(w.message)
+                if text not in seen:
+                    seen.add(text)
+                    err_console.print(f"[yellow]warning:[/] {escape(text)}", highlight=False,
+                                      soft_wrap=True)
 
 
 @app.command()
@@ -34,7 +56,7 @@ def report(
                         ] = None,
     manifest: Annotated[Path | None, typer.Option(help="manifest.json, when not next to the "
                                                   "results.")] = None,
-    max_detail_runs: Annotated[int, typer.Option(help="Runs with per-run plots.")] = 8,
+    max_detail_runs: Annotated[int, typer.Option(help="Runs with per-run plots.", min=0)] = 8,
     topic: Annotated[list[str] | None, typer.Option(
         help="Topic(s) with per-run plots (default: the vehicle topic).")] = None,
     gazebo_topic: Annotated[str | None, typer.Option(help="Reference topic (single log).")
@@ -50,7 +72,9 @@ def report(
     opts = {k: v for k, v in (("gazebo_topic", gazebo_topic), ("unity_topic", unity_topic))
             if v is not None}
     th = None if thresholds.lower() == "none" else thresholds
-    with console.status(f"building the report of {source}..."):
+    with console.status(f"building the report of {source}..."), warnings.catch_warnings():
+        # build_report collects what the readers warned about into outcome.warnings
+        warnings.simplefilter("ignore")
         outcome = build_report(
             source, output, pdf=pdf, manifest=manifest, thresholds=th, baseline=baseline,
             compare_options=opts, max_detail_runs=max_detail_runs, detail_topics=topic,
@@ -65,7 +89,7 @@ def report(
         })
         outcome.table.save(results_out)
     for w in outcome.warnings:
-        console.print(f"[yellow]note:[/] {w}")
+        console.print(f"[yellow]note:[/] {escape(w)}")
     verdict = "not checked" if outcome.gate is None else (
         "[green]PASS[/]" if outcome.gate.passed else "[red]FAIL[/]")
     console.print(f"[green]wrote[/] {outcome.html}" + (f" and {outcome.pdf}" if outcome.pdf
@@ -98,7 +122,8 @@ def check(
         raise ConfigError("uwval check needs --thresholds FILE.toml and/or --baseline FILE.json")
     exp = load_experiment_results(results)
     if exp.table.df.empty and any(r.log is not None for r in exp.runs):
-        with console.status(f"comparing {len(exp.runs)} logs of {results}..."):
+        with console.status(f"comparing {len(exp.runs)} logs of {results}..."), \
+                _warnings_as_notes():
             exp = compare_pending(exp)
     if exp.table.df.empty:
         raise ConfigError(f"{results}: no compared results and no logs to compare")

@@ -141,9 +141,12 @@ def read_streams(path: str | Path, topics: Sequence[str], *, frame: str | None =
 def _missing(p: Path, topic: str, log: RawLog) -> str:
     names = ", ".join(f"{i.name} ({i.type}, {i.count})" for i in sorted(
         log.topics, key=lambda i: i.name))
+    # a cut-off log may have lost the topic with the bytes: say so in the error itself
+    cut = (f" (the log is truncated: {log.lost_bytes} bytes at the end were lost)"
+           if log.lost_bytes else "")
     if not log.topics:
-        return f"{p}: no topic {topic!r}: the log has no topics (no messages)"
-    return f"{p}: no topic {topic!r}; topics in this log: {names}"
+        return f"{p}: no topic {topic!r}: the log has no topics (no messages){cut}"
+    return f"{p}: no topic {topic!r}; topics in this log: {names}{cut}"
 
 
 def _to_stream(p: Path, raw: RawTopic, log: RawLog, *, frame: str | None, child: str | None,
