@@ -37,3 +37,15 @@ def test_every_value_option_of_compare_is_known_to_the_fast_path_or_declined() -
             assert fast_compare(["missing.mcap", opt, "2"]) is False
             continue
         assert opt in _FAST_OPTIONS, f"{opt} added to compare but not to the fast path"
+
+
+def test_error_messages_with_brackets_are_printed_verbatim(tmp_path: object) -> None:
+    import subprocess
+    import sys
+
+    res = subprocess.run([sys.executable, "-m", "uwval", "simulate", "--vehicle", "[/x].toml",
+                          "--duration", "1", "-o", "/tmp/never.mcap"],
+                         capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL)
+    assert res.returncode == 2
+    assert "Traceback" not in res.stderr
+    assert "[/x].toml" in res.stderr
