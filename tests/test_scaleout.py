@@ -127,3 +127,25 @@ def test_compare_batch_cli(tmp_path: Path) -> None:
     assert {"force", "torque", "current"} <= set(df.columns)
     mae_x = df[(df["axis"] == "x") & (df["metric"] == "mae")]
     assert len(mae_x) == 16  # 8 runs x (vehicle, camera)
+
+
+def test_batched_physics_sweep_matches_per_run_physics(tmp_path: Path) -> None:
+    exp = data_path("experiments", "default.toml")
+    per_run = run_experiment(exp, tmp_path / "a", SessionOptions(), executor="inline",
+                             progress=False)
+    batched = run_experiment(exp, tmp_path / "b", SessionOptions(), executor="local",
+                             workers=2, progress=False, batched=True)
+    assert [r["name"] for r in batched["runs"]] == [r["name"] for r in per_run["runs"]]
+    a = compare_batch(tmp_path / "a", executor="inline", progress=False)
+    b = compare_batch(tmp_path / "b", executor="inline", progress=False)
+    from uwval.io import read_stream
+
+    for ra, rb in zip(per_run["runs"], batched["runs"], strict=True):
+        ga = read_stream(tmp_path / "a" / ra["log"], "/gazebo/model_rov_pose")
+        gb = read_stream(tmp_path / "b" / rb["log"], "/gazebo/model_rov_pose")
+        assert (ga.t == gb.t).all()
+        assert abs(ga.position - gb.position).max() < 1e-9  # equal to rounding
+    na, nb = _numbers(a.runs), _numbers(b.runs)
+    for name in na:
+        assert nb[name]["axes"]["x"]["mae"] == pytest.approx(na[name]["axes"]["x"]["mae"],
+                                                             rel=1e-6, abs=1e-12)

@@ -54,6 +54,46 @@ class RunJob:
     spec: Any  # simulator.RunSpec (kept Any: the core does not import the simulator)
     log_path: str
     session: SessionOptions = field(default_factory=SessionOptions)
+    sim: Any = None  # a precomputed simulator.SimResult (batched physics), else None
+
+
+def batch_physics(specs: list[Any], progress: bool = True) -> list[Any]:
+    """Every run's physics stepped together, one vectorised state per group of runs that
+    share duration, step, publish rate, switches and wrench frame (``simulate_batch``).
+
+    Returns the SimResults in the order of ``specs``; equal to per-run ``simulate`` to
+    rounding. Used by ``uwval simulate EXPERIMENT --batch-physics``.
+    """
+    from simulator import simulate_batch
+
+    groups: dict[tuple[Any, ...], list[int]] = {}
+    for i, s in enumerate(specs):
+        kw = s.simulate_kwargs()
+        key = (s.duration_s, s.inputs.wrench_frame,
+               *sorted((k, v) for k, v in kw.items() if k != "seed"))
+        groups.setdefault(key, []).append(i)
+    out: list[Any] = [None] * len(specs)
+    bar: Any = None
+    if progress:
+        from rich.progress import Progress
+
+        bar = Progress(transient=True)
+        bar.start()
+        task = bar.add_task(f"physics of {len(specs)} runs (batched)", total=len(specs))
+    try:
+        for idx in groups.values():
+            first = specs[idx[0]]
+            kw = {k: v for k, v in first.simulate_kwargs().items() if k != "seed"}
+            results = simulate_batch([specs[i].vehicle for i in idx],
+                                     [specs[i].inputs for i in idx], first.duration_s, **kw)
+            for i, r in zip(idx, results, strict=True):
+                out[i] = r
+            if bar is not None:
+                bar.advance(task, len(idx))
+    finally:
+        if bar is not None:
+            bar.stop()
+    return out
 
 
 def log_path_for(out_dir: Path, name: str, log_format: str) -> Path:
@@ -85,7 +125,8 @@ def run_one(job: RunJob) -> dict[str, Any]:
 
     spec = job.spec
     opts = job.session
-    sim = simulate(spec.vehicle, spec.inputs, spec.duration_s, **spec.simulate_kwargs())
+    sim = job.sim if job.sim is not None else simulate(
+        spec.vehicle, spec.inputs, spec.duration_s, **spec.simulate_kwargs())
     path = Path(job.log_path)
     ensure_parent_dir(path)
     metadata = {

@@ -16,7 +16,14 @@ import typer
 from rich.console import Console
 
 from uwval.cli import app
-from uwval.cli.pipeline import FORMAT_SUFFIX, RunJob, SessionOptions, log_path_for, run_one
+from uwval.cli.pipeline import (
+    FORMAT_SUFFIX,
+    RunJob,
+    SessionOptions,
+    batch_physics,
+    log_path_for,
+    run_one,
+)
 from uwval.errors import ConfigError
 from uwval.executors import run_tasks
 
@@ -68,8 +75,13 @@ def run_experiment(
     workers: int | None = None,
     scheduler: str | None = None,
     progress: bool = True,
+    batched: bool = False,
 ) -> dict[str, Any]:
-    """Run every run of an experiment file; write and return the manifest."""
+    """Run every run of an experiment file; write and return the manifest.
+
+    ``batched``: step all runs' physics together in one vectorised state in this process
+    first (fast for large sweeps of short runs); the bridge sessions then run on the executor.
+    """
     from simulator import load_experiment
 
     exp = load_experiment(experiment)
@@ -79,9 +91,10 @@ def run_experiment(
     except OSError as exc:
         raise ConfigError(f"{out_dir}: cannot create the output directory: "
                           f"{exc.strerror or exc}") from None
+    sims = batch_physics(specs, progress) if batched else [None] * len(specs)
     jobs = [
-        RunJob(spec, str(log_path_for(out_dir, spec.name, session.log_format)), session)
-        for spec in specs
+        RunJob(spec, str(log_path_for(out_dir, spec.name, session.log_format)), session, sim)
+        for spec, sim in zip(specs, sims, strict=True)
     ]
     t0 = time.perf_counter()
     outcomes = run_tasks(run_one, jobs, [s.name for s in specs], executor=executor,
@@ -151,6 +164,9 @@ def simulate(
                        ] = None,
     scheduler: Annotated[str | None, typer.Option(help="Dask scheduler address (tcp://...).")
                          ] = None,
+    batch_physics_: Annotated[bool, typer.Option(
+        "--batch-physics", help="Experiment: step all runs' physics together in one "
+        "vectorised state first (large sweeps of short runs).")] = False,
 ) -> None:
     """Simulate, bridge over TCP and record paired Gazebo/Unity pose logs."""
     session = SessionOptions(
@@ -162,7 +178,7 @@ def simulate(
         if output.suffix in (".mcap", ".bag", ".db3"):
             output = output.with_suffix("")
         manifest = run_experiment(experiment, output, session, executor=executor,
-                                  workers=workers, scheduler=scheduler)
+                                  workers=workers, scheduler=scheduler, batched=batch_physics_)
         console.print(
             f"[green]{len(manifest['runs'])} runs[/] written to {output}/runs, manifest "
             f"{output / 'manifest.json'} ({manifest['wall_time_s']:.1f} s)"
