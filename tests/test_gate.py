@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 import textwrap
@@ -125,6 +126,10 @@ def test_a_rule_matching_nothing_fails(table: ResultsTable) -> None:
     ("[baseline]\nrtol = -1\n", "rtol must be a number >= 0"),
     ("[[threshold]\n", "not valid TOML"),
     ("colour = 1\n", r"unknown top-level key\(s\) \['colour'\]"),
+    # a NaN bound compares false both ways and would pass everything
+    ("[[threshold]]\nmetric = 'mae'\nmax = nan\n", "'max' must be a finite number"),
+    ("[[threshold]]\nmetric = 'mae'\nmin = -inf\n", "'min' must be a finite number"),
+    ("[[threshold]]\nmetric = 'mae'\nmin = 2\nmax = 1\n", "'min' 2 is above 'max' 1"),
 ])
 def test_bad_thresholds_name_the_file_and_rule(tmp_path: Path, text: str, message: str) -> None:
     p = _toml(tmp_path, text, "ci-thresholds.toml")
@@ -313,3 +318,35 @@ def test_default_experiment_passes_the_projects_own_gate(tmp_path: Path) -> None
                  str(REPO / "data" / "baselines" / "default.json"))
     assert res.returncode == 0, res.stdout + res.stderr
     assert "PASS" in res.stdout
+
+
+def test_a_rule_file_with_no_rules_is_not_a_pass(table: ResultsTable, tmp_path: Path) -> None:
+    empty = _toml(tmp_path, "# nothing here yet\nversion = 1\n", "empty.toml")
+    with pytest.raises(ConfigError, match=r"empty\.toml: defines no threshold rules"):
+        check(table, empty)
+    golden = tmp_path / "golden.json"
+    table.save(golden)
+    assert check(table, empty, golden).passed  # with a baseline it only sets tolerances
+
+
+def test_cli_check_bad_inputs_one_line_exit_2(experiment: Path, tmp_path: Path) -> None:
+    th = REPO / "data" / "thresholds" / "default.toml"
+    junk = tmp_path / "r.parquet"
+    junk.write_bytes(b"PAR1 not really")
+    words = tmp_path / "words.csv"
+    words.write_text("run,topic,axis,metric,value,unit,note\nr1,t,x,mae,abc,m,\n")
+    cases = [
+        (["check", str(junk), "--thresholds", str(th)], r"r\.parquet: not a readable Parquet"),
+        (["check", str(words), "--thresholds", str(th)],
+         r"words\.csv: row 1 \(r1 t x mae\): value 'abc' is not a number"),
+        (["check", str(experiment), "--thresholds", str(tmp_path)], "is a directory"),
+        (["check", str(experiment), "--baseline", str(tmp_path)], "is a directory"),
+    ]
+    for args, message in cases:
+        proc = subprocess.run([sys.executable, "-m", "uwval", *args], capture_output=True,
+                              text=True, timeout=120)
+        assert proc.returncode == 2, (args, proc.stdout, proc.stderr)
+        assert "Traceback" not in proc.stderr
+        lines = proc.stderr.strip().splitlines()
+        assert len(lines) == 1, proc.stderr
+        assert re.search(message, lines[0]), lines[0]

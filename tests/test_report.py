@@ -239,3 +239,78 @@ def test_cli_report_names_a_corrupt_manifest(tmp_path: Path) -> None:
     assert res.returncode == 2
     assert "manifest.json: not valid JSON" in res.stderr
     assert not (tmp_path / "r.html").exists()
+
+
+# ----------------------------------------------------------------------------- readability
+def test_factor_axes_carry_units_and_leave_the_caption_strips_free(experiment: Path) -> None:
+    """force in N, torque in N m, current in m/s on every factor axis; after the layout is
+    solved (the HTML render) no axis, label or title reaches into the strips the PDF uses
+    for the caption (bottom) and the section heading (top)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from reports import plots
+    from reports.html import figure_png_base64
+    from uwval.results import load_experiment_results
+
+    table = load_experiment_results(experiment).table
+    box = plots.box_mae_figure(table, "current", VEHICLE)
+    effects = plots.main_effects_figure(table, VEHICLE)
+    assert {ax.get_xlabel() for ax in box.axes} == {"current (m/s)"}
+    assert {ax.get_xlabel() for ax in effects.axes} >= {"force (N)", "current (m/s)"}
+    assert {ax.get_ylabel() for ax in box.axes} == {"MAE (m)", "MAE (deg)"}
+    for fig in (box, effects):
+        figure_png_base64(fig)
+        renderer = FigureCanvasAgg(fig).get_renderer()
+        h_px = fig.get_size_inches()[1] * fig.dpi
+        for ax in fig.axes:
+            if not ax.get_visible():
+                continue
+            bb = ax.get_tightbbox(renderer)
+            assert bb is not None
+            assert bb.y0 >= plots.CAPTION_STRIP_IN * fig.dpi - 1, ax.get_title()
+            assert bb.y1 <= h_px - plots.HEADING_STRIP_IN * fig.dpi + 1, ax.get_title()
+
+
+def test_pinned_ticks_keep_labels_and_offset_text(experiment: Path) -> None:
+    """The PDF redraw uses the ticks of the HTML draw, including a '1e-16'-style offset."""
+    from reports import plots
+    from reports.html import figure_png_base64
+
+    fig = plots._new_figure(4, 3)
+    ax = fig.subplots()
+    ax.plot([0, 1, 2], np.array([1.0, 3.0, 2.0]) * 1e-16)
+    figure_png_base64(fig)
+    labels = [t.get_text() for t in ax.yaxis.get_majorticklabels()]
+    offset = ax.yaxis.get_major_formatter().get_offset()
+    assert offset  # the small values need an offset / exponent label
+    import io
+
+    fig.savefig(io.BytesIO(), format="pdf")
+    assert [t.get_text() for t in ax.yaxis.get_majorticklabels()] == labels
+    assert ax.yaxis.get_major_formatter().get_offset() == offset
+
+
+def test_pdf_tables_fit_the_page_and_headings_stay_with_their_tables(
+        experiment_report: tuple[Path, Path, str]) -> None:
+    from reports.pdf import A4, MARGIN, _TableLayout
+
+    cols = ["topic", "axis", "unit", "MAE mean", "MAE worst", "max |error| worst",
+            "p95 |error| worst", "Pearson r mean", "Pearson r lowest", "r undefined"]
+    rows = [["gui_camera_pose", "pitch", "deg", "4.603e-15", "5.077e-15", "2.487e-14",
+             "1.421e-14", "0.999996", "0.999982", "8"]]
+    lay = _TableLayout(cols, rows)
+    usable_pt = A4[0] * (1 - 2 * MARGIN) * 72
+    for c, w in enumerate(lay.widths):
+        longest = max(len(line) for line in [*lay.headers[c].split("\n"), rows[0][c]])
+        # each column is wide enough for its longest line at ~0.6 em per character
+        assert w * usable_pt >= 0.6 * lay.font_size * longest * 0.999, cols[c]
+    assert lay.numeric[3] and not lay.numeric[0]
+    if shutil.which("pdftotext") is None:
+        return
+    _, pdf, _ = experiment_report
+    pages = subprocess.run(["pdftotext", "-layout", str(pdf), "-"], capture_output=True,
+                           text=True, timeout=60).stdout.split("\f")
+    for title, first_table in (("Factor: force (N)", "Per level of force"),
+                               ("Factor: current (m/s)", "Per level of current")):
+        page = next(p for p in pages if title in p)
+        assert first_table in page, f"{title!r} is separated from its table"

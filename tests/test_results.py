@@ -324,7 +324,7 @@ def test_two_way_table_cells_are_means(table: ResultsTable) -> None:
     df = table.df
     cell = df[(df["force"] == 10.0) & (df["current"] == 0.2) & (df["topic"] == VEHICLE)
               & (df["axis"] == "x") & (df["metric"] == "mae")]["value"].mean()
-    assert tw.loc[10.0, 0.2] == pytest.approx(cell)
+    assert tw.at[10.0, 0.2] == pytest.approx(cell)
 
 
 def test_wide_view_has_one_row_per_run(table: ResultsTable) -> None:
