@@ -29,9 +29,11 @@ def figure_png_base64(fig: Figure, dpi: int = 90) -> str:
     """A figure as base64 PNG (for ``<img src="data:image/png;base64,...">``)."""
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi)
-    # the layout and the ticks are solved now: freeze both so the PDF pass (which draws the
-    # same figure as vectors) neither solves the layout nor locates the ticks again
-    fig.set_layout_engine("none")
+    # The layout and the ticks are solved now: freeze both so the PDF pass (which draws the
+    # same figure as vectors) neither solves the layout nor locates the ticks again. None,
+    # not "none": "none" leaves a placeholder engine, and savefig makes a whole extra
+    # (invisible) draw of any figure that has an engine.
+    fig.set_layout_engine(None)
     freeze_ticks(fig)
     return base64.b64encode(buf.getvalue()).decode("ascii")
 
