@@ -440,10 +440,7 @@ class ResultsTable:
             except ConfigError as exc:
                 raise ConfigError(f"{p}: {exc}") from exc
         if suffix == ".json":
-            try:
-                obj = json.loads(p.read_text())
-            except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-                raise ConfigError(f"{p}: not valid JSON: {exc}") from exc
+            obj = _read_json(p)
             try:
                 return cls.from_json_obj(obj)
             except ConfigError as exc:
@@ -701,10 +698,7 @@ def read_manifest(results_dir: str | Path, name: str = "manifest.json"
     path = d / name
     if not path.is_file():
         raise ConfigError(f"{d}: no manifest.json (not an experiment results directory)")
-    try:
-        obj = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: not valid JSON: {exc}") from exc
+    obj = _read_json(path)
     runs_obj = obj.get("runs") if isinstance(obj, dict) else None
     if not isinstance(runs_obj, list):
         raise ConfigError(f"{path}: 'runs' must be a list")

@@ -72,6 +72,14 @@ def _record(b: bytes | mmap.mmap, pos: int, size: int) -> tuple[dict[str, bytes]
     return hdr, ds, dl, ds + dl
 
 
+def _connection(b: bytes | mmap.mmap, hdr: dict[str, bytes], ds: int, dl: int) -> _Conn:
+    """A connection record: id and topic from its header, type and definition from its data."""
+    d = _fields(b, ds, ds + dl)
+    cid = _u32(hdr["conn"])
+    return _Conn(cid, hdr["topic"].decode(), d["type"].decode(),
+                 d.get("message_definition", b"").decode(errors="replace"))
+
+
 def _u32(v: bytes) -> int:
     return int(_U32.unpack(v[:4])[0])
 
@@ -118,10 +126,8 @@ def _scan(path: Path, mm: mmap.mmap, size: int, topics: Iterable[str] | None,
         h, ds, dl, pos = _record(mm, pos, size)
         op = h["op"][0]
         if op == OP_CONNECTION:
-            d = _fields(mm, ds, ds + dl)
-            cid = _u32(h["conn"])
-            conns[cid] = _Conn(cid, h["topic"].decode(), d["type"].decode(),
-                               d.get("message_definition", b"").decode(errors="replace"))
+            conn = _connection(mm, h, ds, dl)
+            conns[conn.id] = conn
         elif op == OP_CHUNK_INFO:
             chunk_pos.append(struct.unpack("<Q", h["chunk_pos"][:8])[0])
     if len(conns) != n_conn or len(chunk_pos) != n_chunk:
@@ -215,10 +221,8 @@ def _walk_unindexed(path: Path, mm: mmap.mmap, size: int, pos: int,
             h, ds, dl, q = _record(b, q, end)
             op = h["op"][0]
             if op == OP_CONNECTION:
-                d = _fields(b, ds, ds + dl)
-                cid = _u32(h["conn"])
-                conns[cid] = _Conn(cid, h["topic"].decode(), d["type"].decode(),
-                                   d.get("message_definition", b"").decode(errors="replace"))
+                conn = _connection(b, h, ds, dl)
+                conns[conn.id] = conn
             elif op == OP_MSG_DATA:
                 cid = _u32(h["conn"])
                 sec, nsec = struct.unpack("<II", h["time"][:8])
