@@ -118,8 +118,19 @@ def test_inspect_bad_files_exit_2_without_traceback(tmp_path: Path) -> None:
 def test_inspect_real_bag_json() -> None:
     proc = _run("inspect", str(DATA / "bags" / "evo" / "ROS_example.bag"), "--json")
     assert proc.returncode == 0, proc.stderr
-    counts = {t["name"]: t["count"] for t in json.loads(proc.stdout)["topics"]}
+    topics = json.loads(proc.stdout)["topics"]
+    counts = {t["name"]: t["count"] for t in topics}
     assert counts == {"/groundtruth": 12765, "/ORB-SLAM": 8362, "/S-PTAM": 5439}
+    # start / end (s) are the first and last receive times, as rosbags' index has them
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([DATA / "bags" / "evo" / "ROS_example.bag"]) as reader:
+        for t in topics:
+            (conn,) = [c for c in reader.connections if "/" + c.topic.strip("/") == t["name"]]
+            stamps = [ts for _c, ts, _d in reader.messages(connections=[conn])]
+            assert t["start"] == pytest.approx(min(stamps) * 1e-9, abs=1e-9)
+            assert t["end"] == pytest.approx(max(stamps) * 1e-9, abs=1e-9)
+            assert t["rate_hz"] == pytest.approx((len(stamps) - 1) / (t["end"] - t["start"]))
 
 
 @pytest.mark.skipif(not (DATA / "evo").exists(), reason="shared/data not present")

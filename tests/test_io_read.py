@@ -129,6 +129,20 @@ def test_tf_pairs_and_static_chain() -> None:
         read_stream(mc, "/tf", child_frame="no_such_frame")
     base = read_stream(mc, "/tf", child_frame="base_link", parent_frame="odom")
     assert len(base) > 100
+    # CDR TFMessage values against the mcap library's own decode (mcap_ros2)
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    ref: dict[int, tuple[float, ...]] = {}
+    with open(mc, "rb") as fh:
+        reader = make_reader(fh, decoder_factories=[DecoderFactory()])
+        for _s, _c, _m, msg in reader.iter_decoded_messages(topics=["/tf"]):
+            for tr in msg.transforms:
+                if (tr.header.frame_id, tr.child_frame_id) == ("odom", "base_link"):
+                    v = tr.transform.translation
+                    ref[tr.header.stamp.sec * 10**9 + tr.header.stamp.nanosec] = (v.x, v.y, v.z)
+    assert sorted(ref) == base.t.tolist()
+    np.testing.assert_array_equal(base.position, np.array([ref[t] for t in sorted(ref)]))
     with pytest.raises(LogReadError, match="tf_static"):
         read_stream(mc, "/tf", child_frame="base_link", parent_frame="world_not_there")
 
