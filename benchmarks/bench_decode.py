@@ -1,4 +1,5 @@
-"""Decode speed: 1M PoseStamped in one MCAP, read by uwval vs rosbags vs mcap_ros2.
+"""Decode speed: 1M PoseStamped in one MCAP (ROS 2 CDR) and in one ROS 1 bag, read by uwval
+vs rosbags (both) and mcap_ros2 (MCAP).
 
 The file is generated deterministically (seeded) with uwval's bulk writer, once per run, in a
 temporary directory. Each reader produces the same arrays (t, position, orientation); the
@@ -19,8 +20,8 @@ from uwval.posestream import PoseStream
 TOPIC = "/gazebo/model_rov_pose"
 
 
-def make_log(path: Path, n: int, seed: int = 7) -> PoseStream:
-    """Write ``n`` PoseStamped (1 kHz stamps, random walk poses) to ``path`` (MCAP)."""
+def make_log(path: Path, n: int, seed: int = 7, fmt: str = "mcap") -> PoseStream:
+    """Write ``n`` PoseStamped (1 kHz stamps, random walk poses) to ``path`` (``fmt``)."""
     from uwval.io import open_writer, write_stream
 
     rng = np.random.default_rng(seed)
@@ -28,7 +29,7 @@ def make_log(path: Path, n: int, seed: int = 7) -> PoseStream:
     q /= np.linalg.norm(q, axis=1)[:, None]
     s = PoseStream.from_arrays(np.arange(n, dtype=np.int64) * 1_000_000 + 10**18,
                                np.cumsum(rng.normal(size=(n, 3)) * 1e-3, axis=0), q)
-    with open_writer(path, "mcap") as w:
+    with open_writer(path, fmt) as w:
         write_stream(w, TOPIC, s, "world")
     return s
 
@@ -49,7 +50,8 @@ def read_rosbags(path: Path) -> int:
     with AnyReader([path], default_typestore=store) as reader:
         conns = [c for c in reader.connections if c.topic == TOPIC]
         for conn, _t, raw in reader.messages(connections=conns):
-            m: Any = store.deserialize_cdr(raw, conn.msgtype)
+            m: Any = (reader.deserialize(raw, conn.msgtype) if path.suffix == ".bag"
+                      else store.deserialize_cdr(raw, conn.msgtype))
             p, o = m.pose.position, m.pose.orientation
             rows.append((m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec,
                          p.x, p.y, p.z, o.x, o.y, o.z, o.w))
@@ -82,6 +84,14 @@ def run(quick: bool = False) -> list[BenchRow]:
         reps = 3 if quick else 5
         t_uw, = alternate([lambda: read_uwval(big)], reps)
         t_rb, t_mc = alternate([lambda: read_rosbags(small), lambda: read_mcap_ros2(small)], 2)
+        # ROS 1 serialization: the same poses in a .bag, rosbags' rosbag1 reader as the peer
+        big1, small1 = Path(tmp) / "poses.bag", Path(tmp) / "poses_small.bag"
+        make_log(big1, n, fmt="rosbag1")
+        make_log(small1, n_peer, fmt="rosbag1")
+        t_uw1, = alternate([lambda: read_uwval(big1)], reps)
+        t_rb1, = alternate([lambda: read_rosbags(small1)], 2)
+    uw1 = n / median(t_uw1)
+    rb1 = n_peer / median(t_rb1)
     uw = n / median(t_uw)
     rb = n_peer / median(t_rb)
     mc = n_peer / median(t_mc)
@@ -91,6 +101,8 @@ def run(quick: bool = False) -> list[BenchRow]:
                  ">= 1.2M msg/s", uw >= 1.2e6, note),
         BenchRow("decode PoseStamped MCAP vs mcap_ros2", uw, "msg/s", mc, "mcap_ros2",
                  ">= 1.2M msg/s", uw >= 1.2e6, note),
+        BenchRow("decode PoseStamped ROS 1 bag vs rosbags", uw1, "msg/s", rb1, "rosbags",
+                 ">= 1.2M msg/s", uw1 >= 1.2e6, note),
     ]
 
 
