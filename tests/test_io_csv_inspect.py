@@ -143,3 +143,33 @@ def test_tum_text_dispatches_to_read_tum(name: str) -> None:
     assert len(s) == len(np.unique(ref[:, 0]))
     order = np.argsort(ref[:, 0], kind="stable")
     np.testing.assert_allclose(s.position[0], ref[order[0], 1:4])
+
+
+def test_csv_unity_euler_means_ros_rpy_of_the_design_note(tmp_path: Path) -> None:
+    """Unity eulerAngles (applied Z, then X, then Y; left-handed) read from a CSV and taken
+    to ROS/ENU give roll = -ez, pitch = ex, yaw = -ey (DESIGN section 3), checked against
+    scipy's fixed-axis XYZ rotation rather than uwval's own Euler helpers."""
+    from scipy.spatial.transform import Rotation
+
+    from uwval.frames import convert_stream
+
+    rng = np.random.default_rng(12)
+    n = 40
+    euler = np.column_stack([rng.uniform(-70, 70, n) % 360, rng.uniform(0, 360, n),
+                             rng.uniform(0, 360, n)])  # ex away from gimbal lock
+    path = tmp_path / "euler.csv"
+    lines = ["time,x,y,z,ex,ey,ez"]
+    pos_u = rng.normal(size=(n, 3))
+    lines += [",".join(repr(float(v)) for v in (i / 60, *pos_u[i], *euler[i]))
+              for i in range(n)]
+    path.write_text("\n".join(lines) + "\n")
+    s = read_csv(path)
+    assert s.frame == "unity-flu"
+    ros = convert_stream(s, "enu")
+    expect = Rotation.from_euler("xyz", np.column_stack(
+        [-euler[:, 2], euler[:, 0], -euler[:, 1]]), degrees=True).as_quat()
+    np.testing.assert_allclose(np.abs(np.sum(ros.orientation * expect, axis=1)), 1.0,
+                               atol=1e-12)
+    # vector Unity -> ROS: (x, y, z)_ros = (z_u, -x_u, y_u)
+    np.testing.assert_array_equal(ros.position,
+                                  np.column_stack([pos_u[:, 2], -pos_u[:, 0], pos_u[:, 1]]))
