@@ -109,6 +109,21 @@ def test_ros1_compressions_and_unsorted_chunks_agree() -> None:
     streams = [read_stream(js / f, "/tf", child_frame="turtle2")
                for f in ("example.bag", "example-lz4.bag", "example-bz2.bag")]
     assert len(streams[0]) > 1000
+    # values: the old tf/tfMessage type over several connections, against rosbags' decode
+    from rosbags.highlevel import AnyReader
+
+    ref: dict[int, tuple[float, float, float]] = {}
+    with AnyReader([js / "example.bag"]) as reader:
+        conns = [c for c in reader.connections if c.topic == "/tf"]
+        assert len(conns) > 1
+        for conn, _t, data in reader.messages(connections=conns):
+            msg: Any = reader.deserialize(data, conn.msgtype)
+            for tr in msg.transforms:
+                if tr.child_frame_id.strip("/") == "turtle2":
+                    v = tr.transform.translation
+                    ref[tr.header.stamp.sec * 10**9 + tr.header.stamp.nanosec] = (v.x, v.y, v.z)
+    assert sorted(ref) == streams[0].t.tolist()
+    np.testing.assert_array_equal(streams[0].position, np.array([ref[t] for t in sorted(ref)]))
     for s in streams[1:]:
         np.testing.assert_array_equal(s.t, streams[0].t)
         np.testing.assert_array_equal(s.position, streams[0].position)

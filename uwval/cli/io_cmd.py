@@ -91,7 +91,7 @@ def inspect_cmd(
     log: Annotated[Path, typer.Argument(help="Log file (.mcap, .bag, .db3, .csv, .txt) or rosbag2 "
                                               "directory")],
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table")] = False,
-    gaps: Annotated[int, typer.Option(help="Largest gaps to list per topic")] = 3,
+    gaps: Annotated[int, typer.Option(help="Largest gaps to list per topic", min=0)] = 3,
 ) -> None:
     """Show a log's topics, types, message counts, rates, time span and largest gaps."""
     summary = summarize(log, gaps)
