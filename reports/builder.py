@@ -475,7 +475,10 @@ def _bridge_section(exp: ExperimentResults) -> Section | None:
     sec.blocks.append(t)
     fig = plots.bridge_figure(stats)
     if fig is not None:
-        sec.blocks.append(Plot("Bridge statistics per run", fig))
+        sec.blocks.append(Plot("Bridge statistics per run", fig,
+                               "Bars in the order of the table above, labelled by the part "
+                               "of the run name that tells runs apart (else the row number, "
+                               "from 0)."))
     return sec
 
 

@@ -22,6 +22,7 @@ A4 = (8.27, 11.69)  # inches, portrait
 MARGIN = 0.06  # fraction of the page
 LINE = 0.018  # fraction of the page height per text line at 9 pt
 ROWS_PER_PAGE = 42
+CAPTION_WIDTH = 140  # characters per line of a 7 pt caption
 COLOURS = {"pass": "#1a7f37", "fail": "#cf222e", "neutral": "#57606a", "": "#1f2328"}
 
 
@@ -77,6 +78,22 @@ class _Pager:
             self.y -= LINE * size / 9
 
     def table(self, t: Table) -> None:
+        """A table; one too wide for a readable font is split into column groups, each
+        repeating the first (key) column, rather than shrunk to an unreadable size."""
+        groups = _column_groups(t)
+        if len(groups) == 1:
+            self._table(t)
+            return
+        for k, cols in enumerate(groups):
+            where = {c: i for i, c in enumerate(cols)}
+            self._table(Table(
+                f"{t.title} (columns {k + 1} of {len(groups)})",
+                [t.columns[c] for c in cols],
+                [[r[c] if c < len(r) else "" for c in cols] for r in t.rows],
+                caption=t.caption if k == len(groups) - 1 else "",
+                flags={(r, where[c]): f for (r, c), f in t.flags.items() if c in where}))
+
+    def _table(self, t: Table) -> None:
         rows = t.rows or [["(no rows)"] + [""] * (len(t.columns) - 1)]
         layout = _TableLayout(t.columns, rows)
         size, row_h = layout.font_size, 0.016 * layout.font_size / 7
@@ -84,10 +101,15 @@ class _Pager:
         if self.heading:  # keep a section title on the page of its first table rows
             self.need(0.05 + 0.02 + row_h * (first + layout.header_lines) + 0.03)
         self.put_heading()
+        # the caption goes with the last rows: never alone at the top of a page
+        caption_h = (len(textwrap.wrap(t.caption, width=CAPTION_WIDTH)) * LINE * 7 / 9
+                     if t.caption else 0.0)
         for start in range(0, len(rows), ROWS_PER_PAGE):
             chunk = rows[start:start + ROWS_PER_PAGE]
             n_lines = len(chunk) + layout.header_lines
-            height = row_h * n_lines + 0.03
+            height = row_h * n_lines + 0.035  # title line + rows + gap below
+            if start + ROWS_PER_PAGE >= len(rows):
+                height += caption_h
             fig = self.need(height)
             cont = " (continued)" if start else ""
             fig.text(MARGIN, self.y, t.title + cont, fontsize=8.5, weight="bold", va="top")
@@ -118,7 +140,7 @@ class _Pager:
                     cell.set_facecolor("#fff8c5")
             self.y -= row_h * n_lines + 0.012
         if t.caption:
-            self.text(t.caption, size=7, colour="#57606a", width=140)
+            self.text(t.caption, size=7, colour="#57606a", width=CAPTION_WIDTH)
         self.y -= 0.008
 
 
@@ -139,6 +161,7 @@ class _TableLayout:
             head = str(columns[c]) if c < len(columns) else ""
             self.headers.append("\n".join(textwrap.wrap(head, width=max(chars[c], 6))) or head)
         self.header_lines = max(1, *(h.count("\n") + 1 for h in self.headers))
+        self.chars = chars  # longest line per column, in characters
         widths = [w + 1.5 for w in chars]  # + cell padding
         total = sum(widths)
         self.widths = [w / total for w in widths]
@@ -159,7 +182,32 @@ def _is_number(cell: str) -> bool:
     return True
 
 
-def _clip(s: str, n: int = 48) -> str:
+#: Smallest table font (pt) before a wide table is split into column groups.
+MIN_TABLE_FONT = 6.0
+
+
+def _column_groups(t: Table) -> list[list[int]]:
+    """Column index groups that each fit the page at MIN_TABLE_FONT (first column in all)."""
+    n = len(t.columns)
+    if n <= 2:
+        return [list(range(n))]
+    chars = _TableLayout(t.columns, t.rows or [[""] * n]).chars
+    budget = A4[0] * (1 - 2 * MARGIN) * 72 / (0.6 * MIN_TABLE_FONT)
+    groups: list[list[int]] = []
+    current = [0]
+    used = chars[0] + 1.5
+    for c in range(1, n):
+        need = chars[c] + 1.5
+        if len(current) > 1 and used + need > budget:
+            groups.append(current)
+            current, used = [0], chars[0] + 1.5
+        current.append(c)
+        used += need
+    groups.append(current)
+    return groups
+
+
+def _clip(s: str, n: int = 72) -> str:
     s = str(s)
     return s if len(s) <= n else s[: n - 3] + "..."
 

@@ -267,6 +267,7 @@ def bridge_figure(stats: Mapping[str, Mapping[str, Any]]) -> Figure | None:
                                  len(BRIDGE_PRIORITY)))
     keys = keys[:6]
     runs = list(stats)
+    labels = short_run_labels(runs)
     fig = _new_figure(11, 2.6 * math.ceil(len(keys) / 2))
     grid = np.atleast_2d(fig.subplots(math.ceil(len(keys) / 2), 2, squeeze=False))
     for i, key in enumerate(keys):
@@ -274,13 +275,29 @@ def bridge_figure(stats: Mapping[str, Mapping[str, Any]]) -> Figure | None:
         vals = [float(stats[r].get(key, np.nan)) if isinstance(stats[r].get(key), (int, float))
                 else np.nan for r in runs]
         ax.bar(np.arange(len(runs)), vals, color="#4c72b0")
-        ax.set_xticks(np.arange(len(runs)), runs, rotation=45, ha="right", fontsize=7)
+        ax.set_xticks(np.arange(len(runs)), labels, fontsize=7)
+        ax.set_xlabel("run", fontsize=8)
         ax.set_title(key)
         ax.grid(True, axis="y", alpha=0.3)
     for i in range(len(keys), grid.size):
         grid[i // 2][i % 2].set_visible(False)
     fig.suptitle("Bridge statistics per run")
     return fig
+
+
+def short_run_labels(runs: Sequence[str], max_len: int = 10) -> list[str]:
+    """Tick labels for runs: the first '-'-separated part that differs between runs and
+    tells them apart ("default-03-force=5_..." -> "03"), else the run names when short,
+    else their index. Long names rotated under a bar chart leave no room for the bars."""
+    parts = [r.split("-") for r in runs]
+    if len(runs) > 1 and len({len(p) for p in parts}) == 1:
+        for i in range(len(parts[0])):
+            col = [p[i] for p in parts]
+            if len(set(col)) == len(runs) and max(len(c) for c in col) <= max_len:
+                return col
+    if all(len(r) <= max_len for r in runs):
+        return list(runs)
+    return [str(i) for i in range(len(runs))]
 
 
 def _fmt(v: Any) -> str:

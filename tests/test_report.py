@@ -314,3 +314,36 @@ def test_pdf_tables_fit_the_page_and_headings_stay_with_their_tables(
                                ("Factor: current (m/s)", "Per level of current")):
         page = next(p for p in pages if title in p)
         assert first_table in page, f"{title!r} is separated from its table"
+
+
+def test_wide_pdf_tables_split_into_readable_column_groups() -> None:
+    from reports.content import Table
+    from reports.pdf import MIN_TABLE_FONT, _column_groups, _TableLayout
+
+    cols = ["run", *[f"statistic_number_{i}" for i in range(21)]]
+    rows = [[f"default-0{r}-force=5_torque=0.5_current=0.3", *[f"{r * i:.4f}" for i in range(21)]]
+            for r in range(8)]
+    t = Table("Per run", cols, rows, flags={(2, 5): "bad"})
+    groups = _column_groups(t)
+    assert len(groups) > 1
+    assert all(g[0] == 0 for g in groups)
+    assert sorted({c for g in groups for c in g}) == list(range(len(cols)))
+    for g in groups:
+        lay = _TableLayout([cols[c] for c in g], [[r[c] for c in g] for r in rows])
+        assert lay.font_size >= MIN_TABLE_FONT
+    assert _column_groups(Table("narrow", ["a", "b", "c"], [["1", "2", "3"]])) == [[0, 1, 2]]
+
+
+def test_bridge_bars_are_labelled_with_short_run_ids() -> None:
+    from reports import plots
+
+    names = [f"default-0{i}-force=5_torque=0.5_current=0.{i}" for i in range(4)]
+    assert plots.short_run_labels(names) == ["00", "01", "02", "03"]
+    assert plots.short_run_labels(["r1", "r2"]) == ["r1", "r2"]
+    assert plots.short_run_labels(["one-very-long-name-a", "another-very-long-name"]) == \
+        ["0", "1"]
+    fig = plots.bridge_figure({n: {"latency_mean_s": 0.01 * i, "dropped": i}
+                               for i, n in enumerate(names)})
+    assert fig is not None
+    ticks = [t.get_text() for t in fig.axes[0].get_xticklabels()]
+    assert ticks == ["00", "01", "02", "03"]
