@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -199,6 +200,31 @@ def test_csv_json_round_trip_and_directory_save(table: ResultsTable, tmp_path: P
     assert "NaN" not in (tmp_path / "out" / "results.json").read_text()
 
 
+def test_saving_where_nothing_can_be_written_names_the_path(table: ResultsTable,
+                                                             tmp_path: Path) -> None:
+    blocker = tmp_path / "a-file"
+    blocker.write_text("x")
+    for name in ("r.csv", "r.json", "out"):
+        with pytest.raises(ConfigError, match=r"a-file/.*cannot write the results table"):
+            table.save(blocker / name)
+
+
+def test_csv_keeps_text_columns_text(tmp_path: Path) -> None:
+    """Run names that look like numbers and an all-empty note column survive a CSV trip."""
+    df = pd.DataFrame({"run": ["007", "010"], "topic": ["t", "t"], "axis": ["x", "x"],
+                       "metric": ["mae", "mae"], "value": [0.5, float("nan")],
+                       "unit": ["m", "m"], "note": ["", ""], "force": [5.0, 10.0]})
+    table = ResultsTable.from_dataframe(df, ["force"])
+    (path,) = table.save(tmp_path / "r.csv")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # e.g. pandas' float-column fillna("") deprecation
+        back = ResultsTable.load(path)
+    assert back.runs == ["007", "010"]
+    assert back.df["note"].tolist() == ["", ""]
+    assert np.isnan(back.df["value"].iloc[1])
+    pd.testing.assert_frame_equal(back.df, table.df)
+
+
 def test_parquet_needs_pyarrow(table: ResultsTable, tmp_path: Path) -> None:
     if parquet_available():
         (p,) = table.save(tmp_path / "r.parquet")
@@ -225,6 +251,18 @@ def test_bad_results_files_name_the_file(tmp_path: Path) -> None:
         ResultsTable.load(_touch(tmp_path / "x.txt"))
     with pytest.raises(ConfigError, match="no such results file"):
         ResultsTable.load(tmp_path / "missing.csv")
+    with pytest.raises(ConfigError, match="is a directory, not a results file"):
+        ResultsTable.load(tmp_path)
+    junk = tmp_path / "junk.parquet"
+    junk.write_bytes(b"PAR1 truncated")
+    if parquet_available():
+        with pytest.raises(ConfigError, match=r"junk\.parquet: not a readable Parquet file"):
+            ResultsTable.load(junk)
+    words = tmp_path / "words.csv"
+    words.write_text("run,topic,axis,metric,value,unit,note\nr1,t,x,mae,0.1,m,\n"
+                     "r1,t,y,mae,,m,\nr1,t,z,mae,abc,m,\n")
+    with pytest.raises(ConfigError, match=r"words\.csv: row 3 \(r1 t z mae\): value 'abc'"):
+        ResultsTable.load(words)
 
 
 def _touch(p: Path) -> Path:

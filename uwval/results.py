@@ -390,15 +390,19 @@ class ResultsTable:
                 raise ConfigError(f"{p}: unknown results format {suffix!r} "
                                   "(use .csv, .json, .parquet or a directory)")
             return self.save_all(p)
-        p.parent.mkdir(parents=True, exist_ok=True)
-        if suffix == ".csv":
-            self.df.to_csv(p, index=False, float_format="%.17g")
-        elif suffix == ".json":
-            p.write_text(json.dumps(self.to_json_obj(), indent=1, allow_nan=False) + "\n")
-        else:
-            if not parquet_available():
-                raise ConfigError(f"{p}: writing Parquet needs pyarrow (pip install pyarrow)")
-            self.df.to_parquet(p, index=False)
+        if suffix == ".parquet" and not parquet_available():
+            raise ConfigError(f"{p}: writing Parquet needs pyarrow (pip install pyarrow)")
+        try:
+            p.parent.mkdir(parents=True, exist_ok=True)
+            if suffix == ".csv":
+                self.df.to_csv(p, index=False, float_format="%.17g")
+            elif suffix == ".json":
+                p.write_text(json.dumps(self.to_json_obj(), indent=1, allow_nan=False) + "\n")
+            else:
+                self.df.to_parquet(p, index=False)
+        except OSError as exc:
+            raise ConfigError(f"{p}: cannot write the results table: "
+                              f"{exc.strerror or exc}") from exc
         return [p]
 
     def save_all(self, directory: str | Path, stem: str = "results") -> list[Path]:
@@ -428,13 +432,13 @@ class ResultsTable:
         suffix = p.suffix.lower()
         if suffix == ".csv":
             try:
-                df = pd.read_csv(p, keep_default_na=False, na_values=[""])
+                # text columns stay text: a run named "007" is not the number 7, and an
+                # all-empty note column is not float NaN
+                text_cols = dict.fromkeys(("run", "topic", "axis", "metric", "unit", "note"), str)
+                df = pd.read_csv(p, keep_default_na=False, na_values=[""], dtype=text_cols)
             except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
-                raise ConfigError(f"{p}: not a readable results CSV: {exc}") from exc
-            if "note" in df.columns:
-                df["note"] = df["note"].fillna("")
-            if "unit" in df.columns:
-                df["unit"] = df["unit"].fillna("")
+                reason = " ".join(str(exc).split())
+                raise ConfigError(f"{p}: not a readable results CSV: {reason}") from exc
             try:
                 return cls.from_dataframe(df)
             except ConfigError as exc:

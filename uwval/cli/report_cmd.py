@@ -106,7 +106,8 @@ def check(
                         ] = None,
     json_out: Annotated[bool, typer.Option("--json", help="Print the verdict as JSON.")
                         ] = False,
-    limit: Annotated[int, typer.Option(help="Violations listed at most (0 = all).")] = 200,
+    limit: Annotated[int, typer.Option(help="Violations listed at most (0 = all).", min=0)
+                     ] = 200,
     write_baseline: Annotated[Path | None, typer.Option(
         help="Write these results as a golden baseline (JSON/CSV) instead of checking.")
     ] = None,
