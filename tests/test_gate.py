@@ -284,6 +284,18 @@ def test_pytest_plugin_pattern_passes_and_fails(experiment: Path, tmp_path: Path
     assert "test_fixture_reports_regressions" in out
     assert "mae run=rig topic=model_rov_pose axis=x" in out
     assert "must be <= 1e-09 m" in out
+    # --uwval-thresholds typed in a subdirectory is relative to that directory
+    sub = tmp_path / "sub"
+    sub.mkdir()
+    (sub / "test_opt.py").write_text(textwrap.dedent(f"""
+        def test_option_path(uwval_check):
+            v = uwval_check({str(log)!r})
+            assert v.checked == 6
+    """))
+    res = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                          "--uwval-thresholds", "../ci.toml", "test_opt.py"],
+                         capture_output=True, text=True, cwd=sub, timeout=120)
+    assert res.returncode == 0, res.stdout + res.stderr
 
 
 def test_noise_level_correlation_in_the_baseline_is_not_gated(table: ResultsTable) -> None:

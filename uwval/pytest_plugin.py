@@ -89,11 +89,18 @@ def pytest_addoption(parser: pytest.Parser) -> None:
 
 
 def _configured(config: pytest.Config, name: str) -> str | None:
-    value = config.getoption(f"--uwval-{name}") or config.getini(f"uwval_{name}")
-    if not value:
-        return None
+    """The configured path: a command-line option relative to where pytest was started
+    (as any path typed in a shell), an ini key relative to the ini file's folder."""
+    value = config.getoption(f"--uwval-{name}")
+    if value:
+        base = Path(config.invocation_params.dir)
+    else:
+        value = config.getini(f"uwval_{name}")
+        if not value:
+            return None
+        base = config.inipath.parent if config.inipath is not None else config.rootpath
     p = Path(str(value))
-    return str(p if p.is_absolute() else Path(str(config.rootpath)) / p)
+    return str(p if p.is_absolute() else base / p)
 
 
 @pytest.fixture
@@ -101,7 +108,8 @@ def uwval_check(request: pytest.FixtureRequest) -> Callable[..., GateResult]:
     """``uwval_check(results, thresholds=None, baseline=None)``: assert the gate passes.
 
     Unset thresholds/baseline come from ``--uwval-thresholds`` / ``--uwval-baseline`` or the
-    ``uwval_thresholds`` / ``uwval_baseline`` ini keys (paths relative to the rootdir).
+    ``uwval_thresholds`` / ``uwval_baseline`` ini keys (options relative to the directory
+    pytest was started in, ini keys to the ini file's directory).
     """
     config = request.config
 
