@@ -13,7 +13,7 @@ from __future__ import annotations
 import bz2
 import mmap
 import struct
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -72,6 +72,15 @@ def _record(b: bytes | mmap.mmap, pos: int, size: int) -> tuple[dict[str, bytes]
     return hdr, ds, dl, ds + dl
 
 
+def _records(b: bytes | mmap.mmap, start: int, end: int
+             ) -> Iterator[tuple[dict[str, bytes], int, int, int]]:
+    """(header fields, op code, data start, data length) of each record in [start, end)."""
+    pos = start
+    while pos < end:
+        hdr, ds, dl, pos = _record(b, pos, end)
+        yield hdr, hdr["op"][0], ds, dl
+
+
 def _connection(b: bytes | mmap.mmap, hdr: dict[str, bytes], ds: int, dl: int) -> _Conn:
     """A connection record: id and topic from its header, type and definition from its data."""
     d = _fields(b, ds, ds + dl)
@@ -121,10 +130,7 @@ def _scan(path: Path, mm: mmap.mmap, size: int, topics: Iterable[str] | None,
         return _walk_unindexed(path, mm, size, _nxt, topics)
     conns: dict[int, _Conn] = {}
     chunk_pos: list[int] = []
-    pos = index_pos
-    while pos < size:
-        h, ds, dl, pos = _record(mm, pos, size)
-        op = h["op"][0]
+    for h, op, ds, dl in _records(mm, index_pos, size):
         if op == OP_CONNECTION:
             conn = _connection(mm, h, ds, dl)
             conns[conn.id] = conn
@@ -216,10 +222,7 @@ def _walk_unindexed(path: Path, mm: mmap.mmap, size: int, pos: int,
     lost = 0
 
     def records(b: bytes | mmap.mmap, start: int, end: int) -> None:
-        q = start
-        while q < end:
-            h, ds, dl, q = _record(b, q, end)
-            op = h["op"][0]
+        for h, op, ds, dl in _records(b, start, end):
             if op == OP_CONNECTION:
                 conn = _connection(b, h, ds, dl)
                 conns[conn.id] = conn
