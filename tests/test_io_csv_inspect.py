@@ -173,3 +173,34 @@ def test_csv_unity_euler_means_ros_rpy_of_the_design_note(tmp_path: Path) -> Non
     # vector Unity -> ROS: (x, y, z)_ros = (z_u, -x_u, y_u)
     np.testing.assert_array_equal(ros.position,
                                   np.column_stack([pos_u[:, 2], -pos_u[:, 0], pos_u[:, 1]]))
+
+
+def test_csv_spreadsheet_exports_bom_crlf_semicolons_decimal_commas(tmp_path: Path) -> None:
+    """Windows/Excel-style exports: a UTF-8 BOM and CRLF; ';' with decimal commas; tabs."""
+    head = ["time", "pos_x", "pos_y", "pos_z", "rot_x", "rot_y", "rot_z", "rot_w"]
+    rows = [[0.0, 1.5, -2.25, 3.0, 0.0, 0.0, 0.0, 1.0], [0.5, 1.75, -2.5, 3.0, 0.0, 0.0, 0.0, 1.0]]
+    variants = {
+        "bom.csv": ("\ufeff" + ",".join(head) + "\r\n"
+                    + "".join(",".join(repr(v) for v in r) + "\r\n" for r in rows)),
+        "semi.csv": (";".join(head) + "\n"
+                     + "".join(";".join(repr(v).replace(".", ",") for v in r) + "\n"
+                               for r in rows)),
+        "tab.csv": "\t".join(head) + "\n" + "".join("\t".join(repr(v) for v in r) + "\n"
+                                                    for r in rows),
+    }
+    for name, text in variants.items():
+        path = tmp_path / name
+        path.write_bytes(text.encode("utf-8"))
+        s = read_csv(path)
+        np.testing.assert_array_equal(s.t, [0, 500_000_000])
+        np.testing.assert_array_equal(s.position, np.array(rows)[:, 1:4])
+
+
+def test_csv_missing_and_infinite_values_are_named(tmp_path: Path) -> None:
+    path = tmp_path / "gaps.csv"
+    path.write_text("t,x,y,z,qx,qy,qz,qw\n0,0,0,0,0,0,0,1\n0.1,0,0\n")
+    with pytest.raises(LogReadError, match=r"gaps\.csv: line 3, column 'z': missing value"):
+        read_csv(path)
+    path.write_text("t,x,y,z,qx,qy,qz,qw\n0,0,0,0,0,0,0,1\n0.1,0,inf,0,0,0,0,1\n")
+    with pytest.raises(LogReadError, match=r"line 3, column 'y': not a finite number \('inf'\)"):
+        read_csv(path)

@@ -69,6 +69,29 @@ def _find(cols: list[str], options: tuple[tuple[str, ...], ...]) -> list[str] | 
     return None
 
 
+def _sniff(path: Path) -> tuple[str, str]:
+    """(delimiter, decimal mark) from the header and first data line: ',' unless the
+    header has no comma but semicolons or tabs (spreadsheet exports in locales that write
+    decimal commas use ';' and '0,5')."""
+    lines: list[str] = []
+    try:
+        with open(path, encoding="utf-8-sig", errors="replace") as fh:
+            for line in fh:
+                if line.strip() and not line.lstrip().startswith("#"):
+                    lines.append(line)
+                    if len(lines) == 2:
+                        break
+    except OSError:
+        return ",", "."
+    if not lines or "," in lines[0]:
+        return ",", "."
+    for sep in (";", "\t"):
+        if sep in lines[0]:
+            data = lines[1] if len(lines) > 1 else ""
+            return sep, ("," if "," in data and "." not in data else ".")
+    return ",", "."
+
+
 def read_csv(path: str | Path, *, time: str | None = None, time_unit: str = "s",
              position: list[str] | None = None, quaternion: list[str] | None = None,
              euler: list[str] | None = None, length_unit: str = "m",
@@ -98,8 +121,10 @@ def read_csv(path: str | Path, *, time: str | None = None, time_unit: str = "s",
         raise LogReadError(f"{p}: length_unit must be one of {list(LENGTH_UNITS)}, not {lu!r}")
     import pandas as pd
 
+    sep, decimal = (str(opts["delimiter"]), ".") if "delimiter" in opts else _sniff(p)
     try:
-        df = pd.read_csv(p, sep=opts.get("delimiter", ","), comment="#", skipinitialspace=True)
+        df = pd.read_csv(p, sep=sep, decimal=decimal, comment="#", skipinitialspace=True,
+                         encoding="utf-8-sig")  # Windows exports start with a BOM
     except Exception as exc:
         raise LogReadError(f"{p}: cannot parse CSV: {one_line(exc)}") from exc
     cols = [str(c) for c in df.columns]
@@ -135,11 +160,12 @@ def read_csv(path: str | Path, *, time: str | None = None, time_unit: str = "s",
         bad = ~np.isfinite(block)
         if bad.any():
             r, c = np.argwhere(bad)[0]
+            cell = df[names[int(c)]].iloc[int(r)]
+            # empty fields (and pandas' NA spellings such as "nan") arrive as NaN
+            what = ("missing value" if pd.isna(cell)
+                    else f"not a finite number ({str(cell)!r})")
             # +2: one header line, 1-based line numbers (comment lines are not counted).
-            raise LogReadError(
-                f"{p}: line {int(r) + 2}, column {names[int(c)]!r}: not a finite number "
-                f"({df[names[int(c)]].iloc[int(r)]!r})"
-            )
+            raise LogReadError(f"{p}: line {int(r) + 2}, column {names[int(c)]!r}: {what}")
         return block
 
     t = numbers(tcol)[:, 0]
