@@ -5,7 +5,7 @@ from __future__ import annotations
 import typer.main
 
 from uwval.cli import app
-from uwval.cli.compare_cmd import _FAST_OPTIONS, fast_compare
+from uwval.cli.compare_run import _FAST_OPTIONS, fast_compare
 
 
 def _compare_params() -> dict[str, str]:

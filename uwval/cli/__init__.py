@@ -3,28 +3,22 @@
 Each area registers its commands from its own module (``compare_cmd``, ``io_cmd``, ...), so
 the areas do not edit one file. ``main`` turns every :class:`UwvalError` into a one-line
 message and exit code 2 (no traceback reaches the user).
+
+typer and rich are imported on first use (``uwval.cli.app`` is created lazily): a plain
+``uwval compare`` takes the fast path of :mod:`uwval.cli.compare_run` without them, since
+start-up is most of the whole-command time of a compare.
 """
 
 from __future__ import annotations
 
 import importlib
 import sys
-
-import typer
-from rich.console import Console
-from rich.markup import escape
+from typing import TYPE_CHECKING, Any
 
 from uwval.errors import UwvalError
 
-app = typer.Typer(
-    name="uwval",
-    help="Validate that an underwater vehicle's pose in Unity matches Gazebo's.",
-    no_args_is_help=True,
-    add_completion=False,
-    pretty_exceptions_enable=False,
-)
-
-err_console = Console(stderr=True)
+if TYPE_CHECKING:
+    import typer
 
 #: Modules that register commands on ``app`` when imported (missing ones are skipped).
 COMMAND_MODULES = (
@@ -37,12 +31,6 @@ COMMAND_MODULES = (
     "uwval.cli.teleop_cmd",
     "uwval.cli.bench_cmd",
 )
-
-
-@app.callback()
-def _root() -> None:
-    """uwval: simulate, bridge, record, compare, report and gate Gazebo/Unity pose logs."""
-
 
 #: Which module defines each top-level command, so that ``uwval compare`` imports only the
 #: compare module (start-up time is part of the whole-command cost of small jobs).
@@ -59,6 +47,36 @@ COMMAND_HOME = {
     "bench": "uwval.cli.bench_cmd",
 }
 
+_app: typer.Typer | None = None
+
+
+def _root() -> None:
+    """uwval: simulate, bridge, record, compare, report and gate Gazebo/Unity pose logs."""
+
+
+def get_app() -> typer.Typer:
+    """The typer application (created on first use)."""
+    global _app
+    if _app is None:
+        import typer
+
+        _app = typer.Typer(
+            name="uwval",
+            help="Validate that an underwater vehicle's pose in Unity matches Gazebo's.",
+            no_args_is_help=True,
+            add_completion=False,
+            pretty_exceptions_enable=False,
+        )
+        _app.callback()(_root)
+    return _app
+
+
+def __getattr__(name: str) -> Any:
+    """``from uwval.cli import app`` creates the typer app on first use."""
+    if name == "app":
+        return get_app()
+    raise AttributeError(f"module 'uwval.cli' has no attribute {name!r}")
+
 
 def _register(argv: list[str] | None = None) -> None:
     """Import the command modules: only the one needed when ``argv`` names a known command."""
@@ -74,23 +92,31 @@ def _register(argv: list[str] | None = None) -> None:
                 raise
 
 
+def _print_error(prefix_markup: str, text: str) -> None:
+    """One line on stderr: a coloured prefix, then ``text`` verbatim (never as markup)."""
+    from rich.console import Console
+    from rich.markup import escape
+
+    Console(stderr=True).print(f"{prefix_markup} {escape(text)}", highlight=False,
+                               soft_wrap=True)
+
+
 def main(argv: list[str] | None = None) -> None:
     """Console entry point: run the app, printing UwvalErrors as clean messages."""
     args = sys.argv[1:] if argv is None else argv
-    _register(args)
     try:
         if args[:1] == ["compare"]:
             # plain compare arguments skip typer's parsing layer (start-up time is most of
             # a small compare); anything unusual falls through to typer below
-            from uwval.cli.compare_cmd import fast_compare
+            from uwval.cli.compare_run import fast_compare
 
             if fast_compare(list(args[1:])):
                 return
-        app(args=argv, standalone_mode=True)
+        _register(args)
+        get_app()(args=argv, standalone_mode=True)
     except UwvalError as exc:
-        err_console.print(f"[bold red]error:[/] {escape(str(exc))}", highlight=False,
-                          soft_wrap=True)
+        _print_error("[bold red]error:[/]", str(exc))
         sys.exit(2)
     except KeyboardInterrupt:
-        err_console.print("[yellow]interrupted[/]")
+        _print_error("[yellow]interrupted[/]", "")
         sys.exit(130)
