@@ -7,9 +7,9 @@
     (uwval Umeyama + apply vs ``PoseTrajectory3D.align``); target >= 50x;
 (c) the same pair as MCAP PoseStamped logs, whole command: target < 1 s.
 
-The whole command is also measured through :func:`uwval.cli.compare_cmd.fast_compare` (the
-same compare, without typer's pydantic coercion layer), as ``uwval.cli.main`` runs it once
-the lead wires it in. Peak RSS is the command's own (``benchmarks.common.run_command``); the
+The whole command is measured as ``python -m uwval`` and as the installed ``uwval`` console
+script (both take the typer-free fast path of :mod:`uwval.cli.compare_run`). Peak RSS is the
+command's own (``benchmarks.common.run_command``); the
 TUM reader forks one child to parse the second file into shared memory, whose private pages
 (~10 MB) are not in that figure.
 
@@ -52,23 +52,6 @@ def _make_pair(directory: Path, n: int) -> tuple[Path, Path, Path, Path]:
     return a, b, ma, mb
 
 
-#: ``uwval.cli.main`` with the light compare path (what the lead is asked to wire in): typer
-#: still parses anything fast_compare declines.
-_FAST_MAIN = (
-    "import sys\n"
-    "from uwval.cli import _register, app, err_console\n"
-    "from uwval.errors import UwvalError\n"
-    "_register(sys.argv[1:])\n"
-    "from uwval.cli.compare_cmd import fast_compare\n"
-    "try:\n"
-    "    done = fast_compare(sys.argv[2:])\n"
-    "except UwvalError as exc:\n"
-    "    err_console.print(f'error: {exc}'); sys.exit(2)\n"
-    "if not done:\n"
-    "    app(args=sys.argv[1:])\n"
-)
-
-
 def _evo_ape_cmd() -> str:
     exe = shutil.which("evo_ape") or str(Path(sys.executable).parent / "evo_ape")
     return exe
@@ -76,7 +59,9 @@ def _evo_ape_cmd() -> str:
 
 def _whole_command(a: Path, b: Path, ma: Path, mb: Path, reps: int) -> list[BenchRow]:
     uw = [sys.executable, "-m", "uwval", "compare", str(a), str(b), "--sync", "nearest"]
-    light = [sys.executable, "-c", _FAST_MAIN, "compare", str(a), str(b), "--sync", "nearest"]
+    script = Path(sys.executable).parent / "uwval"  # the console script users run
+    light = [str(script) if script.exists() else shutil.which("uwval") or "uwval", "compare",
+             str(a), str(b), "--sync", "nearest"]
     evo = [_evo_ape_cmd(), "tum", str(a), str(b)]
     runs: dict[str, list[tuple[float, float]]] = {"uwval": [], "light": [], "evo": []}
     for _ in range(reps):  # alternate so all see the same machine load
@@ -86,7 +71,7 @@ def _whole_command(a: Path, b: Path, ma: Path, mb: Path, reps: int) -> list[Benc
     t_evo = median([r[0] for r in runs["evo"]])
     m_evo = max(r[1] for r in runs["evo"])
     rows = []
-    for key, label in (("uwval", "python -m uwval"), ("light", "fast_compare path")):
+    for key, label in (("uwval", "python -m uwval"), ("light", "uwval console script")):
         t_uw = median([r[0] for r in runs[key]])
         m_uw = max(r[1] for r in runs[key])
         rows += [
