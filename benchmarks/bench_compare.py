@@ -105,12 +105,14 @@ def _engine(a: Path, b: Path, reps: int) -> list[BenchRow]:
     evo_est = file_interface.read_tum_trajectory_file(str(b))
 
     from uwval.comparison.stats import norm_stats
-    from uwval.comparison.sync import associate_nearest
+    from uwval.comparison.sync import associate_nearest, index_or_slice
 
     def uw_assoc() -> float:
-        """The same work as evo: association, position-error norm, its statistics."""
+        """The same work as evo: association, position-error norm, its statistics (with the
+        engine's own row selection: views when the matches are a contiguous run)."""
         m = associate_nearest(ref, est, max_diff=0.01)
-        d = est.position[m.other_idx] - ref.position[m.ref_idx]
+        d = (est.position[index_or_slice(m.other_idx)]
+             - ref.position[index_or_slice(m.ref_idx)])
         return float(norm_stats(np.sqrt(np.einsum("ij,ij->i", d, d)))["rmse"])
 
     def uw_full() -> float:

@@ -54,3 +54,15 @@ def test_pearson_undefined_for_round_off_noise_series() -> None:
     assert "constant" in out["pearson_reason"]
     moving = np.linspace(0.0, 1e-6, 500)  # a micro-metre of real motion still counts
     assert pearson(moving, moving + rng.normal(0, 1e-9, 500))["pearson_r"] > 0.99
+
+
+def test_index_or_slice_views_only_contiguous_runs() -> None:
+    from uwval.comparison.sync import index_or_slice
+
+    assert index_or_slice(np.arange(3, 9)) == slice(3, 9)
+    for idx in ([0, 0, 2], [0, 2, 3], [5]):
+        arr = np.asarray(idx, dtype=np.int64)
+        sel = index_or_slice(arr)
+        data = np.arange(10.0)
+        np.testing.assert_array_equal(data[sel], data[arr])
+    assert isinstance(index_or_slice(np.asarray([0, 0, 2])), np.ndarray)

@@ -21,7 +21,12 @@ from uwval.comparison.align import Alignment, estimate_alignment
 from uwval.comparison.doctor import FrameDiagnosis, diagnose
 from uwval.comparison.offset import OffsetEstimate, estimate_offset, latency_stats
 from uwval.comparison.stats import axis_stats, norm_stats
-from uwval.comparison.sync import associate_nearest, interpolate_at, nominal_period_ns
+from uwval.comparison.sync import (
+    associate_nearest,
+    index_or_slice,
+    interpolate_at,
+    nominal_period_ns,
+)
 from uwval.errors import AlignmentError
 from uwval.frames import CONVENTIONS, convert_stream, get_convention
 from uwval.posestream import PoseStream
@@ -222,7 +227,7 @@ def compare(
                             f"longer than {interp.max_gap_ns * 1e-9:.6g} s and were masked")
     else:
         match = associate_nearest(ref_c, oth_c, max_diff=max_diff, offset=offset_s)
-        ref_sel, oth_sel = _selector(match.ref_idx), _selector(match.other_idx)
+        ref_sel, oth_sel = index_or_slice(match.ref_idx), index_or_slice(match.other_idx)
         if match.reference_drives:
             t = ref_c.t[ref_sel]
         else:
@@ -286,14 +291,6 @@ def compare(
     return ComparisonResult(t=t, reference=aligned_ref, other=aligned_oth, stats=stats,
                             alignment=alignment, offset_s=offset_s, offset_estimate=estimate,
                             diagnosis=diagnosis, warnings=warnings)
-
-
-def _selector(idx: I64) -> I64 | slice:
-    """A slice when ``idx`` is a contiguous run (no copy of the gathered arrays), else idx."""
-    if idx.size and int(idx[-1]) - int(idx[0]) + 1 == idx.size and \
-            bool(np.all(np.diff(idx) == 1)):
-        return slice(int(idx[0]), int(idx[-1]) + 1)
-    return idx
 
 
 def _repeats(idx: I64) -> int:

@@ -95,6 +95,15 @@ def associate_nearest(reference: PoseStream, other: PoseStream, *, max_diff: flo
     return NearestMatch(ref_idx, oth_idx, n_candidates, second_longer)
 
 
+def index_or_slice(idx: I64) -> I64 | slice:
+    """A slice when matched indices are a contiguous run (rows taken as views, no copy of the
+    gathered arrays: the common case of two streams at one rate), else the indices."""
+    if idx.size and int(idx[-1]) - int(idx[0]) + 1 == idx.size and \
+            bool(np.all(np.diff(idx) == 1)):
+        return slice(int(idx[0]), int(idx[-1]) + 1)
+    return idx
+
+
 def nominal_period_ns(t: I64) -> int:
     """Median stamp spacing (ns): the stream's nominal period, robust to a few gaps."""
     if t.shape[0] < 2:
