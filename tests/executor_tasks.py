@@ -40,3 +40,17 @@ def flaky_once(args: tuple[int, str]) -> int:
         marker.write_text("x")
         raise OSError(f"transient failure for {x}")
     return x
+
+
+def run_one_dying_once(args: tuple[object, str, str]) -> dict[str, object]:
+    """A real sweep task (simulate -> bridge -> log) whose worker process is killed the first
+    time it runs the run named ``victim``."""
+    from uwval.cli.pipeline import RunJob, run_one
+
+    job, victim, marker_dir = args
+    assert isinstance(job, RunJob)
+    marker = Path(marker_dir) / "killed"
+    if job.spec.name == victim and not marker.exists():
+        marker.write_text(victim)
+        os._exit(9)
+    return run_one(job)

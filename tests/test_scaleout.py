@@ -149,3 +149,28 @@ def test_batched_physics_sweep_matches_per_run_physics(tmp_path: Path) -> None:
     for name in na:
         assert nb[name]["axes"]["x"]["mae"] == pytest.approx(na[name]["axes"]["x"]["mae"],
                                                              rel=1e-6, abs=1e-12)
+
+
+@pytest.mark.skipif(not HAS_DASK, reason="dask.distributed not installed")
+@pytest.mark.parametrize("executor", ["local", "dask"])
+def test_worker_killed_mid_sweep_every_run_present_once(tmp_path: Path, executor: str) -> None:
+    import cloudpickle
+    import executor_tasks
+
+    from simulator import load_experiment
+    from uwval.cli.pipeline import RunJob, log_path_for
+    from uwval.executors import run_tasks
+
+    cloudpickle.register_pickle_by_value(executor_tasks)
+    specs = load_experiment(data_path("experiments", "default.toml")).runs()
+    victim = specs[3].name
+    jobs = [(RunJob(s, str(log_path_for(tmp_path, s.name, "mcap"))), victim, str(tmp_path))
+            for s in specs]
+    out = run_tasks(executor_tasks.run_one_dying_once, jobs, [s.name for s in specs],
+                    executor=executor, workers=2, retries=2, progress=False)
+    assert (tmp_path / "killed").read_text() == victim  # a worker really died
+    assert [o.key for o in out] == [s.name for s in specs]
+    assert all(o.ok for o in out), [o.error for o in out if not o.ok]
+    names = [o.value["name"] for o in out if o.value is not None]
+    assert sorted(names) == sorted(s.name for s in specs)  # every run once
+    assert len(list((tmp_path / "runs").glob("*.mcap"))) == len(specs)
