@@ -43,7 +43,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -133,12 +133,31 @@ def hydro_wrench_reference(
 
 
 # ---------------------------------------------------------------------- parameters
+class KernelStructure(NamedTuple):
+    """Which terms a vehicle (or batch) has: selects and caches the generated kernel."""
+
+    ma_terms: tuple[tuple[int, ...], ...]
+    lin_terms: tuple[tuple[int, ...], ...]
+    qabs_terms: tuple[tuple[int, ...], ...]
+    quad_terms: tuple[tuple[int, ...], ...]
+    minv_terms: tuple[tuple[int, ...], ...]
+    inertia_terms: tuple[tuple[int, ...], ...]
+    has_cob: bool
+    has_net: bool
+    has_added_mass: bool
+    implicit: bool
+    legacy: bool
+    has_current: bool
+    wrench_frame: str
+    fossen: bool
+
+
 @dataclass
 class KernelParams:
     """Numbers the kernel reads, each a float (one vehicle) or an (N,) array (a batch)."""
 
     values: dict[str, Any]
-    structure: tuple[Any, ...]  # hashable description of which terms exist
+    structure: KernelStructure  # hashable description of which terms exist
 
 
 def build_params(
@@ -203,20 +222,10 @@ def build_params(
     has_cob = bool(np.any(cob != 0))
     has_net = any(v.buoyancy != v.weight for v in vehicles)
     has_added_mass = bool(ma_terms)
-    structure = (
-        ma_terms,
-        lin_terms,
-        qabs_terms,
-        quad_terms,
-        minv_terms,
-        inertia_terms,
-        has_cob,
-        has_net,
-        has_added_mass,
-        bool(implicit_added_mass),
-        bool(legacy_coriolis),
-        bool(has_current),
-        wrench_frame,
+    structure = KernelStructure(
+        tuple(ma_terms), tuple(lin_terms), tuple(qabs_terms), tuple(quad_terms),
+        tuple(minv_terms), tuple(inertia_terms), has_cob, has_net, has_added_mass,
+        bool(implicit_added_mass), bool(legacy_coriolis), bool(has_current), wrench_frame,
         bool(fossen_coriolis),
     )
     return KernelParams(vals, structure)
@@ -241,26 +250,12 @@ def _coriolis_rows(legacy: bool) -> list[list[tuple[int, int, int, int]]]:
     ]
 
 
-def generate_kernel_source(structure: tuple[Any, ...]) -> str:
+def generate_kernel_source(structure: KernelStructure) -> str:
     """Python source of ``kernel(n, k0, S, P, FX, FY, FZ, TX, TY, TZ, CX, CY, CZ) -> S``.
 
     Runs ``n`` steps using inputs ``FX[k0 + k]`` ... (lists of floats, or (steps, N) arrays)."""
-    (
-        ma_terms,
-        lin_terms,
-        qabs_terms,
-        quad_terms,
-        minv_terms,
-        inertia_terms,
-        has_cob,
-        has_net,
-        has_added_mass,
-        implicit,
-        legacy,
-        has_current,
-        wrench_frame,
-        fossen,
-    ) = structure
+    (ma_terms, lin_terms, qabs_terms, quad_terms, minv_terms, inertia_terms, has_cob,
+     has_net, has_added_mass, implicit, legacy, has_current, wrench_frame, fossen) = structure
     names: set[str] = {"dt", "hdt", "mass", "net_up", "buoy", "rbx", "rby", "rbz"}
     names |= {f"mad_{i}{j}" for i, j in ma_terms}
     names |= {f"a{i}" for i in range(6)} | {f"na{i}" for i in range(6)}
@@ -372,10 +367,10 @@ def generate_kernel_source(structure: tuple[Any, ...]) -> str:
 
 
 KernelFn = Callable[..., tuple[Any, ...]]
-_KERNELS: dict[tuple[Any, ...], KernelFn] = {}
+_KERNELS: dict[KernelStructure, KernelFn] = {}
 
 
-def get_kernel(structure: tuple[Any, ...]) -> KernelFn:
+def get_kernel(structure: KernelStructure) -> KernelFn:
     """The compiled kernel for a structure (cached)."""
     fn = _KERNELS.get(structure)
     if fn is None:
