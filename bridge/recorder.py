@@ -191,7 +191,7 @@ def scan_mcap(path: str | Path) -> RecoveryReport:
                     counts[topic] = counts.get(topic, 0) + 1
                 elif isinstance(record, Footer):
                     complete = True
-                valid = fh.tell() if not isinstance(record, Message) else valid
+                valid = fh.tell()  # a record is yielded only once fully read
         except Exception as exc:  # truncated or corrupt tail: report, do not fail
             error = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
     if complete:

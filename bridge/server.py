@@ -70,7 +70,6 @@ class _Client:
     send_lock: threading.Lock = field(default_factory=threading.Lock)  # one writer at a time
     partial: bytes = b""  # unsent tail of a frame already partly on the wire
     partial_frames: int = 0
-    nul: bool = False  # peer appends NULs (ROS 2 Unity): answer the same way
     threads: list[threading.Thread] = field(default_factory=list)
 
     def enqueue(self, item: bytes) -> bool:
@@ -248,8 +247,8 @@ class BridgeServer:
             done = threading.Event()
             box: list[bytes] = []
             self._waiting[srv_id] = (done, box)
-        client.enqueue(wire.encode_command(wire.REQUEST, {"srv_id": srv_id}, nul=client.nul)
-                       + wire.encode_frame(name, request, nul=client.nul))
+        client.enqueue(wire.encode_command(wire.REQUEST, {"srv_id": srv_id}, nul=False)
+                       + wire.encode_frame(name, request, nul=False))
         if not done.wait(timeout):
             with self._lock:
                 self._waiting.pop(srv_id, None)
@@ -263,7 +262,7 @@ class BridgeServer:
         with self._lock:
             clients = list(self._clients.values())
         for c in clients:  # in each peer's own NUL convention, as every other reply
-            c.enqueue(wire.encode_command(cmd, {"text": text}, nul=c.nul))
+            c.enqueue(wire.encode_command(cmd, {"text": text}, nul=False))
 
     def wait_for_subscribers(self, topic: str, count: int = 1, timeout: float = 5.0) -> None:
         """Block until ``count`` connected clients subscribe to ``topic``."""
@@ -427,7 +426,7 @@ class BridgeServer:
         self._event(f"client {c.client_id} ({c.address}) closed: {reason}")
 
     def _reply(self, c: _Client, command: str, params: dict[str, Any]) -> None:
-        c.enqueue(wire.encode_command(command, params, nul=c.nul))
+        c.enqueue(wire.encode_command(command, params, nul=False))
 
     def _dispatch(self, c: _Client, frame: wire.Frame) -> None:
         if c.pending_srv is not None:
@@ -447,8 +446,6 @@ class BridgeServer:
         if frame.is_keepalive:
             return
         if frame.is_command:
-            if frame.payload.endswith(b"\x00"):
-                c.nul = True
             self._command(c, frame)
             return
         topic = frame.destination
@@ -482,8 +479,8 @@ class BridgeServer:
         except Exception as exc:
             self._reply(c, wire.ERROR, {"text": f"service {name!r} failed: {exc}"})
             return
-        c.enqueue(wire.encode_command(wire.RESPONSE, {"srv_id": srv_id}, nul=c.nul)
-                  + wire.encode_frame(name, response, nul=c.nul))
+        c.enqueue(wire.encode_command(wire.RESPONSE, {"srv_id": srv_id}, nul=False)
+                  + wire.encode_frame(name, response, nul=False))
 
     def _command(self, c: _Client, frame: wire.Frame) -> None:
         cmd = frame.destination

@@ -51,7 +51,8 @@ class SessionStats:
     sent while Unity was disconnected or still in flight when the link dropped;
     ``server_dropped`` by the endpoint's bounded queues; ``applied`` Unity transforms logged
     (one per topic per frame once a pose arrived); ``frames`` render frames. Latencies are on
-    the virtual clock, seconds: ``latency_*`` arrival minus header stamp, ``render_lag_*``
+    the virtual clock, seconds (None when nothing arrived or was rendered):
+    ``latency_*`` arrival minus header stamp, ``render_lag_*``
     frame time minus the applied stamp.
     """
 
@@ -66,11 +67,11 @@ class SessionStats:
     frames: int = 0
     disconnects: int = 0
     reconnects: int = 0
-    latency_mean_s: float = 0.0
-    latency_max_s: float = 0.0
-    render_lag_mean_s: float = 0.0
-    render_lag_p99_s: float = 0.0
-    render_lag_max_s: float = 0.0
+    latency_mean_s: float | None = None
+    latency_max_s: float | None = None
+    render_lag_mean_s: float | None = None
+    render_lag_p99_s: float | None = None
+    render_lag_max_s: float | None = None
     sim_duration_s: float = 0.0
     wall_time_s: float = 0.0
     protocol: str = "ROS2"

@@ -186,6 +186,9 @@ def unity(
     console.print(f"[green]wrote[/] {output}: {len(applied)} transforms, "
                   f"{client.received} messages received, {client.connection.connects} "
                   f"connection(s)")
+    if client.connection.connects == 0:
+        raise BridgeError(f"never connected to an endpoint at {host}:{port} "
+                          f"({output} holds no Unity transforms)")
 
 
 @bridge_app.command("scan")

@@ -214,5 +214,6 @@ def simulate(
         f"{b.get('sent', 0)} poses sent, {b.get('received', 0)} received, "
         f"{b.get('applied', 0)} applied in {b.get('frames', 0)} Unity frames, "
         f"{b.get('dropped', 0) + b.get('server_dropped', 0)} dropped; render lag "
-        f"{1e3 * b.get('render_lag_mean_s', 0.0):.1f} ms mean"
+        + (f"{1e3 * b['render_lag_mean_s']:.1f} ms mean" if b.get("render_lag_mean_s")
+           is not None else "n/a (nothing rendered)")
     )
