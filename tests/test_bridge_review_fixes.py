@@ -62,3 +62,18 @@ def test_unity_recorder_that_never_connects_fails(tmp_path: Path) -> None:
     assert res.returncode == 2, res.stdout + res.stderr
     assert "never connected" in res.stderr
     assert "Traceback" not in res.stderr
+
+
+def test_generic_bodies_round_trip_through_rosbags_in_both_protocols() -> None:
+    from bridge import protocol as wire
+    from uwval.io.ros import header_msg
+
+    for proto, ver in (("ROS2", 2), ("ROS1", 1)):
+        msg = header_msg(1_700_000_000_123_456_789, "world", ros_version=ver)
+        body = wire.encode_with_rosbags(msg, "std_msgs/Header", proto)  # type: ignore[arg-type]
+        if proto == "ROS2":
+            assert body[:4] == b"\x00\x01\x00\x00"  # CDR little-endian encapsulation header
+        back = wire.decode_with_rosbags(body, "std_msgs/Header", proto)  # type: ignore[arg-type]
+        assert back.frame_id == "world"
+        assert back.stamp.sec == 1_700_000_000
+        assert back.stamp.nanosec == 123_456_789
