@@ -54,3 +54,11 @@ def run_one_dying_once(args: tuple[object, str, str]) -> dict[str, object]:
         marker.write_text(victim)
         os._exit(9)
     return run_one(job)
+
+
+def count_and_fail(args: tuple[int, str]) -> int:
+    """Records each attempt in a file, then fails deterministically (a uwval error)."""
+    x, marker_dir = args
+    with open(Path(marker_dir) / f"attempts-{x}", "a") as fh:
+        fh.write("x")
+    raise ConfigError(f"run {x}: bad parameter")

@@ -55,8 +55,8 @@ def items_from(source: Path, options: dict[str, Any] | None = None) -> list[Batc
     if source.is_dir():
         logs = sorted(
             p for p in source.rglob("*")
-            if (p.is_file() and p.suffix in LOG_SUFFIXES and p.parent.suffix == "")
-            and not (p.parent / "metadata.yaml").exists()
+            if p.is_file() and p.suffix in LOG_SUFFIXES
+            and not (p.parent / "metadata.yaml").exists()  # files of a rosbag2 directory
         )
         bag_dirs = sorted(p.parent for p in source.rglob("metadata.yaml"))
         found = logs + bag_dirs
@@ -118,9 +118,13 @@ class BatchResult:
 
     def save(self, out_dir: Path) -> list[Path]:
         """Write comparisons.json and the results table (CSV, JSON, Parquet if available)."""
-        out_dir.mkdir(parents=True, exist_ok=True)
         comp = out_dir / "comparisons.json"
-        comp.write_text(json.dumps({"runs": self.runs, "failed": self.failed}, indent=1))
+        try:
+            out_dir.mkdir(parents=True, exist_ok=True)
+            comp.write_text(json.dumps({"runs": self.runs, "failed": self.failed}, indent=1))
+        except OSError as exc:
+            raise ConfigError(f"{comp}: cannot write the results: {exc.strerror or exc}"
+                              ) from None
         written = [comp]
         written += list(self.table.save(out_dir))
         return written

@@ -169,6 +169,18 @@ def _run_local(fn: Callable[[T], R], items: Sequence[T], keys: Sequence[str],
     return [results[i] for i in range(len(items))]
 
 
+def _guarded(task: tuple[Callable[[Any], Any], Any]) -> tuple[bool, Any]:
+    """Run one task on a worker: (True, value), or (False, message) for a deterministic
+    error; transient failures are raised so that Dask retries them."""
+    fn, item = task
+    try:
+        return True, fn(item)
+    except Exception as exc:
+        if _is_transient(exc):
+            raise
+        return False, _describe_exc(exc)
+
+
 def _run_dask(fn: Callable[[T], R], items: Sequence[T], keys: Sequence[str],
               workers: int | None, scheduler: str | None, retries: int,
               bar: _Progress) -> list[TaskOutcome[R]]:
@@ -189,8 +201,10 @@ def _run_dask(fn: Callable[[T], R], items: Sequence[T], keys: Sequence[str],
         client = Client(cluster)
     try:
         # one Dask key per task, named after the run/log so failures are traceable
+        # deterministic errors come back as values (Dask would retry any exception)
         futs = [
-            client.submit(fn, item, key=f"uwval-{key}", retries=retries, pure=False)
+            client.submit(_guarded, (fn, item), key=f"uwval-{key}", retries=retries,
+                          pure=False)
             for item, key in zip(items, keys, strict=True)
         ]
         index = {f.key: i for i, f in enumerate(futs)}
@@ -198,7 +212,9 @@ def _run_dask(fn: Callable[[T], R], items: Sequence[T], keys: Sequence[str],
         for fut in as_completed(futs):
             i = index[fut.key]
             if fut.status == "finished":
-                results[i] = TaskOutcome(keys[i], True, fut.result())
+                ok, value = fut.result()
+                results[i] = (TaskOutcome(keys[i], True, value) if ok
+                              else TaskOutcome(keys[i], False, error=value))
             else:
                 failure = fut.exception()
                 results[i] = TaskOutcome(

@@ -763,9 +763,11 @@ def compare_pending(exp: ExperimentResults, options: Mapping[str, Any] | None = 
                     ) -> ExperimentResults:
     """Compare the logs of runs that have no comparison yet (a manifest without results).
 
-    Runs whose log is missing are added to ``failed``; the table is rebuilt from all runs.
+    Runs whose log is missing or cannot be compared are added to ``failed`` (with the cause)
+    while the others are compared; the table is rebuilt from all runs.
     """
     from uwval.comparison import compare_logs
+    from uwval.errors import UwvalError
 
     opts = dict(options or {})
     for run in exp.runs:
@@ -774,7 +776,11 @@ def compare_pending(exp: ExperimentResults, options: Mapping[str, Any] | None = 
         if run.log is None or not run.log.exists():
             exp.failed.append({"name": run.name, "error": f"log {run.log} is missing"})
             continue
-        run.comparison = _as_json_obj(compare_logs(run.log, **opts))
+        try:
+            run.comparison = _as_json_obj(compare_logs(run.log, **opts))
+        except UwvalError as exc:
+            exp.failed.append({"name": run.name, "error": str(exc)})
+            continue
         if run.log not in exp.sources:
             exp.sources.append(run.log)
     exp.table = ResultsTable.from_comparisons(

@@ -9,6 +9,7 @@ a compare. The typer command in :mod:`uwval.cli.compare_cmd` calls the same func
 from __future__ import annotations
 
 import json
+import math
 import re
 import sys
 from pathlib import Path
@@ -21,9 +22,12 @@ def _parse_offset(value: str) -> float | str:
     if value.strip().lower() == "auto":
         return "auto"
     try:
-        return float(value)
+        seconds = float(value)
     except ValueError:
         raise ConfigError(f"--offset must be seconds or 'auto', got {value!r}") from None
+    if not math.isfinite(seconds):
+        raise ConfigError(f"--offset must be a finite number of seconds or 'auto', got {value!r}")
+    return seconds
 
 
 def _fmt(v: Any, digits: int = 4) -> str:
@@ -101,17 +105,24 @@ def run_compare(
     output: Path | None = None,
 ) -> None:
     """What ``uwval compare`` does for one log or one pair of files: compare, print, save."""
+    from uwval.cli.notes import warnings_as_notes
     from uwval.comparison.logs import compare_logs
 
-    result = compare_logs(
-        log_a, log_b, gazebo_topic=gazebo_topic, unity_topic=unity_topic, fmt=fmt, frame=frame,
-        sync=sync, max_gap=max_gap, max_diff=max_diff, offset=_parse_offset(offset),
-        max_offset=max_offset, align=align,
-    )
+    with warnings_as_notes():
+        result = compare_logs(
+            log_a, log_b, gazebo_topic=gazebo_topic, unity_topic=unity_topic, fmt=fmt,
+            frame=frame, sync=sync, max_gap=max_gap, max_diff=max_diff,
+            offset=_parse_offset(offset), max_offset=max_offset, align=align,
+        )
     doc = result.to_json()
     text = json.dumps(doc, indent=1, allow_nan=False)
     if output is not None:
-        output.write_text(text + "\n")
+        try:
+            output.parent.mkdir(parents=True, exist_ok=True)
+            output.write_text(text + "\n")
+        except OSError as exc:
+            raise ConfigError(f"{output}: cannot write the JSON result: "
+                              f"{exc.strerror or exc}") from None
     if as_json:
         sys.stdout.write(text + "\n")
         return

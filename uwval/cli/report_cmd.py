@@ -6,8 +6,6 @@ import json
 import shlex
 import sys
 import warnings
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated
 
@@ -16,28 +14,11 @@ from rich.console import Console
 from rich.markup import escape
 
 from uwval.cli import app
+from uwval.cli.notes import warnings_as_notes
 from uwval.errors import ConfigError
 
 console = Console()
 err_console = Console(stderr=True)
-
-
-@contextmanager
-def _warnings_as_notes() -> Iterator[None]:
-    """Print Python warnings raised inside (e.g. a truncated log) as one clean stderr line
-    each, instead of the warnings module's two-line "file:line: Category" form."""
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        try:
-            yield
-        finally:
-            seen: set[str] = set()
-            for w in caught:
-                text = str(w.message)
-                if text not in seen:
-                    seen.add(text)
-                    err_console.print(f"[yellow]warning:[/] {escape(text)}", highlight=False,
-                                      soft_wrap=True)
 
 
 @app.command()
@@ -124,7 +105,7 @@ def check(
     exp = load_experiment_results(results)
     if exp.table.df.empty and any(r.log is not None for r in exp.runs):
         with console.status(f"comparing {len(exp.runs)} logs of {results}..."), \
-                _warnings_as_notes():
+                warnings_as_notes():
             exp = compare_pending(exp)
     if exp.table.df.empty:
         raise ConfigError(f"{results}: no compared results and no logs to compare")

@@ -165,19 +165,27 @@ def compare(
         )
     if len(reference) < 1 or len(other) < 1:
         raise AlignmentError("cannot compare an empty stream")
+    if max_gap is not None and not (max_gap > 0 and math.isfinite(max_gap)):
+        raise AlignmentError(f"max_gap must be a positive number of seconds, got {max_gap}")
+    if not (max_diff >= 0 and math.isfinite(max_diff)):
+        raise AlignmentError(f"max_diff must be a non-negative number of seconds, got {max_diff}")
+    if isinstance(offset, int | float) and not math.isfinite(offset):
+        raise AlignmentError(f"offset must be a finite number of seconds, got {offset}")
     warnings: list[str] = []
     frame_source = "argument" if frame not in (None, "auto") else ("auto" if frame else "stream")
     configured = other.frame if frame in (None, "auto") else get_convention(frame).name
     ref_c = _to_canonical(reference)
     raw_other = other.with_(frame=configured) if configured != other.frame else other
 
-    # ---- clock offset (coarse stage is frame-invariant; redone after a frame change)
+    # ---- clock offset (redone after a frame change: the velocity match is frame-dependent)
     estimate: OffsetEstimate | None = None
     if isinstance(offset, str) and offset != "auto":
         try:
             offset = float(offset)
         except ValueError:
             raise AlignmentError(f"offset must be seconds or 'auto', got {offset!r}") from None
+        if not math.isfinite(offset):
+            raise AlignmentError(f"offset must be a finite number of seconds, got {offset}")
     if offset == "auto":
         if frame == "auto":
             # the frame is unknown yet: estimate under every known convention, keep the

@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from uwval.errors import LogReadError
-from uwval.frames import CONVENTIONS, quat_from_unity_euler
+from uwval.errors import FrameError, LogReadError
+from uwval.frames import get_convention, quat_from_unity_euler
 from uwval.io.raw import load_yaml, one_line
 from uwval.posestream import PoseStream
 
@@ -111,9 +111,10 @@ def read_csv(path: str | Path, *, time: str | None = None, time_unit: str = "s",
         opts["time_unit"] = time_unit
     if length_unit != "m" or "length_unit" not in opts:
         opts["length_unit"] = length_unit
-    frame_name = str(opts.get("frame", "unity-flu"))
-    if frame_name not in CONVENTIONS:
-        raise LogReadError(f"{p}: unknown frame {frame_name!r}; known: {sorted(CONVENTIONS)}")
+    try:  # the same names and aliases as everywhere else (e.g. "unity" = "unity-flu")
+        frame_name = get_convention(str(opts.get("frame", "unity-flu"))).name
+    except FrameError as exc:
+        raise LogReadError(f"{p}: {exc}") from None
     tu, lu = str(opts["time_unit"]), str(opts["length_unit"])
     if tu not in TIME_UNITS:
         raise LogReadError(f"{p}: time_unit must be one of {list(TIME_UNITS)}, not {tu!r}")
