@@ -187,7 +187,8 @@ class PoseStream:
         return _describe(self.topic, self.source)
 
     def with_(self, **changes: Any) -> PoseStream:
-        """A copy with some fields replaced (validated again)."""
+        """A copy with some fields replaced (shapes and stamp order checked again; use
+        :meth:`from_arrays` for new raw values, which also checks NaN and unit norms)."""
         return replace(self, **changes)
 
     def slice(self, mask_or_index: NDArray[Any] | slice) -> PoseStream:

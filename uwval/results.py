@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -717,14 +717,6 @@ def read_manifest(results_dir: str | Path, name: str = "manifest.json"
             bridge=dict(r.get("bridge") or {}),
         ))
     return dict(obj.get("experiment") or {}), runs
-
-
-def comparison_json_candidates(results_dir: Path, run: ManifestRun) -> Iterator[Path]:
-    """Where the batch compare may have written a run's LogComparison JSON."""
-    stem = run.log.stem if run.log.name else run.name
-    for sub in ("results", "compare", "comparisons", "runs", "."):
-        for name in (f"{run.name}.json", f"{stem}.json", f"{run.name}.compare.json"):
-            yield results_dir / sub / name
 
 
 # ----------------------------------------------------------------------------- loading inputs

@@ -80,13 +80,6 @@ def quat_multiply(a: F64, b: F64) -> F64:
     )
 
 
-def quat_conjugate(q: F64) -> F64:
-    """Inverse of unit quaternions (x, y, z, w)."""
-    out = np.array(q, dtype=np.float64, copy=True)
-    out[..., :3] *= -1
-    return out
-
-
 def rotate_vectors(q: F64, v: F64) -> F64:
     """Rotate (N, 3) vectors by (N, 4) quaternions: R(q) v."""
     q = np.asarray(q, dtype=np.float64)
@@ -121,13 +114,6 @@ def quat_from_rpy(rpy: F64) -> F64:
         ],
         axis=-1,
     )
-
-
-def quat_from_axis_angle(axis: F64, angle: F64) -> F64:
-    """Quaternions (x, y, z, w) for rotations of ``angle`` rad about unit ``axis`` (N, 3)."""
-    axis = np.asarray(axis, dtype=np.float64)
-    half = np.asarray(angle, dtype=np.float64)[..., None] / 2
-    return np.concatenate([axis * np.sin(half), np.cos(half)], axis=-1)
 
 
 def rotation_angle(q: F64) -> F64:
@@ -172,9 +158,3 @@ def wrap_deg(a: F64) -> F64:
     w = np.mod(a + 180.0, 360.0) - 180.0
     return np.asarray(np.where(w == -180.0, 180.0, w))
 
-
-def wrap_rad(a: F64) -> F64:
-    """Wrap angles in radians to (-pi, pi]."""
-    a = np.asarray(a, dtype=np.float64)
-    w = np.mod(a + np.pi, 2 * np.pi) - np.pi
-    return np.asarray(np.where(w == -np.pi, np.pi, w))

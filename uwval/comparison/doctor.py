@@ -61,10 +61,6 @@ class FrameDiagnosis:
     warning: str | None = None
     n_samples: int = 0
 
-    @property
-    def matches_known(self) -> bool:
-        return self.best is not None
-
     def to_json(self) -> dict[str, Any]:
         return {
             "best": self.best,

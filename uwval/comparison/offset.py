@@ -50,7 +50,7 @@ class OffsetEstimate:
             "speed_correlation": self.correlation,
             "signal": self.signal,
             "grid_step_s": self.grid_step,
-            "method": "speed cross-correlation + golden-section least squares",
+            "method": f"{self.signal} cross-correlation + golden-section least squares",
         }
 
 

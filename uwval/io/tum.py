@@ -71,16 +71,6 @@ def seconds_from_ns(t: I64) -> F64:
     return np.asarray(out)
 
 
-def parse_tum_bytes(data: bytes, source: str = "<bytes>") -> tuple[I64, F64, F64]:
-    """Parse TUM text into (t ns, position (N, 3), quaternion (N, 4) xyzw) arrays.
-
-    Raises :class:`LogReadError` naming the first malformed line (1-based).
-    """
-    table = _parse_whole(data, source)
-    return (ns_from_seconds(table[:, 0]), np.ascontiguousarray(table[:, 1:4]),
-            np.ascontiguousarray(table[:, 4:8]))
-
-
 def _first_bad_line(data: bytes, strict: bool = False) -> str:
     """Locate the first line that is not 8 numbers (slow path, only after a parse failure)."""
     offset = 0

@@ -239,11 +239,3 @@ def _clear_old_log(p: Path) -> None:
         if names and own and "metadata.yaml" in names:
             shutil.rmtree(p)
 
-
-def remove_log(path: str | Path) -> None:
-    """Delete a log file or rosbag2 directory (used before rewriting a run's log)."""
-    p = Path(path)
-    if p.is_dir():
-        shutil.rmtree(p)
-    elif p.exists():
-        p.unlink()
