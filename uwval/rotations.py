@@ -153,8 +153,14 @@ def slerp(q0: F64, q1: F64, s: F64) -> F64:
 
 
 def wrap_deg(a: F64) -> F64:
-    """Wrap angles in degrees to (-180, 180]: 359 vs 1 deg differ by -2, not 358."""
+    """Wrap angles in degrees to (-180, 180]: 359 vs 1 deg differ by -2, not 358.
+
+    Subtracts the nearest multiple of 360 (faster than np.mod on large arrays), then moves
+    the two edges into the half-open range.
+    """
     a = np.asarray(a, dtype=np.float64)
-    w = np.mod(a + 180.0, 360.0) - 180.0
-    return np.asarray(np.where(w == -180.0, 180.0, w))
+    w = np.atleast_1d(a - 360.0 * np.round(a / 360.0))
+    w[w <= -180.0] += 360.0
+    w[w > 180.0] -= 360.0
+    return w.reshape(a.shape)
 

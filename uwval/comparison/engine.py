@@ -30,7 +30,7 @@ from uwval.comparison.sync import (
 from uwval.errors import AlignmentError
 from uwval.frames import CONVENTIONS, convert_stream, get_convention
 from uwval.posestream import PoseStream
-from uwval.rotations import geodesic_angle, rpy_from_quat
+from uwval.rotations import geodesic_angle, rpy_from_quat, wrap_deg
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -306,14 +306,6 @@ def _repeats(idx: I64) -> int:
     return int(np.count_nonzero(np.diff(idx) == 0)) if idx.size > 1 else 0
 
 
-def _wrap_deg(a: F64) -> F64:
-    """Wrap degrees to (-180, 180] (as uwval.rotations.wrap_deg, without a slow np.mod)."""
-    w = a - 360.0 * np.round(a / 360.0)
-    w[w <= -180.0] += 360.0
-    w[w > 180.0] -= 360.0
-    return w
-
-
 def _rpy_deg(q: F64, axis: int) -> F64:
     """One ROS angle (0 roll, 1 pitch, 2 yaw; fixed-axis XYZ) in degrees, from (N, 4) xyzw.
 
@@ -340,7 +332,7 @@ def _position_norm(ref_pos: F64, oth_pos: F64) -> F64:
 def _angle_error(ref_quat: F64, oth_quat: F64, j: int) -> tuple[F64, F64]:
     """(reference angle, wrapped error other - reference), degrees, for ROS angle ``j``."""
     ref_angle = _rpy_deg(ref_quat, j)
-    return ref_angle, _wrap_deg(_rpy_deg(oth_quat, j) - ref_angle)
+    return ref_angle, wrap_deg(_rpy_deg(oth_quat, j) - ref_angle)
 
 
 def _error_series(ref_pos: F64, ref_quat: F64, oth_pos: F64, oth_quat: F64) -> dict[str, F64]:
