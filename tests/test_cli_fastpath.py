@@ -49,3 +49,11 @@ def test_error_messages_with_brackets_are_printed_verbatim(tmp_path: object) -> 
     assert res.returncode == 2
     assert "Traceback" not in res.stderr
     assert "[/x].toml" in res.stderr
+
+
+def test_io_names_resolve_lazily_and_match_all() -> None:
+    import uwval.io as io_pkg
+
+    assert sorted(io_pkg.__all__) == sorted(io_pkg._HOME)
+    for name in io_pkg.__all__:
+        assert getattr(io_pkg, name) is not None
