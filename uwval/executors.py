@@ -211,16 +211,18 @@ def _run_dask(fn: Callable[[T], R], items: Sequence[T], keys: Sequence[str],
         results: dict[int, TaskOutcome[R]] = {}
         for fut in as_completed(futs):
             i = index[fut.key]
-            if fut.status == "finished":
+            if i in results:
+                continue
+            # result() waits for the final state: a task lost with a killed worker is
+            # rescheduled by the scheduler, and its future may be seen before that settles
+            try:
                 ok, value = fut.result()
+            except Exception as exc:
+                results[i] = TaskOutcome(keys[i], False, error=_describe_exc(exc),
+                                         attempts=retries + 1)
+            else:
                 results[i] = (TaskOutcome(keys[i], True, value) if ok
                               else TaskOutcome(keys[i], False, error=value))
-            else:
-                failure = fut.exception()
-                results[i] = TaskOutcome(
-                    keys[i], False, error=_describe_exc(failure) if failure else fut.status,
-                    attempts=retries + 1,
-                )
             bar.advance()
         return [results[i] for i in range(len(items))]
     finally:
