@@ -5,18 +5,12 @@ from __future__ import annotations
 
 import json
 import socket
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
+from cli_runner import run_uwval as _uwval
 
 from bridge.recorder import BridgeRecorder, open_mcap_writer, scan_mcap
-
-
-def _uwval(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "uwval", *args], capture_output=True,
-                          text=True, timeout=120, stdin=subprocess.DEVNULL)
 
 
 def test_scan_counts_the_bytes_really_lost_after_a_cut(tmp_path: Path) -> None:

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from cli_runner import run_uwval
 
 from uwval.comparison.synthetic import camera_motion, unity_view, vehicle_motion, write_pair_log
 from uwval.io.tum import write_tum
@@ -16,8 +17,7 @@ AXES = ("x", "y", "z", "roll", "pitch", "yaw")
 
 
 def _uwval(*args: str | Path, check: bool = True) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "uwval", *map(str, args)], capture_output=True,
-                          text=True, check=check, timeout=120)
+    return run_uwval(*args, check=check)
 
 
 @pytest.fixture(scope="module")

@@ -6,11 +6,10 @@ from __future__ import annotations
 import importlib.util
 import json
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from cli_runner import run_uwval as _uwval
 
 from uwval.batch import items_from
 from uwval.cli.pipeline import SessionOptions
@@ -20,9 +19,6 @@ from uwval.resources import data_path
 HAS_DASK = importlib.util.find_spec("distributed") is not None
 
 
-def _uwval(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "uwval", *args], capture_output=True,
-                          text=True, timeout=120, stdin=subprocess.DEVNULL)
 
 
 @pytest.fixture(scope="module")

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+from cli_runner import run_uwval as _uwval
 
 from uwval.errors import ConfigError
 from uwval.gate import (
@@ -191,9 +192,6 @@ def test_check_needs_something_to_check(table: ResultsTable) -> None:
 
 
 # ----------------------------------------------------------------------------- CLI
-def _uwval(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "uwval", *args], capture_output=True,
-                          text=True, cwd=cwd, timeout=120)
 
 
 def test_cli_check_exit_codes(experiment: Path, table: ResultsTable, tmp_path: Path) -> None:

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_runner import run_uwval as _uwval
 
 from uwval.cli.teleop_cmd import HeldKeys
 from uwval.io import read_stream
@@ -22,9 +23,6 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def _uwval(*args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "uwval", *args], capture_output=True,
-                          text=True, timeout=timeout, stdin=subprocess.DEVNULL)
 
 
 def test_held_keys_add_and_expire() -> None:
