@@ -10,7 +10,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from uwval.comparison import compare, diagnose, estimate_offset, norm_stats, pearson, umeyama
-from uwval.comparison.stats import betainc_regularized
+from uwval.comparison.stats import (
+    betainc_regularized,
+    median,
+    order_statistics,
+    percentiles,
+)
 from uwval.comparison.sync import interpolate_at, match_time_indices
 from uwval.comparison.synthetic import unity_view, vehicle_motion
 from uwval.errors import AlignmentError
@@ -115,6 +120,44 @@ def test_gaps_longer_than_max_gap_are_masked_and_counted() -> None:
 
 
 # ------------------------------------------------------------------ statistics
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(st.one_of(st.floats(-1e6, 1e6), st.sampled_from([0.0, 1.0, -1.0, 2.5])),
+             min_size=1, max_size=40),
+    st.lists(st.floats(0.0, 100.0), min_size=1, max_size=4),
+)
+def test_percentiles_and_median_equal_numpy_bit_for_bit(values: list[float],
+                                                        q: list[float]) -> None:
+    x = np.array(values)
+    before = x.copy()
+    got = percentiles(x, tuple(q))
+    want = np.percentile(x, q)
+    np.testing.assert_array_equal(got, want)  # exact (only -0.0 and 0.0 are "equal")
+    assert median(x) == np.median(x)
+    np.testing.assert_array_equal(x, before)  # the input is left as it was
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.integers(-5, 5), min_size=1, max_size=50), st.data())
+def test_order_statistics_equal_the_sorted_values(values: list[int], data: st.DataObject) -> None:
+    x = np.array(values, dtype=np.float64)
+    ranks = data.draw(st.sets(st.integers(0, len(values) - 1), min_size=1))
+    want = np.sort(x)
+    assert order_statistics(x, ranks) == {r: want[r] for r in ranks}
+    np.testing.assert_array_equal(x, np.array(values, dtype=np.float64))  # input untouched
+
+
+def test_percentiles_on_a_large_series_and_with_nan() -> None:
+    x = np.random.default_rng(5).lognormal(size=100_001)
+    assert percentiles(x, (50.0, 95.0, 100.0, 0.0)) == list(np.percentile(x, [50, 95, 100, 0]))
+    assert median(x[:-1]) == np.median(x[:-1])
+    x[17] = np.nan
+    assert all(math.isnan(v) for v in percentiles(x, (5.0, 95.0)))
+    assert math.isnan(median(x))
+    with pytest.raises(ValueError, match="empty"):
+        percentiles(np.array([]), (50.0,))
 
 
 def test_norm_stats_match_evo_definitions() -> None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -9,10 +11,28 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import uwval.io.tum as tum_module
 from uwval.errors import LogReadError, PoseStreamError
 from uwval.io.tum import ns_from_seconds, read_tum, seconds_from_ns, write_tum
 from uwval.posestream import PoseStream
 from uwval.rotations import quat_from_rpy
+
+#: Set (as .ci/run does) to fail instead of skip when the C accelerator was not built.
+REQUIRE_ACCELERATOR = bool(os.environ.get("UWVAL_REQUIRE_ACCELERATOR"))
+
+
+@pytest.fixture(autouse=True, scope="module",
+                params=[pytest.param(True, id="c-accelerator"), pytest.param(False, id="loadtxt")])
+def tum_engine(request: pytest.FixtureRequest) -> Iterator[bool]:
+    """Every test of this file runs with the C accelerator and with numpy's loadtxt path."""
+    if request.param and tum_module._tumparse is None:
+        if REQUIRE_ACCELERATOR:
+            pytest.fail("uwval.io._tumparse was not built (UWVAL_REQUIRE_ACCELERATOR is set)")
+        pytest.skip("the C accelerator uwval.io._tumparse is not built here")
+    saved = tum_module.USE_ACCELERATOR
+    tum_module.USE_ACCELERATOR = request.param
+    yield request.param
+    tum_module.USE_ACCELERATOR = saved
 
 
 def test_parses_comments_and_values(tmp_path: Path) -> None:
@@ -264,7 +284,7 @@ def test_compare_of_large_tum_pair_is_parallel_and_unchanged(tmp_path: Path,
                                                               monkeypatch: pytest.MonkeyPatch
                                                               ) -> None:
     # compare_logs reads two TUM files through read_tum_pair: the JSON is the same whether the
-    # second file is parsed in a forked child or not
+    # second file is parsed concurrently (thread or forked child) or not
     import os
 
     import uwval.io.tum as tum
@@ -280,13 +300,22 @@ def test_compare_of_large_tum_pair_is_parallel_and_unchanged(tmp_path: Path,
             forks.append(pid)
         return pid
 
+    threads: list[str] = []
+    real_pair = tum._threaded_pair
+
+    def counting_pair(pa: Path, pb: Path) -> object:
+        threads.append(str(pb))
+        return real_pair(pa, pb)
+
     monkeypatch.setattr(tum, "PARALLEL_MIN_BYTES", 0)
     monkeypatch.setattr(tum.os, "fork", counting_fork)
+    monkeypatch.setattr(tum, "_threaded_pair", counting_pair)
     forked = compare_logs(a, b, sync="nearest").to_json()
-    assert len(forks) == 1
+    # the C parser releases the GIL: the second file goes to a thread, else to a child
+    assert (len(threads), len(forks)) == ((1, 0) if tum.USE_ACCELERATOR else (0, 1))
     monkeypatch.setattr(tum, "PARALLEL_MIN_BYTES", 1 << 40)
     sequential = compare_logs(a, b, sync="nearest").to_json()
-    assert len(forks) == 1
+    assert len(forks) + len(threads) == 1
     assert forked == sequential
     assert forked["counts"]["matched"] == 3000
 
@@ -334,6 +363,7 @@ def test_pair_is_read_in_this_process_when_other_threads_run(tmp_path: Path,
     import uwval.io.tum as tum
 
     a, b = _pair(tmp_path, 50)
+    monkeypatch.setattr(tum, "USE_ACCELERATOR", False)  # the path that would fork
     monkeypatch.setattr(tum, "PARALLEL_MIN_BYTES", 0)
     forks: list[int] = []
 

@@ -101,6 +101,23 @@ def _print_error(prefix_markup: str, text: str) -> None:
                                soft_wrap=True)
 
 
+def _exit_now() -> None:
+    """End the process at once, after flushing stdout/stderr (exit status 0).
+
+    The fast compare path has written and closed everything it writes; what is left is the
+    interpreter's teardown (freeing ~100 MB of arrays and every module), ~25 ms of a
+    0.4 s command. A failed flush (a closed pipe) is left to the normal exit to report.
+    """
+    import os
+
+    try:
+        sys.stdout.flush()
+        sys.stderr.flush()
+    except (OSError, ValueError):
+        return
+    os._exit(0)
+
+
 def main(argv: list[str] | None = None) -> None:
     """Console entry point: run the app, printing UwvalErrors as clean messages."""
     args = sys.argv[1:] if argv is None else argv
@@ -111,6 +128,8 @@ def main(argv: list[str] | None = None) -> None:
             from uwval.cli.compare_run import fast_compare
 
             if fast_compare(list(args[1:])):
+                if argv is None:  # the process's own entry point: nothing is left to do
+                    _exit_now()
                 return
         _register(args)
         get_app()(args=argv, standalone_mode=True)
