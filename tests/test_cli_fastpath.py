@@ -57,3 +57,32 @@ def test_io_names_resolve_lazily_and_match_all() -> None:
     assert sorted(io_pkg.__all__) == sorted(io_pkg._HOME)
     for name in io_pkg.__all__:
         assert getattr(io_pkg, name) is not None
+
+
+def test_the_command_line_loads_numpy_only_after_it_chose_the_blas_threads(tmp_path: object
+                                                                            ) -> None:
+    # `import uwval.cli` must not import numpy: main() sets OPENBLAS_NUM_THREADS for a
+    # compare before numpy (and OpenBLAS's thread pool) loads; a user's own setting wins
+    import subprocess
+    import sys
+
+    probe = ("import os, sys, uwval, uwval.cli\n"
+             "assert 'numpy' not in sys.modules, 'numpy imported by uwval.cli'\n"
+             "from uwval.cli import compare_run\n"
+             "compare_run.fast_compare = lambda argv: True  # the compare itself is not needed\n"
+             "os._exit = lambda code: print(os.environ.get('OPENBLAS_NUM_THREADS'))\n"
+             "sys.argv = ['uwval', 'compare', 'a.tum', 'b.tum']\n"
+             "uwval.cli.main()\n")
+    for env_value, expected in ((None, "1"), ("3", "3")):
+        import os
+
+        env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+        if env_value is not None:
+            env["OPENBLAS_NUM_THREADS"] = env_value
+        res = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                             timeout=60, env=env, stdin=subprocess.DEVNULL)
+        assert res.returncode == 0, res.stderr
+        assert res.stdout.strip() == expected
+    import uwval
+
+    assert uwval.PoseStream.__name__ == "PoseStream"  # still there, loaded on first use

@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 
 from uwval.comparison import compare, diagnose, estimate_offset, norm_stats, pearson, umeyama
 from uwval.comparison.stats import (
+    axis_stats,
     betainc_regularized,
     median,
     order_statistics,
@@ -41,15 +42,23 @@ def _stream(t_s: np.ndarray, pos: np.ndarray, rpy: np.ndarray | None = None,
     st.lists(st.integers(0, 4000), min_size=1, max_size=60, unique=True),
     st.sampled_from([0.0, 0.005, 0.01, 0.02]),
     st.sampled_from([0.0, 0.003, -0.007]),
+    st.sampled_from([1, 3, 1 << 15]),
 )
 def test_match_time_indices_equals_evo(a: list[int], b: list[int], max_diff: float,
-                                       offset: float) -> None:
+                                       offset: float, chunk: int) -> None:
     from evo.core.sync import matching_time_indices
+
+    import uwval.comparison.sync as sync_module
 
     s1 = 1305031102.0 + np.array(a, dtype=np.float64) * 0.001  # ms grid: exact ties happen
     s2 = 1305031102.0 + np.sort(np.array(b, dtype=np.float64)) * 0.001
     want1, want2 = matching_time_indices(s1, s2, max_diff, offset)
-    got1, got2 = match_time_indices(s1, s2, max_diff, offset)
+    saved = sync_module.MATCH_CHUNK
+    sync_module.MATCH_CHUNK = chunk  # steps of 1 and 3 stamps: every chunk boundary
+    try:
+        got1, got2 = match_time_indices(s1, s2, max_diff, offset)
+    finally:
+        sync_module.MATCH_CHUNK = saved
     assert got1.tolist() == want1
     assert got2.tolist() == want2
 
@@ -147,6 +156,18 @@ def test_order_statistics_equal_the_sorted_values(values: list[int], data: st.Da
     want = np.sort(x)
     assert order_statistics(x, ranks) == {r: want[r] for r in ranks}
     np.testing.assert_array_equal(x, np.array(values, dtype=np.float64))  # input untouched
+
+
+def test_scratch_variants_give_the_same_numbers() -> None:
+    # overwrite=True (percentiles) and overwrite_b=True (pearson) only save a temporary
+    rng = np.random.default_rng(11)
+    x, y = rng.normal(size=5001), rng.normal(size=5001)
+    x_copy, y_copy = x.copy(), y.copy()
+    assert percentiles(x_copy, (50.0, 95.0), overwrite=True) == percentiles(x, (50.0, 95.0))
+    assert pearson(x, y_copy, overwrite_b=True) == pearson(x, y)
+    assert np.allclose(y_copy, y - y.mean())  # y_copy was the scratch space
+    err = y - x
+    assert axis_stats(err, x, y.copy(), overwrite_other=True) == axis_stats(err, x, y)
 
 
 def test_percentiles_on_a_large_series_and_with_nan() -> None:

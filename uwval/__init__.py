@@ -4,10 +4,12 @@ The core package: pose streams, frames, log I/O, alignment, metrics and the CLI.
 It imports none of ``simulator``, ``bridge`` or ``reports`` (only the CLI wires them in).
 """
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from uwval.errors import UwvalError
-from uwval.posestream import PoseStream
+
+if TYPE_CHECKING:
+    from uwval.posestream import PoseStream
 
 __version__ = "0.1.0"
 
@@ -25,7 +27,15 @@ _LAZY = {"compare", "compare_logs", "ComparisonResult", "LogComparison"}
 
 
 def __getattr__(name: str) -> Any:
-    """``uwval.compare`` etc., imported on first use (keeps ``import uwval`` lean)."""
+    """``uwval.compare``, ``uwval.PoseStream`` etc., imported on first use.
+
+    ``import uwval`` stays free of numpy, so that the command line can set up the process
+    (e.g. the BLAS thread count of ``uwval compare``) before numpy loads.
+    """
+    if name == "PoseStream":
+        from uwval.posestream import PoseStream
+
+        return PoseStream
     if name in _LAZY:
         import uwval.comparison as comparison
 

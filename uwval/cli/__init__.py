@@ -124,7 +124,13 @@ def main(argv: list[str] | None = None) -> None:
     try:
         if args[:1] == ["compare"]:
             # plain compare arguments skip typer's parsing layer (start-up time is most of
-            # a small compare); anything unusual falls through to typer below
+            # a small compare); anything unusual falls through to typer below.
+            # A compare does no large matrix products: OpenBLAS's thread pool (started when
+            # numpy loads, below) would cost ~25 ms of start-up and contend with the parser
+            # for the second core. Set before numpy is imported; a user's setting wins.
+            import os
+
+            os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
             from uwval.cli.compare_run import fast_compare
 
             if fast_compare(list(args[1:])):

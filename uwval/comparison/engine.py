@@ -250,6 +250,7 @@ def compare(
                          driving_stream="reference" if match.reference_drives else "other",
                          reused_reference=_repeats(match.ref_idx),
                          reused_other=_repeats(match.other_idx))
+        del match  # its index arrays are not needed any more (rows are taken above)
     n = int(t.shape[0])
     if n < max(1, min_samples):
         raise AlignmentError(
@@ -362,7 +363,8 @@ def _axis_statistics(ref_pos: F64, ref_quat: F64, oth_pos: F64,
         # so a 179 -> -179 deg crossing is not a 358 deg jump in either series
         ref_series = _unwrap_deg(ref_angle)
         del ref_angle
-        axes[ax] = axis_stats(err, ref_series, ref_series + err) | {"unit": "deg"}
+        axes[ax] = axis_stats(err, ref_series, ref_series + err,
+                              overwrite_other=True) | {"unit": "deg"}
         del ref_series, err
     position = norm_stats(_position_norm(ref_pos, oth_pos))
     rotation = norm_stats(np.degrees(geodesic_angle(oth_quat, ref_quat)))

@@ -20,15 +20,18 @@ F64 = NDArray[np.float64]
 Z_975 = 1.959963984540054
 
 
-def order_statistics(values: F64, ranks: set[int]) -> dict[int, float]:
+def order_statistics(values: F64, ranks: set[int], *,
+                     overwrite: bool = False) -> dict[int, float]:
     """The values at 0-based ``ranks`` of ``values`` sorted ascending (no NaN in ``values``).
 
     Ranks are taken from the highest down, each by an in-place single-rank partition of the
     part below the previous one (numpy's SIMD select: one such partition costs ~1/10 of a
     partition at several ranks at once on 360,000 doubles); a rank just below the previous
-    one is the maximum of what is left, swapped into place. ``values`` itself is not modified.
+    one is the maximum of what is left, swapped into place. ``values`` is left as it was,
+    unless ``overwrite`` (a scratch float64 array: reordered in place, no copy).
     """
-    part = np.array(values, dtype=np.float64)  # a copy, partitioned in place below
+    part = np.asarray(values, dtype=np.float64) if overwrite else \
+        np.array(values, dtype=np.float64)
     out: dict[int, float] = {}
     hi = int(part.size)
     for r in sorted(ranks, reverse=True):
@@ -43,14 +46,14 @@ def order_statistics(values: F64, ranks: set[int]) -> dict[int, float]:
     return out
 
 
-def percentiles(values: F64, q: tuple[float, ...]) -> list[float]:
+def percentiles(values: F64, q: tuple[float, ...], *, overwrite: bool = False) -> list[float]:
     """``np.percentile(values, q)`` (method 'linear'), value for value, without its overheads.
 
     numpy's own percentile partitions at all ranks at once (slow path) and sends the ranks
     through ``np.unique``, which imports ``numpy.ma`` (~9 ms of a compare's start-up). This
     takes the same order statistics (:func:`order_statistics`) and the same interpolation
     arithmetic (numpy's ``_lerp``). ``values`` must be 1-D; a NaN anywhere gives NaN, as
-    numpy does. ``values`` itself is not modified.
+    numpy does. ``values`` is left as it was unless ``overwrite`` (then it is reordered).
     """
     x = np.asarray(values, dtype=np.float64)
     n = int(x.size)
@@ -63,7 +66,7 @@ def percentiles(values: F64, q: tuple[float, ...]) -> list[float]:
     virtual = [(n - 1) * (float(v) / 100.0) for v in q]
     below = [math.floor(v) if v < n - 1 else n - 1 for v in virtual]
     above = [b + 1 if v < n - 1 else n - 1 for b, v in zip(below, virtual, strict=True)]
-    at = order_statistics(x, {*below, *above})
+    at = order_statistics(x, {*below, *above}, overwrite=overwrite)
     out = []
     for v, lo, hi in zip(virtual, below, above, strict=True):
         a, b = at[lo], at[hi]
@@ -156,12 +159,13 @@ def betainc_regularized(a: float, b: float, x: float) -> float:
 CONSTANT_FLOOR = 1e-9
 
 
-def pearson(a: F64, b: F64) -> dict[str, Any]:
+def pearson(a: F64, b: F64, *, overwrite_b: bool = False) -> dict[str, Any]:
     """Pearson r of two series with two-sided p-value and 95 % CI (Fisher z).
 
     Undefined (``r`` None with a ``reason``) for fewer than 3 samples or a constant series,
     instead of a division by zero. The p-value is P(|R| >= |r|) under independence, where R
     follows Beta(n/2 - 1, n/2 - 1) on [-1, 1] (identical to the t-test with n - 2 dof).
+    ``overwrite_b``: ``b`` is a scratch float64 array, centred in place (one temporary less).
     """
     x = np.asarray(a, dtype=np.float64)
     y = np.asarray(b, dtype=np.float64)
@@ -171,15 +175,19 @@ def pearson(a: F64, b: F64) -> dict[str, Any]:
     if n < 3:
         out["pearson_reason"] = f"undefined: need at least 3 samples, got {n}"
         return out
-    xm = x - x.mean()
-    ym = y - y.mean()
-    sxx = float(np.einsum("i,i->", xm, xm))
-    syy = float(np.einsum("i,i->", ym, ym))
     # a series is constant when its spread is at rounding level relative to its magnitude,
     # or below CONSTANT_FLOOR absolutely (1e-9 m or deg: quaternion round-off on an axis
     # that does not move gives ~1e-14 deg of noise, whose r would be meaningless)
-    scale_x = max(float(np.abs(x).max()), 1e-300)
+    scale_x = max(float(np.abs(x).max()), 1e-300)  # before xm, ym: one temporary at a time
     scale_y = max(float(np.abs(y).max()), 1e-300)
+    xm = x - x.mean()
+    if overwrite_b and y is b and y.flags.writeable:
+        ym = y
+        ym -= y.mean()
+    else:
+        ym = y - y.mean()
+    sxx = float(np.einsum("i,i->", xm, xm))
+    syy = float(np.einsum("i,i->", ym, ym))
     const = [name for name, s2, sc in (("reference", sxx, scale_x), ("other", syy, scale_y))
              if math.sqrt(s2) <= max(1e-12 * sc, CONSTANT_FLOOR) * math.sqrt(n)]
     if const:
@@ -201,11 +209,14 @@ def pearson(a: F64, b: F64) -> dict[str, Any]:
     return out
 
 
-def axis_stats(signed_err: F64, reference: F64, other: F64) -> dict[str, Any]:
+def axis_stats(signed_err: F64, reference: F64, other: F64, *,
+               overwrite_other: bool = False) -> dict[str, Any]:
     """Metrics of one axis: MAE, RMSE, max, p95 of |e|, bias (mean e), std of e, Pearson.
 
     ``signed_err`` is other - reference (angles already wrapped); ``reference`` and ``other``
-    are the two series the correlation is computed on.
+    are the two series the correlation is computed on (``overwrite_other``: ``other`` is a
+    scratch array the correlation may centre in place). Temporaries are freed as soon as
+    they are used: on long streams, memory is a few series, not one per statistic.
     """
     e = np.asarray(signed_err, dtype=np.float64)
     if e.size == 0:
@@ -214,15 +225,17 @@ def axis_stats(signed_err: F64, reference: F64, other: F64) -> dict[str, Any]:
         stats.update(pearson(e, e))
         return stats
     ae = np.abs(e)
-    p50, p95 = percentiles(ae, (50.0, 95.0))  # one partition for both
+    mae, ae_max = float(ae.mean()), float(ae.max())  # before the partition reorders ae
+    p50, p95 = percentiles(ae, (50.0, 95.0), overwrite=True)
+    del ae
     stats = {
-        "mae": float(ae.mean()),
+        "mae": mae,
         "rmse": math.sqrt(float(np.einsum("i,i->", e, e)) / e.size),
-        "max": float(ae.max()),
+        "max": ae_max,
         "p95": float(p95),
         "median": float(p50),
         "bias": float(e.mean()),
         "std": float(e.std()),
     }
-    stats.update(pearson(reference, other))
+    stats.update(pearson(reference, other, overwrite_b=overwrite_other))
     return stats
