@@ -84,6 +84,29 @@ def test_position_error_norm_equals_evo(pair: str, align: str) -> None:
     _assert_stats(res.stats["position_error_norm"], expected[align])
 
 
+# evo_ape tum freiburg1_xyz-groundtruth.txt freiburg1_xyz-rgbdslam.txt -r angle_deg \
+#     --t_max_diff 0.01 [-a]      (evo's APE of the rotation angle, degrees)
+FR1_ROTATION_DEG = {
+    "none": dict(rmse=0.701693152077527, mean=0.631027107059953, median=0.5857234388452076,
+                 std=0.30688445680425425, min=0.02744682985980395, max=1.818974420310976,
+                 sse=386.51302454290897),
+    # -a
+    "se3": dict(rmse=2.057699602015445, mean=2.024695481920092, median=2.0008410866935913,
+                std=0.3670638331773981, min=0.7419583981755085, max=3.639590831308399,
+                sse=3323.7902069255983),
+}
+
+
+@needs_data
+@pytest.mark.parametrize("align", sorted(FR1_ROTATION_DEG))
+def test_rotation_angle_equals_evo(align: str) -> None:
+    # the smallest angle (0.027 deg) is where an arccos formula would lose half its digits
+    ref = read_tum(DATA / "freiburg1_xyz-groundtruth.txt")
+    est = read_tum(DATA / "freiburg1_xyz-rgbdslam.txt")
+    res = compare(ref, est, sync="nearest", max_diff=0.01, align=align)
+    _assert_stats(res.stats["rotation_error_deg"], FR1_ROTATION_DEG[align])
+
+
 @needs_data
 def test_matched_pairs_equal_evo_association() -> None:
     """Same pose pairs as evo's associate_trajectories (run live when evo is importable)."""

@@ -35,7 +35,35 @@ def unit_quats(n: int) -> st.SearchStrategy[np.ndarray]:
 
 
 def same_rotation(a: np.ndarray, b: np.ndarray, tol: float = 1e-9) -> bool:
-    return bool(np.all(geodesic_angle(a, b) < tol * 1e3))
+    return bool(np.all(geodesic_angle(a, b) < tol))
+
+
+@settings(max_examples=100, deadline=None)
+@given(quat_a=unit_quats(20), quat_b=unit_quats(20), scale=st.floats(0.5, 2.0))
+def test_geodesic_angle_equals_scipy_and_ignores_sign_and_scale(quat_a: np.ndarray,
+                                                                 quat_b: np.ndarray,
+                                                                 scale: float) -> None:
+    from scipy.spatial.transform import Rotation
+
+    want = (Rotation.from_quat(quat_b).inv() * Rotation.from_quat(quat_a)).magnitude()
+    np.testing.assert_allclose(geodesic_angle(quat_a, quat_b), want, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(geodesic_angle(-scale * quat_a, quat_b), want, rtol=0,
+                               atol=1e-12)
+
+
+def test_geodesic_angle_is_exact_near_zero() -> None:
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(3)
+    base = Rotation.random(500, random_state=4)
+    rotvec = rng.normal(size=(500, 3)) * 1e-7  # ~0.1 microradian apart
+    turned = (base * Rotation.from_rotvec(rotvec)).as_quat()
+    got = geodesic_angle(turned, base.as_quat())
+    np.testing.assert_allclose(got, np.linalg.norm(rotvec, axis=1), rtol=1e-6)
+    # text logs keep 9 decimals: |q| = 1 +- 1e-9; equal orientations are still 0, not 0.005 deg
+    q = np.round(base.as_quat(), 9)
+    assert geodesic_angle(q, q).max() == 0.0
+    assert geodesic_angle(q, -q).max() == 0.0
 
 
 @settings(max_examples=60, deadline=None)
