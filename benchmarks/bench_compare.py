@@ -58,20 +58,32 @@ def _evo_ape_cmd() -> str:
 
 
 def _whole_command(a: Path, b: Path, ma: Path, mb: Path, reps: int) -> list[BenchRow]:
+    import os
+
+    from uwval.io import tum
+
     uw = [sys.executable, "-m", "uwval", "compare", str(a), str(b), "--sync", "nearest"]
     script = Path(sys.executable).parent / "uwval"  # the console script users run
     light = [str(script) if script.exists() else shutil.which("uwval") or "uwval", "compare",
              str(a), str(b), "--sync", "nearest"]
     evo = [_evo_ape_cmd(), "tum", str(a), str(b)]
-    runs: dict[str, list[tuple[float, float]]] = {"uwval": [], "light": [], "evo": []}
+    # the same console script with the TUM parser's C accelerator switched off (loadtxt):
+    # what an install without a C compiler gets
+    no_c = {**os.environ, "UWVAL_NO_ACCELERATOR": "1"}
+    runs: dict[str, list[tuple[float, float]]] = {"uwval": [], "light": [], "evo": [],
+                                                   "no_c": []}
     for _ in range(reps):  # alternate so all see the same machine load
         runs["uwval"].append(run_command(uw))
         runs["light"].append(run_command(light))
         runs["evo"].append(run_command(evo))
+        runs["no_c"].append(run_command(light, env=no_c))
     t_evo = median([r[0] for r in runs["evo"]])
     m_evo = max(r[1] for r in runs["evo"])
     rows = []
-    for key, label in (("uwval", "python -m uwval"), ("light", "uwval console script")):
+    c_note = "C accelerator built" if tum._tumparse is not None else "C accelerator NOT built"
+    for key, label in (("uwval", f"python -m uwval ({c_note})"),
+                       ("light", f"uwval console script ({c_note})"),
+                       ("no_c", "console script, UWVAL_NO_ACCELERATOR=1 (loadtxt)")):
         t_uw = median([r[0] for r in runs[key]])
         m_uw = max(r[1] for r in runs[key])
         rows += [
@@ -162,10 +174,21 @@ def _engine(a: Path, b: Path, reps: int) -> list[BenchRow]:
     ]
 
 
+def _compile_bytecode() -> None:
+    """Write uwval's .pyc files first, as an installed package has them: an editable checkout
+    under PYTHONDONTWRITEBYTECODE would otherwise compile edited modules in every timed run."""
+    import compileall
+
+    import uwval
+
+    compileall.compile_dir(Path(uwval.__file__).parent, quiet=1)
+
+
 def run(quick: bool = False) -> list[BenchRow]:
     """Generate the pair, measure (a), (b), (c). ``quick``: 36k poses, fewer repetitions."""
     n = QUICK_POSES if quick else N_POSES
-    reps = 1 if quick else 3
+    reps = 1 if quick else 5
+    _compile_bytecode()
     with tempfile.TemporaryDirectory(prefix="uwval-bench-compare-") as tmp:
         a, b, ma, mb = _make_pair(Path(tmp), n)
         rows = _whole_command(a, b, ma, mb, reps)

@@ -37,8 +37,9 @@ try:  # the optional C accelerator (uwval/io/_tumparse.c), built when a compiler
 except ImportError:  # pragma: no cover - numpy's loadtxt gives the same numbers, slower
     _tumparse = None  # type: ignore[assignment]
 
-#: Parse with the C accelerator when it is built (tests switch it off to check both paths).
-USE_ACCELERATOR = _tumparse is not None
+#: Parse with the C accelerator when it is built, unless the environment variable
+#: ``UWVAL_NO_ACCELERATOR`` is set (benchmarks and tests check both paths).
+USE_ACCELERATOR = _tumparse is not None and not os.environ.get("UWVAL_NO_ACCELERATOR")
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
