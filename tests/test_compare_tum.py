@@ -255,6 +255,22 @@ def test_parallel_pair_repairs_like_read_tum(tmp_path: Path) -> None:
     assert pb.repairs["sorted"] == 1
 
 
+def test_parallel_pair_first_file_checks_win_over_second_file_errors(tmp_path: Path) -> None:
+    # read one after the other, the first file's stream checks (here a quaternion of norm
+    # 0.001) run before the second file is even opened: the parallel reader says the same
+    from uwval.io.tum import read_tum_pair
+
+    a, b = _pair(tmp_path, 50)
+    a.write_text("1 0 0 0 0 0 0 1\n2 0 0 0 0 0 0 1e-3\n")
+    b.write_text("1 2 3\n")  # malformed
+    for second in (b, tmp_path / "missing.tum"):
+        with pytest.raises(PoseStreamError, match=r"a\.tum.*norm 0\.001") as seq:
+            read_tum(a), read_tum(second)
+        with pytest.raises(PoseStreamError, match=r"a\.tum.*norm 0\.001") as par:
+            read_tum_pair(a, second, parallel=True)
+        assert str(par.value) == str(seq.value)
+
+
 def _children() -> set[int]:
     """Live child processes of this one (Linux), to check the forked parser is reaped."""
     import os

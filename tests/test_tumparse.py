@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import io
 import os
 import threading
 import time
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
@@ -12,6 +15,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import uwval.io.tum as tum
+
+if TYPE_CHECKING:
+    from typing_extensions import Buffer
 
 if tum._tumparse is None:
     if os.environ.get("UWVAL_REQUIRE_ACCELERATOR"):
@@ -86,11 +92,21 @@ def test_stops_when_the_outputs_are_full() -> None:
                                  b"1 2 3 4 5 6 7 x", b"1,2,3,4,5,6,7,8", b"nan 1 2 3 4 5 6 7",
                                  b"1 2 3 4 5 6 7 1e", b"1 2 3 4 5 6 7 +", b"1 2 3 4 5 6 7 .",
                                  b"1 2 3 4 5 6 7 0x10", b"1 2 3 4 5 6 7 1_0",
-                                 b"1 2 3 4 5 6 7 " + b"1" * 200])
+                                 b"1 2 3 4 5 6 7 " + b"1" * 200,
+                                 b"1 2 3 4 5 6 7 0." + b"0" * 5000 + b"1"])
 def test_anything_but_8_plain_decimals_is_refused_with_the_line_offset(bad: bytes) -> None:
     text = b"1 0 0 0 0 0 0 1\n" + bad + b"\n2 0 0 0 0 0 0 1\n"
     with pytest.raises(ValueError, match=r"^byte 16: not a line of 8 decimal numbers"):
         _parse(text)
+
+
+def test_refused_tokens_are_still_read_by_the_thorough_path(tmp_path: Path) -> None:
+    # over-long numbers are left to Python (the C counters stay far from overflow)
+    f = tmp_path / "long.tum"
+    long_zero = "0." + "0" * 5000 + "1"
+    f.write_text(f"1 0 0 0 0 0 0 1\n2 {long_zero} 0 0 0 0 0 1\n")
+    stream = tum.read_tum(f)
+    assert stream.position[1, 0] == float(long_zero)
 
 
 def test_outputs_must_be_writable_float_buffers() -> None:
@@ -126,3 +142,30 @@ def test_releases_the_gil_while_parsing() -> None:
     worker.join()
     assert rows == 200_000
     assert any(start < t < end for t in ticks), "no tick ran during the parse"
+
+
+class _RecordingReader(io.BytesIO):
+    """A binary file that records how many bytes each ``readinto`` asked for."""
+
+    def __init__(self, data: bytes) -> None:
+        super().__init__(data)
+        self.asked: list[int] = []
+
+    def readinto(self, buffer: Buffer) -> int:  # type: ignore[override]
+        self.asked.append(memoryview(buffer).nbytes)
+        return super().readinto(buffer)
+
+
+def test_growing_the_arrays_does_not_grow_the_text_buffer(tmp_path: Path) -> None:
+    # rows estimated far too low, and lines that end exactly at the buffer's edge: the arrays
+    # grow many times; the text buffer must stay one block (it once doubled at each growth)
+    line = b"1 0 0 0 0 0 0 1\n"
+    per_block = tum._CHUNK // len(line)  # the arrays fill up exactly at a block's end
+    n = 16 * per_block
+    reader = _RecordingReader(line * n)
+    t, pose = tum._fill_accelerated(reader, b"", tmp_path / "x.tum",  # type: ignore[arg-type]
+                                    np.empty(per_block, np.int64), np.empty((per_block, 7)),
+                                    False)
+    assert t.shape == (n,)
+    assert np.array_equal(pose, np.tile([0.0, 0, 0, 0, 0, 0, 1], (n, 1)))
+    assert max(reader.asked) <= tum._CHUNK

@@ -18,9 +18,17 @@
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 
+#include <float.h>
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
+
+/* The fast path needs each double operation rounded once (no x87 extended precision). */
+#if defined(FLT_EVAL_METHOD) && FLT_EVAL_METHOD != 0
+#define CLINGER_FAST_PATH 0
+#else
+#define CLINGER_FAST_PATH 1
+#endif
 
 static const double POW10[23] = {
     1e0,  1e1,  1e2,  1e3,  1e4,  1e5,  1e6,  1e7,  1e8,  1e9,  1e10, 1e11,
@@ -28,7 +36,8 @@ static const double POW10[23] = {
 };
 
 #define TWO_POW_53 9007199254740992ULL
-#define MAX_TOKEN 128
+#define MAX_TOKEN 128   /* longest token handed to strtod */
+#define MAX_SCANNED 4096 /* longer tokens are refused: the int counters below cannot wrap */
 
 static inline int is_blank(char c) {
     return c == ' ' || c == '\t' || c == '\r' || c == '\f' || c == '\v';
@@ -38,6 +47,8 @@ static inline int is_blank(char c) {
 static int parse_double(const char *s, const char *e, double *out) {
     const char *p = s;
     int neg = 0;
+    if (e - s > MAX_SCANNED)
+        return -1;
     if (p < e && (*p == '+' || *p == '-')) {
         neg = (*p == '-');
         p++;
@@ -111,7 +122,7 @@ static int parse_double(const char *s, const char *e, double *out) {
             w /= 10u;
             exp10++;
         }
-        if (w <= TWO_POW_53 && exp10 >= -22 && exp10 <= 22) {
+        if (CLINGER_FAST_PATH && w <= TWO_POW_53 && exp10 >= -22 && exp10 <= 22) {
             double v = (double)w;
             if (exp10 < 0)
                 v /= POW10[-exp10];

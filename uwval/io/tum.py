@@ -215,20 +215,23 @@ def _fill_accelerated(fh: io.BufferedReader, carry: bytes, path: Path, t: I64, p
     assert _tumparse is not None
     buf = bytearray(max(_CHUNK, 2 * len(carry)))
     buf[:len(carry)] = carry
-    rows, filled, eof = 0, len(carry), False
+    rows, filled, eof, read = 0, len(carry), False, True
     while True:
-        if not eof:
+        if read and not eof:
             if filled == len(buf):  # one line longer than the buffer: make room
                 buf.extend(bytes(len(buf)))
             with memoryview(buf) as view:
                 got = fh.readinto(view[filled:])
             eof = not got
             filled += got or 0
+        read = True
         stamps = t[rows:].view(np.float64)
         try:
             with memoryview(buf) as view:
                 k, used = _tumparse.parse_block(view[:filled], stamps, pose[rows:], eof)
-        except ValueError:
+        except ValueError as exc:
+            if not str(exc).startswith("byte "):  # not about the text: a bug, not bad input
+                raise
             raise _WholeTextNeededError from None
         if k:
             t[rows:rows + k] = _stamps_ns(stamps[:k], path, rows)
@@ -242,6 +245,7 @@ def _fill_accelerated(fh: io.BufferedReader, carry: bytes, path: Path, t: I64, p
             extra = max(rows, 1024)
             t = np.concatenate([t, np.empty(extra, dtype=np.int64)])
             pose = np.concatenate([pose, np.empty((extra, 7))])
+            read = False  # parse what the buffer holds before reading more
             continue
         if eof:
             break
@@ -355,26 +359,34 @@ def read_tum_pair(path_a: str | Path, path_b: str | Path, *, frame_a: str = "enu
     if not parallel:
         return (read_tum(pa, frame=frame_a, topic=topic_a),
                 read_tum(pb, frame=frame_b, topic=topic_b))
+    second: tuple[I64, F64] | Exception
     if USE_ACCELERATOR:  # the C parser releases the GIL: a thread is enough
         first, second = _threaded_pair(pa, pb)
     else:
         with _ForkedParse(pb) as pending:
             first = _load(pa)
-            second = pending.result()
-    return _stream(pa, *first, frame_a, topic_a), _stream(pb, *second, frame_b, topic_b)
+            try:
+                second = pending.result()
+            except Exception as exc:  # raised below, after the first file's own checks
+                second = exc
+    stream_a = _stream(pa, *first, frame_a, topic_a)  # its errors win, as read one by one
+    if isinstance(second, Exception):
+        raise second
+    return stream_a, _stream(pb, *second, frame_b, topic_b)
 
 
-def _threaded_pair(pa: Path, pb: Path) -> tuple[tuple[I64, F64], tuple[I64, F64]]:
+def _threaded_pair(pa: Path, pb: Path) -> tuple[tuple[I64, F64], tuple[I64, F64] | Exception]:
     """Load ``pb`` in a thread while this one loads ``pa`` (C parser: no GIL while parsing).
 
-    Errors are those of reading one after the other: the first file's wins.
+    ``pa``'s error is raised; ``pb``'s is returned, for the caller to raise after its checks
+    of ``pa`` (so that errors are those of reading one file after the other).
     """
-    box: dict[str, tuple[I64, F64] | BaseException] = {}
+    box: dict[str, tuple[I64, F64] | Exception] = {}
 
     def work() -> None:
         try:
             box["result"] = _load(pb)
-        except BaseException as exc:  # re-raised in the caller's thread
+        except Exception as exc:  # handed to the caller's thread
             box["result"] = exc
 
     worker = threading.Thread(target=work, name="uwval-tum-parse", daemon=True)
@@ -383,10 +395,9 @@ def _threaded_pair(pa: Path, pb: Path) -> tuple[tuple[I64, F64], tuple[I64, F64]
         first = _load(pa)
     finally:
         worker.join()
-    second = box["result"]
-    if isinstance(second, BaseException):
-        raise second
-    return first, second
+    if "result" not in box:  # the thread died of something that is not an Exception
+        return first, LogReadError(f"{pb}: the parser thread failed")
+    return first, box["result"]
 
 
 class _ForkedParse:
