@@ -105,6 +105,28 @@ def test_interp_is_exact_on_linear_motion_and_never_extrapolates() -> None:
     assert max(abs(res.errors[a]).max() for a in "xyz") < 1e-9
 
 
+def test_interpolation_in_steps_equals_one_pass_and_takes_views() -> None:
+    import uwval.comparison.sync as sync_module
+
+    ref = vehicle_motion(3000, rate_hz=100.0, seed=4)
+    oth = ref.with_(t=ref.t + np.int64(3_000_000), position=ref.position + 0.01)
+    one_pass = interpolate_at(oth, ref.t)
+    saved = sync_module.MATCH_CHUNK
+    sync_module.MATCH_CHUNK = 7  # many steps, one boundary every 7 stamps
+    try:
+        stepped = interpolate_at(oth, ref.t)
+    finally:
+        sync_module.MATCH_CHUNK = saved
+    for field in ("position", "orientation", "valid"):
+        assert np.array_equal(getattr(stepped, field), getattr(one_pass, field)), field
+    assert (stepped.outside, stepped.in_gap) == (one_pass.outside, one_pass.in_gap) == (1, 0)
+    # the valid samples are one run (only the first reference stamp is outside): the aligned
+    # reference rows are views of the stream, not copies
+    res = compare(ref, oth)
+    assert res.n_samples == 2999
+    assert np.shares_memory(res.reference.position, ref.position)
+
+
 def test_interp_slerp_halfway() -> None:
     t = np.array([0.0, 1.0])
     s = _stream(t, np.zeros((2, 3)), np.array([[0, 0, 0.0], [0, 0, math.pi / 2]]))

@@ -224,10 +224,14 @@ def compare(
         interp = interpolate_at(oth_c, ref_c.t, max_gap_ns=max_gap_ns,
                                 offset_ns=-_offset_ns(offset_s))
         valid = interp.valid
-        t = ref_c.t[valid]
-        ref_pos, ref_quat = ref_c.position[valid], ref_c.orientation[valid]
-        oth_pos, oth_quat = interp.position[valid], interp.orientation[valid]
-        sync_info.update(matched=int(valid.sum()), masked=interp.in_gap, dropped=interp.outside,
+        n_valid = int(valid.sum())
+        # valid samples are usually one run (invalid ones only outside the other's span):
+        # take the rows as views then, not copies
+        rows = index_or_slice(np.flatnonzero(valid))
+        t = ref_c.t[rows]
+        ref_pos, ref_quat = ref_c.position[rows], ref_c.orientation[rows]
+        oth_pos, oth_quat = interp.position[rows], interp.orientation[rows]
+        sync_info.update(matched=n_valid, masked=interp.in_gap, dropped=interp.outside,
                          max_gap_s=interp.max_gap_ns * 1e-9,
                          other_nominal_period_s=nominal_period_ns(oth_c.t) * 1e-9)
         if interp.in_gap:

@@ -159,21 +159,29 @@ def interpolate_at(stream: PoseStream, t_query: I64, *, max_gap_ns: int | None =
     if max_gap_ns is None:
         max_gap_ns = 5 * nominal_period_ns(t)
     q = np.asarray(t_query, dtype=np.int64)
-    hi = np.searchsorted(t, q, side="left")  # t[hi-1] < q <= t[hi]
-    outside_mask = (q < t[0]) | (q > t[-1])
-    hi = np.clip(hi, 1, n - 1)
-    lo = hi - 1
-    span = t[hi] - t[lo]
-    gap_mask = ~outside_mask & (span > max_gap_ns)
-    # exact hits on a sample are always valid, even next to a long gap
-    exact = (t[hi] == q) | (t[lo] == q)
-    gap_mask &= ~exact
-    valid = ~outside_mask & ~gap_mask
-    # fraction from int64 differences: no precision lost on epoch-scale stamps
-    frac = (q - t[lo]).astype(np.float64) / span.astype(np.float64)
-    np.clip(frac, 0.0, 1.0, out=frac)
-    p0 = stream.position[lo]
-    pos = p0 + frac[:, None] * (stream.position[hi] - p0)
-    quat = slerp(stream.orientation[lo], stream.orientation[hi], frac)
-    return Interpolated(pos, quat, valid, int(outside_mask.sum()), int(gap_mask.sum()),
-                        int(max_gap_ns))
+    m = q.shape[0]
+    valid = np.empty(m, dtype=bool)
+    pos, quat = np.empty((m, 3)), np.empty((m, 4))
+    n_outside = n_gap = 0
+    # in steps of MATCH_CHUNK query stamps: slerp's (k, 4) temporaries stay small and cached
+    for s in range(0, m, MATCH_CHUNK):
+        qc = q[s:s + MATCH_CHUNK]
+        hi = np.searchsorted(t, qc, side="left")  # t[hi-1] < q <= t[hi]
+        outside_mask = (qc < t[0]) | (qc > t[-1])
+        hi = np.clip(hi, 1, n - 1)
+        lo = hi - 1
+        span = t[hi] - t[lo]
+        gap_mask = ~outside_mask & (span > max_gap_ns)
+        # exact hits on a sample are always valid, even next to a long gap
+        exact = (t[hi] == qc) | (t[lo] == qc)
+        gap_mask &= ~exact
+        valid[s:s + MATCH_CHUNK] = ~outside_mask & ~gap_mask
+        n_outside += int(outside_mask.sum())
+        n_gap += int(gap_mask.sum())
+        # fraction from int64 differences: no precision lost on epoch-scale stamps
+        frac = (qc - t[lo]).astype(np.float64) / span.astype(np.float64)
+        np.clip(frac, 0.0, 1.0, out=frac)
+        p0 = stream.position[lo]
+        pos[s:s + MATCH_CHUNK] = p0 + frac[:, None] * (stream.position[hi] - p0)
+        quat[s:s + MATCH_CHUNK] = slerp(stream.orientation[lo], stream.orientation[hi], frac)
+    return Interpolated(pos, quat, valid, n_outside, n_gap, int(max_gap_ns))
