@@ -256,6 +256,9 @@ def _names(dec: Decoded, codes: I64, rows: I64, buf: U8, starts: I64, width: int
         codes[rows] = dec.code("")
         return
     raw = gather(buf, starts, width)
+    if raw.shape[0] and bool((raw == raw[0]).all()):  # one name for the topic (usual): no sort
+        codes[rows] = dec.code(bytes(raw[0]).decode("utf-8", errors="replace"))
+        return
     keys = np.ascontiguousarray(raw).view(np.dtype((np.void, width))).reshape(-1)
     uniq, inverse = np.unique(keys, return_inverse=True)
     mapping = np.array(

@@ -171,7 +171,9 @@ def _to_stream(p: Path, raw: RawTopic, log: RawLog, *, frame: str | None, child:
         if time_src == "log" or (stamps < 0).all():
             stamps = log_time
         pose = dec.pose[keep]
-        codes = np.unique(dec.frame_code[keep])
+        kept = dec.frame_code[keep]
+        # one frame_id on the whole topic is the usual case: skip the sort of np.unique
+        codes = kept[:1] if kept.size and bool((kept == kept[0]).all()) else np.unique(kept)
         frame_id = [dec.names[int(c)] for c in codes if c >= 0]
     if frame is None:
         frame = next((f for f in frame_id if f in CONVENTIONS), "enu")
