@@ -58,37 +58,27 @@ static int parse_double(const char *s, const char *e, double *out) {
     int exp10 = 0;      /* value = w * 10^exp10 */
     int digits = 0;     /* digits seen at all */
     int overflow = 0;   /* more than 19 significant digits: strtod decides */
-    while (p < e && (unsigned)(*p - '0') < 10u) {
+    int point = 0;      /* the decimal point was seen: digits now lower the exponent */
+    for (; p < e; p++) {
+        if (*p == '.' && !point) {
+            point = 1;
+            continue;
+        }
         unsigned d = (unsigned)(*p - '0');
+        if (d >= 10u)
+            break;
         if (nd || d) {
             if (nd < 19) {
                 w = w * 10u + d;
                 nd++;
+                exp10 -= point;
             } else {
-                overflow = 1;
+                overflow = 1; /* (integer digits dropped here would raise the exponent) */
             }
+        } else {
+            exp10 -= point; /* a leading zero of the fraction shifts the point */
         }
         digits++;
-        p++;
-    }
-    if (p < e && *p == '.') {
-        p++;
-        while (p < e && (unsigned)(*p - '0') < 10u) {
-            unsigned d = (unsigned)(*p - '0');
-            if (nd || d) {
-                if (nd < 19) {
-                    w = w * 10u + d;
-                    nd++;
-                    exp10--;
-                } else {
-                    overflow = 1;
-                }
-            } else {
-                exp10--; /* a leading zero of the fraction shifts the point */
-            }
-            digits++;
-            p++;
-        }
     }
     if (!digits)
         return -1;
