@@ -201,6 +201,8 @@ def test_percentiles_on_a_large_series_and_with_nan() -> None:
     assert math.isnan(median(x))
     with pytest.raises(ValueError, match="empty"):
         percentiles(np.array([]), (50.0,))
+    with pytest.raises(ValueError, match=r"\[0, 100\]"):
+        percentiles(x, (101.0,))
 
 
 def test_norm_stats_match_evo_definitions() -> None:

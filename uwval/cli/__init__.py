@@ -105,8 +105,8 @@ def _exit_now() -> None:
     """End the process at once, after flushing stdout/stderr (exit status 0).
 
     The fast compare path has written and closed everything it writes; what is left is the
-    interpreter's teardown (freeing ~100 MB of arrays and every module), ~25 ms of a
-    0.4 s command. A failed flush (a closed pipe) is left to the normal exit to report.
+    interpreter's teardown (freeing ~100 MB of arrays and every module), ~25 ms, a tenth of
+    a large compare. A failed flush (a closed pipe) is left to the normal exit to report.
     """
     import os
 

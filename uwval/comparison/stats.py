@@ -59,6 +59,8 @@ def percentiles(values: F64, q: tuple[float, ...], *, overwrite: bool = False) -
     n = int(x.size)
     if n == 0:
         raise ValueError("percentiles of an empty series")
+    if not all(0.0 <= float(v) <= 100.0 for v in q):
+        raise ValueError(f"percentiles must be in [0, 100], got {q}")
     if bool(np.isnan(x).any()):
         return [math.nan] * len(q)
     # numpy: q / 100 in float64, virtual index (n - 1) * q, neighbours floor and floor + 1
