@@ -169,3 +169,17 @@ def test_growing_the_arrays_does_not_grow_the_text_buffer(tmp_path: Path) -> Non
     assert t.shape == (n,)
     assert np.array_equal(pose, np.tile([0.0, 0, 0, 0, 0, 0, 1], (n, 1)))
     assert max(reader.asked) <= tum._CHUNK
+
+
+def test_the_environment_can_switch_the_accelerator_off() -> None:
+    import subprocess
+    import sys
+
+    probe = "import uwval.io.tum as t; print(t.USE_ACCELERATOR)"
+    for value, expected in (("1", "False"), (None, "True")):
+        env = {k: v for k, v in os.environ.items() if k != "UWVAL_NO_ACCELERATOR"}
+        if value is not None:
+            env["UWVAL_NO_ACCELERATOR"] = value
+        out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                             env=env, timeout=60, check=True)
+        assert out.stdout.strip() == expected
