@@ -86,3 +86,31 @@ def test_the_command_line_loads_numpy_only_after_it_chose_the_blas_threads(tmp_p
     import uwval
 
     assert uwval.PoseStream.__name__ == "PoseStream"  # still there, loaded on first use
+
+
+def test_compare_with_stdout_closed_writes_its_file_and_exits_0(tmp_path: object) -> None:
+    # cron jobs and daemons may start the command with fd 1 closed (sys.stdout is None)
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import numpy as np
+
+    from uwval.io.tum import write_tum
+    from uwval.posestream import PoseStream
+    from uwval.rotations import quat_from_rpy
+
+    d = Path(str(tmp_path))
+    n = 200
+    s = PoseStream.from_arrays(np.arange(n, dtype=np.int64) * 10_000_000,
+                               np.random.default_rng(1).normal(size=(n, 3)),
+                               quat_from_rpy(np.zeros((n, 3))))
+    write_tum(d / "a.tum", s)
+    write_tum(d / "b.tum", s.with_(position=s.position + 0.01))
+    res = subprocess.run([sys.executable, "-m", "uwval", "compare", str(d / "a.tum"),
+                          str(d / "b.tum"), "-o", str(d / "out.json")],
+                         preexec_fn=lambda: os.close(1), stderr=subprocess.PIPE, text=True,
+                         timeout=60, stdin=subprocess.DEVNULL)
+    assert res.returncode == 0, res.stderr
+    assert '"n_samples": 200' in (d / "out.json").read_text()

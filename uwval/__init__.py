@@ -26,6 +26,11 @@ __all__ = [
 _LAZY = {"compare", "compare_logs", "ComparisonResult", "LogComparison"}
 
 
+def __dir__() -> list[str]:
+    """The module's names, the lazily imported ones included."""
+    return sorted({*globals(), *__all__})
+
+
 def __getattr__(name: str) -> Any:
     """``uwval.compare``, ``uwval.PoseStream`` etc., imported on first use.
 

@@ -113,8 +113,9 @@ def _exit_now() -> None:
     if "coverage" in sys.modules:  # a measured run saves its data at exit: exit normally
         return
     try:
-        sys.stdout.flush()
-        sys.stderr.flush()
+        for stream in (sys.stdout, sys.stderr):
+            if stream is not None:  # None when the process started with that fd closed
+                stream.flush()
     except (OSError, ValueError):
         return
     os._exit(0)

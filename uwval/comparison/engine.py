@@ -48,7 +48,9 @@ class ComparisonResult:
         t: (M,) int64 aligned stamps (ns, reference clock): the reference stamps for
             ``interp``; the driving (shorter) stream's stamps for ``nearest``, as evo.
         reference, other: aligned PoseStreams on ``t``, both ENU world / FLU body; ``other``
-            has the offset, frame conversion and spatial alignment applied.
+            has the offset, frame conversion and spatial alignment applied. Where no copy is
+            needed (rows that are one run, an ENU input) their arrays are views of the input
+            streams' arrays: treat them as read-only, as the inputs.
         errors: signed per-axis errors other - reference: x y z (m), roll pitch yaw (deg,
             wrapped to (-180, 180]); plus ``position_norm`` (m) and ``rotation_angle`` (deg).
         stats: the JSON-ready statistics (see :meth:`to_json`).
@@ -226,7 +228,7 @@ def compare(
         valid = interp.valid
         n_valid = int(valid.sum())
         # valid samples are usually one run (invalid ones only outside the other's span):
-        # take the rows as views then, not copies
+        # take the rows as views then, not copies (as nearest does; streams are not mutated)
         rows = index_or_slice(np.flatnonzero(valid))
         t = ref_c.t[rows]
         ref_pos, ref_quat = ref_c.position[rows], ref_c.orientation[rows]
