@@ -21,15 +21,15 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import BenchRow
-from bridge import protocol as wire
-from bridge.server import BridgeServer
+from uwval.bridge import protocol as wire
+from uwval.bridge.server import BridgeServer
 
 REPO = Path(__file__).resolve().parents[1]
 
 CONSUMER = """
 import json, sys, time
-from bridge import protocol as wire
-from bridge.unity_client import UnityConnection
+from uwval.bridge import protocol as wire
+from uwval.bridge.unity_client import UnityConnection
 port, n = int(sys.argv[1]), int(sys.argv[2])
 conn = UnityConnection("127.0.0.1", port, subscriptions={"bench": wire.POSE_STAMPED})
 conn.connect()
@@ -113,8 +113,8 @@ def latency_at_rate(rate_hz: float, seconds: float) -> tuple[np.ndarray, int, in
 
 def session_wall_time() -> float:
     """Wall time of run_session over 30 s of 50 Hz ticks x 2 topics, written to MCAP."""
-    from bridge.recorder import open_mcap_writer
-    from bridge.session import run_session
+    from uwval.bridge.recorder import open_mcap_writer
+    from uwval.bridge.session import run_session
 
     def ticks():  # type: ignore[no-untyped-def]
         q = np.array([0.0, 0.0, 0.0, 1.0])

@@ -70,7 +70,7 @@ def _write_experiment(root: Path, runs: int) -> Path:
 
 
 def run(quick: bool = False) -> list[BenchRow]:
-    from reports import build_report
+    from uwval.reports import build_report
     from uwval.gate import check, load_thresholds
     from uwval.resources import data_path
     from uwval.results import ResultsTable, anova_oneway

@@ -9,7 +9,7 @@ from __future__ import annotations
 import sys
 
 from benchmarks.common import BenchRow, alternate, median
-from simulator import constant_inputs, load_experiment, load_vehicle, simulate, simulate_batch
+from uwval.simulator import constant_inputs, load_experiment, load_vehicle, simulate, simulate_batch
 from uwval.resources import data_path
 
 

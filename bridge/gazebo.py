@@ -14,8 +14,8 @@ from collections.abc import Iterator, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from bridge import protocol as wire
-from bridge.server import BridgeServer
+from uwval.bridge import protocol as wire
+from uwval.bridge.server import BridgeServer
 from uwval.errors import BridgeError
 from uwval.frames import convert_arrays, get_convention
 from uwval.posestream import PoseStream

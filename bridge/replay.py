@@ -1,7 +1,7 @@
 """Serve a recorded Gazebo-side log to connecting Unity clients (``uwval bridge replay``).
 
 The Gazebo topics of a log (``/gazebo/model_rov_pose``, ``/gazebo/gui_camera_pose`` by
-default) are published through a :class:`~bridge.server.BridgeServer` on their ROS topic
+default) are published through a :class:`~uwval.bridge.server.BridgeServer` on their ROS topic
 names (``model_rov_pose``, ...) at the recorded pace divided by ``speed``, with their
 recorded header stamps, so a real Unity scene can be driven from a recorded Gazebo run.
 """
@@ -14,8 +14,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from bridge.gazebo import GazeboPublisher, Tick, ticks_from_streams
-from bridge.server import BridgeServer
+from uwval.bridge.gazebo import GazeboPublisher, Tick, ticks_from_streams
+from uwval.bridge.server import BridgeServer
 from uwval.errors import BridgeError
 from uwval.io import read_stream
 

@@ -26,7 +26,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from bridge import protocol as wire
+from uwval.bridge import protocol as wire
 from uwval.errors import BridgeError
 
 log = logging.getLogger("uwval.bridge.server")

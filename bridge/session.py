@@ -23,11 +23,11 @@ from typing import Any
 
 import numpy as np
 
-from bridge import protocol as wire
-from bridge.gazebo import DEFAULT_TOPICS, GazeboPublisher, Tick, ticks_from_streams
-from bridge.recorder import BridgeRecorder, PoseWriter
-from bridge.server import BridgeServer
-from bridge.unity_client import (
+from uwval.bridge import protocol as wire
+from uwval.bridge.gazebo import DEFAULT_TOPICS, GazeboPublisher, Tick, ticks_from_streams
+from uwval.bridge.recorder import BridgeRecorder, PoseWriter
+from uwval.bridge.server import BridgeServer
+from uwval.bridge.unity_client import (
     RECONNECT_DELAY_S,
     FaultModel,
     RenderLoop,

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from bridge import protocol as wire
+from uwval.bridge import protocol as wire
 from uwval.errors import BridgeError
 from uwval.frames import convert_arrays, get_convention
 

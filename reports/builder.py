@@ -28,8 +28,8 @@ from typing import Any, cast
 import numpy as np
 import pandas as pd
 
-from reports import plots
-from reports.content import Plot, Report, Section, Table, Text, fmt_num
+from uwval.reports import plots
+from uwval.reports.content import Plot, Report, Section, Table, Text, fmt_num
 from uwval.errors import ConfigError
 from uwval.gate import GateResult, Thresholds, check, load_thresholds
 from uwval.results import (
@@ -155,12 +155,12 @@ def build_report(
     report = _compose(exp, details, gate, th, baseline, title=title, command=command,
                       options=opts, warnings=warnings, detail_topics=detail_topics)
     html_out = Path(html_path)
-    from reports.html import write_html
+    from uwval.reports.html import write_html
 
     write_html(report, html_out)
     pdf_out: Path | None = None
     if pdf is not None:
-        from reports.pdf import write_pdf
+        from uwval.reports.pdf import write_pdf
 
         pdf_out = Path(pdf)
         write_pdf(report, pdf_out)

@@ -1,6 +1,6 @@
 """The report's content, independent of the output format: sections of text, tables, figures.
 
-:mod:`reports.builder` fills a :class:`Report`; :mod:`reports.html` and :mod:`reports.pdf`
+:mod:`uwval.reports.builder` fills a :class:`Report`; :mod:`uwval.reports.html` and :mod:`uwval.reports.pdf`
 render the same object, so the HTML page and the PDF always say the same thing.
 """
 

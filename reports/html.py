@@ -1,4 +1,4 @@
-"""Render a :class:`reports.content.Report` into one self-contained HTML file.
+"""Render a :class:`uwval.reports.content.Report` into one self-contained HTML file.
 
 Everything is inline: CSS from ``templates/report.css``, figures as base64 PNG ``data:``
 URIs, no scripts, no fonts or other network resources, so the file opens offline and in CI
@@ -14,8 +14,8 @@ from pathlib import Path
 from jinja2 import Environment, FileSystemLoader, StrictUndefined, select_autoescape
 from matplotlib.figure import Figure
 
-from reports.content import Plot, Report
-from reports.plots import freeze_ticks
+from uwval.reports.content import Plot, Report
+from uwval.reports.plots import freeze_ticks
 from uwval.errors import UwvalError
 
 TEMPLATES = Path(__file__).resolve().parent / "templates"

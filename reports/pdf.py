@@ -1,4 +1,4 @@
-"""Render a :class:`reports.content.Report` into a paginated PDF (matplotlib PdfPages).
+"""Render a :class:`uwval.reports.content.Report` into a paginated PDF (matplotlib PdfPages).
 
 The same sections as the HTML page, in the same order: text and tables are laid out on A4
 pages (long tables continue on the next page, wide ones shrink their font), each figure
@@ -15,8 +15,8 @@ from matplotlib.backends.backend_pdf import PdfPages
 from matplotlib.figure import Figure
 from matplotlib.transforms import Bbox
 
-from reports.content import Plot, Report, Section, Table, Text
-from reports.html import ReportError
+from uwval.reports.content import Plot, Report, Section, Table, Text
+from uwval.reports.html import ReportError
 
 A4 = (8.27, 11.69)  # inches, portrait
 MARGIN = 0.06  # fraction of the page

@@ -2,7 +2,7 @@
 
 All positions are ENU metres (x east, y north, z up); angles are ROS roll/pitch/yaw in
 degrees. "Gazebo" is the reference stream, "Unity" the other one, converted back to ENU/FLU
-and aligned in time by the compare engine. Figures are rendered by :mod:`reports.render`
+and aligned in time by the compare engine. Figures are rendered by :mod:`uwval.reports.render`
 both into the HTML page (PNG, base64) and into the PDF.
 """
 

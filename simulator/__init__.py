@@ -1,13 +1,13 @@
 """Gazebo-like 6-DOF underwater simulator: gz-sim's Hydrodynamics + Buoyancy equations.
 
 World ENU, body FLU, quaternions (x, y, z, w), sim time int64 ns, 1 ms steps, poses published
-at 50 Hz. See :mod:`simulator.dynamics` for the equations, :mod:`simulator.vehicle` for
-parameters, :mod:`simulator.inputs` for wrench/current profiles (wrench in the body frame by
-default) and :mod:`simulator.experiment` for the experiment TOML format.
+at 50 Hz. See :mod:`uwval.simulator.dynamics` for the equations, :mod:`uwval.simulator.vehicle` for
+parameters, :mod:`uwval.simulator.inputs` for wrench/current profiles (wrench in the body frame by
+default) and :mod:`uwval.simulator.experiment` for the experiment TOML format.
 """
 
-from simulator.dynamics import coriolis_matrix, damping_matrix, hydro_wrench_reference
-from simulator.engine import (
+from uwval.simulator.dynamics import coriolis_matrix, damping_matrix, hydro_wrench_reference
+from uwval.simulator.engine import (
     CAMERA_TOPIC,
     VEHICLE_TOPIC,
     SimResult,
@@ -16,8 +16,8 @@ from simulator.engine import (
     simulate,
     simulate_batch,
 )
-from simulator.experiment import Experiment, Factor, RunSpec, load_experiment
-from simulator.inputs import (
+from uwval.simulator.experiment import Experiment, Factor, RunSpec, load_experiment
+from uwval.simulator.inputs import (
     TELEOP_KEYS,
     Constant,
     InputProfile,
@@ -29,9 +29,9 @@ from simulator.inputs import (
     Step,
     constant_inputs,
 )
-from simulator.sdf import load_vehicle_sdf
-from simulator.thrusters import Thrusters
-from simulator.vehicle import Vehicle, load_vehicle, preset_names
+from uwval.simulator.sdf import load_vehicle_sdf
+from uwval.simulator.thrusters import Thrusters
+from uwval.simulator.vehicle import Vehicle, load_vehicle, preset_names
 
 __all__ = [
     "CAMERA_TOPIC",

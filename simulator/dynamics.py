@@ -8,7 +8,7 @@ Hydrodynamics system's wrench is, exactly as gz-sim's ``Hydrodynamics::PreUpdate
             - D(nu_r) nu_r                         # 6x6 linear + 6x6x6 quadratic tensors
             + Cmat(nu_r) nu_r                      # Cmat = -C_A from the diagonal of Ma
 
-(Ma, the damping derivatives: SNAME sign, see :mod:`simulator.vehicle`). The Buoyancy system
+(Ma, the damping derivatives: SNAME sign, see :mod:`uwval.simulator.vehicle`). The Buoyancy system
 adds ``rho V g`` (world +z) at the centre of buoyancy, gravity ``m g`` acts at the CoG, the
 input wrench acts at the CoG, and the rigid body follows Newton-Euler in the body frame::
 
@@ -48,7 +48,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from simulator.vehicle import Vehicle
+from uwval.simulator.vehicle import Vehicle
 
 F64 = NDArray[np.float64]
 

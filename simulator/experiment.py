@@ -46,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from simulator.inputs import (
+from uwval.simulator.inputs import (
     Constant,
     InputProfile,
     KeyScript,
@@ -54,7 +54,7 @@ from simulator.inputs import (
     Sum,
     signal_from_spec,
 )
-from simulator.vehicle import (
+from uwval.simulator.vehicle import (
     SCALAR_PARAMETERS,
     Vehicle,
     classify_hydro_name,
@@ -95,7 +95,7 @@ class RunSpec:
     repeat: int = 0
 
     def simulate_kwargs(self) -> dict[str, Any]:
-        """Keyword arguments for :func:`simulator.simulate` besides vehicle/inputs/duration."""
+        """Keyword arguments for :func:`uwval.simulator.simulate` besides vehicle/inputs/duration."""
         return {
             "dt": self.dt,
             "publish_rate": self.publish_rate,

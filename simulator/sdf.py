@@ -1,4 +1,4 @@
-"""Read a Gazebo model (or world) SDF into a :class:`~simulator.vehicle.Vehicle`.
+"""Read a Gazebo model (or world) SDF into a :class:`~uwval.simulator.vehicle.Vehicle`.
 
 What is read, as gz-sim uses it:
 
@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from simulator.vehicle import (
+from uwval.simulator.vehicle import (
     DEFAULT_GRAVITY,
     DEFAULT_WATER_DENSITY,
     Vehicle,

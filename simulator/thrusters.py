@@ -3,8 +3,8 @@
 Each thruster has a position (m, body FLU, from the CoG) and a unit thrust direction (body
 FLU); thrust ``T_i`` (N) gives force ``T_i d_i`` and moment ``r_i x T_i d_i``. The 6 x n
 allocation matrix ``B`` maps thrusts to the wrench, ``tau = B T``; :meth:`Thrusters.inputs`
-turns thrust signals into an :class:`~simulator.inputs.InputProfile` (body-frame wrench), so
-thruster-driven runs go through the same :func:`~simulator.simulate` path.
+turns thrust signals into an :class:`~uwval.simulator.inputs.InputProfile` (body-frame wrench), so
+thruster-driven runs go through the same :func:`~uwval.simulator.simulate` path.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from simulator.inputs import ZERO, InputProfile, Signal
+from uwval.simulator.inputs import ZERO, InputProfile, Signal
 from uwval.errors import ConfigError
 
 F64 = NDArray[np.float64]

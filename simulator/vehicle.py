@@ -13,7 +13,7 @@ where ``<f>`` is one of ``x y z k m n`` (force/moment axis) and ``<V>``, ``<W>``
 ``U V W P Q R`` (body velocity). gz-sim assembles them exactly so (``i*6 + j``, ``i*36 + j*6 + k``).
 
 Vehicles come from presets (``data/vehicles/<name>.toml``), TOML files, or Gazebo model SDF
-(:mod:`simulator.sdf`); :func:`load_vehicle` picks the reader.
+(:mod:`uwval.simulator.sdf`); :func:`load_vehicle` picks the reader.
 """
 
 from __future__ import annotations
@@ -390,8 +390,10 @@ def _parse_inertia(val: Any, where: str) -> F64:
 
 # ---------------------------------------------------------------------- presets / dispatch
 def vehicles_dir() -> Path:
-    """The folder of vehicle presets (``data/vehicles``)."""
-    return Path(__file__).resolve().parent.parent / "data" / "vehicles"
+    """The folder of vehicle presets (``data/vehicles``, package data ``uwval.data``)."""
+    from uwval.resources import data_path
+
+    return data_path("vehicles")
 
 
 def preset_names() -> list[str]:
@@ -408,7 +410,7 @@ def load_vehicle(name_or_path: str | Path = "tethys") -> Vehicle:
     if p.is_dir() and (p / "model.sdf").exists():
         p = p / "model.sdf"
     if p.suffix.lower() in (".sdf", ".world", ".xml"):
-        from simulator.sdf import load_vehicle_sdf
+        from uwval.simulator.sdf import load_vehicle_sdf
 
         return load_vehicle_sdf(p)
     if p.suffix.lower() == ".toml":

@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bridge import protocol as wire
-from bridge.recorder import BridgeRecorder, open_mcap_writer
-from bridge.server import BridgeServer
-from bridge.unity_client import AppliedTransform, FaultModel, UnityClient, UnityConnection
+from uwval.bridge import protocol as wire
+from uwval.bridge.recorder import BridgeRecorder, open_mcap_writer
+from uwval.bridge.server import BridgeServer
+from uwval.bridge.unity_client import AppliedTransform, FaultModel, UnityClient, UnityConnection
 from uwval.errors import BridgeError
 
 REPO = Path(__file__).resolve().parents[1]
@@ -242,7 +242,7 @@ def test_injected_link_drop_then_unity_like_reconnect(live_server: BridgeServer)
 
 def test_unity_timings_are_ros_tcp_connectors() -> None:
     """Keepalive after 1 s without sending, reconnect 1 s after a lost link (DESIGN.md 6)."""
-    from bridge import unity_client as uc
+    from uwval.bridge import unity_client as uc
 
     assert uc.KEEPALIVE_INTERVAL_S == 1.0
     assert uc.RECONNECT_DELAY_S == 1.0
@@ -279,7 +279,7 @@ def test_render_loop_sends_one_keepalive_per_idle_second() -> None:
 @pytest.mark.parametrize("speed", [1.0, 3.0])
 def test_replay_paces_at_recorded_and_scaled_speed(tmp_path: Path, speed: float) -> None:
     """Recorded stamps go out unchanged; wall spacing is the recorded spacing / speed."""
-    from bridge.replay import replay_log
+    from uwval.bridge.replay import replay_log
 
     log = tmp_path / "gz.mcap"
     rec = BridgeRecorder(open_mcap_writer(log))

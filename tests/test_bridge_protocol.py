@@ -1,4 +1,4 @@
-"""ROS-TCP framing and message bodies (bridge.protocol) against the protocol facts and rosbags."""
+"""ROS-TCP framing and message bodies (uwval.bridge.protocol) against the protocol facts and rosbags."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bridge import protocol as wire
+from uwval.bridge import protocol as wire
 from uwval.io.ros import pose_stamped, typestore
 
 PS = "geometry_msgs/msg/PoseStamped"

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bridge.recorder import BridgeRecorder, open_mcap_writer, scan_mcap
+from uwval.bridge.recorder import BridgeRecorder, open_mcap_writer, scan_mcap
 from uwval.io import list_topics, read_stream
 from uwval.io.ros import typestore
 
@@ -55,7 +55,7 @@ def test_clean_close_keeps_every_message_with_the_right_frames(tmp_path: Path) -
 CHILD = textwrap.dedent("""
     import sys, time
     import numpy as np
-    from bridge.recorder import BridgeRecorder, open_mcap_writer
+    from uwval.bridge.recorder import BridgeRecorder, open_mcap_writer
     rec = BridgeRecorder(open_mcap_writer(sys.argv[1]), flush_every=100,
                          flush_interval_s=1e9)
     q = np.array([0.0, 0.0, 0.0, 1.0])

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 from cli_runner import run_uwval as _uwval
 
-from bridge.recorder import BridgeRecorder, open_mcap_writer, scan_mcap
+from uwval.bridge.recorder import BridgeRecorder, open_mcap_writer, scan_mcap
 
 
 def test_scan_counts_the_bytes_really_lost_after_a_cut(tmp_path: Path) -> None:
@@ -59,7 +59,7 @@ def test_unity_recorder_that_never_connects_fails(tmp_path: Path) -> None:
 
 
 def test_generic_bodies_round_trip_through_rosbags_in_both_protocols() -> None:
-    from bridge import protocol as wire
+    from uwval.bridge import protocol as wire
     from uwval.io.ros import header_msg
 
     for proto, ver in (("ROS2", 2), ("ROS1", 1)):

@@ -1,6 +1,6 @@
-"""The endpoint (bridge.server) driven by a client written here from the protocol facts.
+"""The endpoint (uwval.bridge.server) driven by a client written here from the protocol facts.
 
-``RawClient`` deliberately does not use bridge.protocol: it frames bytes with struct, the
+``RawClient`` deliberately does not use uwval.bridge.protocol: it frames bytes with struct, the
 way DESIGN.md section 6 describes the wire (u32 LE length + destination, u32 LE length +
 payload; 8 zero bytes = keepalive; Unity's ROS 2 trailing NULs).
 """
@@ -19,7 +19,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from bridge.server import BridgeServer
+from uwval.bridge.server import BridgeServer
 from uwval.errors import BridgeError
 
 

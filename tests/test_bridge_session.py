@@ -9,9 +9,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from bridge.gazebo import ticks_from_streams
-from bridge.recorder import open_mcap_writer
-from bridge.session import SessionStats, run_session
+from uwval.bridge.gazebo import ticks_from_streams
+from uwval.bridge.recorder import open_mcap_writer
+from uwval.bridge.session import SessionStats, run_session
 from uwval.errors import BridgeError
 from uwval.frames import convert_arrays, enu_from_unity
 from uwval.io import list_topics, read_stream
@@ -187,8 +187,8 @@ def test_live_peer_on_the_session_endpoint_gets_the_poses_too(tmp_path: Path) ->
     import threading
     import time
 
-    from bridge import protocol as wire
-    from bridge.unity_client import UnityConnection
+    from uwval.bridge import protocol as wire
+    from uwval.bridge.unity_client import UnityConnection
 
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from reports import build_report
-from reports.builder import sha256_of
+from uwval.reports import build_report
+from uwval.reports.builder import sha256_of
 from uwval.gate import parse_thresholds
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -248,8 +248,8 @@ def test_factor_axes_carry_units_and_leave_the_caption_strips_free(experiment: P
     for the caption (bottom) and the section heading (top)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-    from reports import plots
-    from reports.html import figure_png_base64
+    from uwval.reports import plots
+    from uwval.reports.html import figure_png_base64
     from uwval.results import load_experiment_results
 
     table = load_experiment_results(experiment).table
@@ -273,8 +273,8 @@ def test_factor_axes_carry_units_and_leave_the_caption_strips_free(experiment: P
 
 def test_pinned_ticks_keep_labels_and_offset_text(experiment: Path) -> None:
     """The PDF redraw uses the ticks of the HTML draw, including a '1e-16'-style offset."""
-    from reports import plots
-    from reports.html import figure_png_base64
+    from uwval.reports import plots
+    from uwval.reports.html import figure_png_base64
 
     fig = plots._new_figure(4, 3)
     ax = fig.subplots()
@@ -292,7 +292,7 @@ def test_pinned_ticks_keep_labels_and_offset_text(experiment: Path) -> None:
 
 def test_pdf_tables_fit_the_page_and_headings_stay_with_their_tables(
         experiment_report: tuple[Path, Path, str]) -> None:
-    from reports.pdf import A4, MARGIN, _TableLayout
+    from uwval.reports.pdf import A4, MARGIN, _TableLayout
 
     cols = ["topic", "axis", "unit", "MAE mean", "MAE worst", "max |error| worst",
             "p95 |error| worst", "Pearson r mean", "Pearson r lowest", "r undefined"]
@@ -317,8 +317,8 @@ def test_pdf_tables_fit_the_page_and_headings_stay_with_their_tables(
 
 
 def test_wide_pdf_tables_split_into_readable_column_groups() -> None:
-    from reports.content import Table
-    from reports.pdf import MIN_TABLE_FONT, _column_groups, _TableLayout
+    from uwval.reports.content import Table
+    from uwval.reports.pdf import MIN_TABLE_FONT, _column_groups, _TableLayout
 
     cols = ["run", *[f"statistic_number_{i}" for i in range(21)]]
     rows = [[f"default-0{r}-force=5_torque=0.5_current=0.3", *[f"{r * i:.4f}" for i in range(21)]]
@@ -335,7 +335,7 @@ def test_wide_pdf_tables_split_into_readable_column_groups() -> None:
 
 
 def test_bridge_bars_are_labelled_with_short_run_ids() -> None:
-    from reports import plots
+    from uwval.reports import plots
 
     names = [f"default-0{i}-force=5_torque=0.5_current=0.{i}" for i in range(4)]
     assert plots.short_run_labels(names) == ["00", "01", "02", "03"]

@@ -157,7 +157,7 @@ def test_worker_killed_mid_sweep_every_run_present_once(tmp_path: Path, executor
     import cloudpickle
     import executor_tasks
 
-    from simulator import load_experiment
+    from uwval.simulator import load_experiment
     from uwval.cli.pipeline import RunJob, log_path_for
     from uwval.executors import run_tasks
 

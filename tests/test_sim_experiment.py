@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from simulator import load_experiment, simulate, simulate_batch
+from uwval.simulator import load_experiment, simulate, simulate_batch
 from uwval.errors import ConfigError
 
 EXPERIMENTS = Path(__file__).resolve().parents[1] / "data" / "experiments"

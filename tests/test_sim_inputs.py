@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from simulator import (
+from uwval.simulator import (
     CAMERA_TOPIC,
     VEHICLE_TOPIC,
     Constant,
@@ -24,7 +24,7 @@ from simulator import (
     load_vehicle,
     simulate,
 )
-from simulator.inputs import signal_from_spec
+from uwval.simulator.inputs import signal_from_spec
 from uwval.errors import ConfigError, SimulationError
 from uwval.rotations import quat_from_rpy, rotate_vectors
 
@@ -201,7 +201,7 @@ def test_simulator_teleop_overrides() -> None:
 
 
 def test_thrusters_map_thrust_to_wrench() -> None:
-    from simulator.thrusters import Thrusters
+    from uwval.simulator.thrusters import Thrusters
 
     # two surge thrusters 0.2 m either side of the centre line
     th = Thrusters(positions=A([[0, 0.2, 0], [0, -0.2, 0]]), directions=A([[1, 0, 0], [2, 0, 0]]))

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from simulator import (
+from uwval.simulator import (
     Vehicle,
     constant_inputs,
     coriolis_matrix,
@@ -17,7 +17,7 @@ from simulator import (
     simulate,
     simulate_batch,
 )
-from simulator.dynamics import build_params, get_kernel, initial_state
+from uwval.simulator.dynamics import build_params, get_kernel, initial_state
 from uwval.errors import SimulationError
 from uwval.rotations import matrix_from_quat, quat_from_rpy, rpy_from_quat
 

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from simulator import load_vehicle, load_vehicle_sdf, preset_names
-from simulator.vehicle import Vehicle, classify_hydro_name
+from uwval.simulator import load_vehicle, load_vehicle_sdf, preset_names
+from uwval.simulator.vehicle import Vehicle, classify_hydro_name
 from uwval.errors import ConfigError
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "vehicles"

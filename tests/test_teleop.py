@@ -56,7 +56,7 @@ def test_without_terminal_or_script_is_a_clean_error() -> None:
 
 
 def test_live_client_receives_poses_over_tcp() -> None:
-    from bridge.unity_client import UnityConnection, decode_pose_frame
+    from uwval.bridge.unity_client import UnityConnection, decode_pose_frame
 
     port = _free_port()
     proc = subprocess.Popen(

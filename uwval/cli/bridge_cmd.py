@@ -24,7 +24,7 @@ from uwval.cli import app
 from uwval.errors import BridgeError
 
 if TYPE_CHECKING:
-    from bridge.protocol import Protocol
+    from uwval.bridge.protocol import Protocol
 
 bridge_app = typer.Typer(help="ROS-TCP bridge: endpoint server, log replay, Unity-like client.",
                          no_args_is_help=True)
@@ -57,7 +57,7 @@ def _check_seconds(value: float, option: str, *, zero_ok: bool) -> float:
 
 
 def _protocol(name: str) -> Protocol:
-    from bridge.protocol import ProtocolError, check_protocol
+    from uwval.bridge.protocol import ProtocolError, check_protocol
 
     try:
         return check_protocol(name.upper())
@@ -79,7 +79,7 @@ def serve(
                                           help="Log connections and registrations.")] = True,
 ) -> None:
     """Run the ROS-TCP endpoint that Unity's ROS-TCP-Connector connects to."""
-    from bridge.server import BridgeServer
+    from uwval.bridge.server import BridgeServer
 
     _check_port(port)
     _check_seconds(duration, "--duration", zero_ok=True)
@@ -117,13 +117,13 @@ def replay(
     verbose: Annotated[bool, typer.Option("--verbose/--quiet")] = False,
 ) -> None:
     """Serve a recorded Gazebo-side log to connecting Unity clients."""
-    from bridge.replay import (
+    from uwval.bridge.replay import (
         DEFAULT_REPLAY_TOPICS,
         check_replay_options,
         load_replay_ticks,
         replay_log,
     )
-    from bridge.server import BridgeServer
+    from uwval.bridge.server import BridgeServer
 
     _check_port(port)
     check_replay_options(speed, loops)
@@ -168,8 +168,8 @@ def unity(
     clock_offset: Annotated[float, typer.Option(help="Unity clock offset, s.")] = 0.0,
 ) -> None:
     """Run a Unity-like client against an endpoint and record what it renders."""
-    from bridge.recorder import BridgeRecorder, open_mcap_writer
-    from bridge.unity_client import UnityClient
+    from uwval.bridge.recorder import BridgeRecorder, open_mcap_writer
+    from uwval.bridge.unity_client import UnityClient
 
     _check_port(port)
     _check_seconds(duration, "--duration", zero_ok=False)
@@ -196,7 +196,7 @@ def scan(
     log: Annotated[Path, typer.Argument(help="MCAP log, possibly cut off by a crash.")],
 ) -> None:
     """Say whether a recorded MCAP is complete, or what survived a crash (per topic)."""
-    from bridge.recorder import scan_mcap
+    from uwval.bridge.recorder import scan_mcap
 
     if not log.exists():
         raise BridgeError(f"{log}: no such file or directory")

@@ -50,7 +50,7 @@ def demo(
     console.print(f"[green]compared[/] {len(batch.runs)} logs: results in {results_dir}")
     _print_summary(batch.runs)
 
-    from reports import build_report
+    from uwval.reports import build_report
 
     html = output / "report.html"
     pdf_path = output / "report.pdf" if pdf else None

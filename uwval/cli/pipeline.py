@@ -35,8 +35,8 @@ class SessionOptions:
     def __post_init__(self) -> None:
         """Check every option now, before any simulation runs (one clean error, not one
         failed run per experiment run). The bridge's own classes own the rules."""
-        from bridge import protocol as wire
-        from bridge.unity_client import FaultModel, RenderLoop
+        from uwval.bridge import protocol as wire
+        from uwval.bridge.unity_client import FaultModel, RenderLoop
 
         if self.log_format not in FORMAT_SUFFIX:
             raise ConfigError(f"--format {self.log_format!r}: choose one of "
@@ -64,7 +64,7 @@ def batch_physics(specs: list[Any], progress: bool = True) -> list[Any]:
     Returns the SimResults in the order of ``specs``; equal to per-run ``simulate`` to
     rounding. Used by ``uwval simulate EXPERIMENT --batch-physics``.
     """
-    from simulator import simulate_batch
+    from uwval.simulator import simulate_batch
 
     groups: dict[tuple[Any, ...], list[int]] = {}
     for i, s in enumerate(specs):
@@ -119,8 +119,8 @@ def run_one(job: RunJob) -> dict[str, Any]:
 
     Module-level so that process pools and Dask workers can run it.
     """
-    from bridge.session import run_session, ticks_from_streams
-    from simulator import simulate
+    from uwval.bridge.session import run_session, ticks_from_streams
+    from uwval.simulator import simulate
     from uwval.io import open_writer
 
     spec = job.spec

@@ -48,7 +48,7 @@ def report(
     ] = None,
 ) -> None:
     """Write a self-contained HTML report (and optionally a PDF) of pose correspondence."""
-    from reports import build_report
+    from uwval.reports import build_report
 
     opts = {k: v for k, v in (("gazebo_topic", gazebo_topic), ("unity_topic", unity_topic))
             if v is not None}

@@ -82,7 +82,7 @@ def run_experiment(
     ``batched``: step all runs' physics together in one vectorised state in this process
     first (fast for large sweeps of short runs); the bridge sessions then run on the executor.
     """
-    from simulator import load_experiment
+    from uwval.simulator import load_experiment
 
     exp = load_experiment(experiment)
     specs = exp.runs()
@@ -188,7 +188,7 @@ def simulate(
         if manifest["failed"]:
             raise typer.Exit(1)
         return
-    from simulator import RunSpec, constant_inputs, load_vehicle
+    from uwval.simulator import RunSpec, constant_inputs, load_vehicle
 
     if not 0 < duration < float("inf"):
         raise ConfigError(f"--duration must be a positive number of seconds, got {duration}")

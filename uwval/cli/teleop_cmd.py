@@ -2,7 +2,7 @@
 
 The simulator runs on the wall clock and publishes the vehicle and camera poses through a
 ROS-TCP-Endpoint-compatible server, so a real Unity project (or ``uwval bridge unity``)
-connected to it shows the vehicle live. Keys (simulator.inputs.TELEOP_KEYS): ``i``/``,``
+connected to it shows the vehicle live. Keys (uwval.simulator.inputs.TELEOP_KEYS): ``i``/``,``
 surge, ``J``/``L`` sway, ``t``/``b`` heave, ``j``/``l`` yaw, ``u``/``o`` roll, ``y``/``n``
 pitch; ``+``/``-`` change the current towards north by 0.1 m/s; ``k`` or space stops; ``q``
 quits. A held key (terminal auto-repeat) keeps its wrench increment applied; released for
@@ -65,7 +65,7 @@ class HeldKeys:
     """Wrench from keys held down: each key stays active ``hold_s`` after its last repeat."""
 
     def __init__(self, force_step: float, torque_step: float, hold_s: float) -> None:
-        from simulator.inputs import TELEOP_KEYS
+        from uwval.simulator.inputs import TELEOP_KEYS
 
         self.keys = TELEOP_KEYS
         self.force_step = force_step
@@ -118,9 +118,9 @@ def teleop(
                                                        "(MCAP).")] = None,
 ) -> None:
     """Drive the simulated vehicle live from the keyboard through the TCP bridge."""
-    from bridge.gazebo import GazeboPublisher
-    from bridge.server import BridgeServer
-    from simulator import InputProfile, Simulator, constant_inputs, load_vehicle
+    from uwval.bridge.gazebo import GazeboPublisher
+    from uwval.bridge.server import BridgeServer
+    from uwval.simulator import InputProfile, Simulator, constant_inputs, load_vehicle
 
     interactive = keys is None
     # Checked before anything starts: ``not (x >= 0)`` is also true for NaN.
