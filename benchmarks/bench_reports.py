@@ -70,8 +70,8 @@ def _write_experiment(root: Path, runs: int) -> Path:
 
 
 def run(quick: bool = False) -> list[BenchRow]:
-    from uwval.reports import build_report
     from uwval.gate import check, load_thresholds
+    from uwval.reports import build_report
     from uwval.resources import data_path
     from uwval.results import ResultsTable, anova_oneway
 

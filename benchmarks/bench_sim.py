@@ -9,8 +9,8 @@ from __future__ import annotations
 import sys
 
 from benchmarks.common import BenchRow, alternate, median
-from uwval.simulator import constant_inputs, load_experiment, load_vehicle, simulate, simulate_batch
 from uwval.resources import data_path
+from uwval.simulator import constant_inputs, load_experiment, load_vehicle, simulate, simulate_batch
 
 
 def run(quick: bool = False) -> list[BenchRow]:

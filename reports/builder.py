@@ -28,10 +28,10 @@ from typing import Any, cast
 import numpy as np
 import pandas as pd
 
-from uwval.reports import plots
-from uwval.reports.content import Plot, Report, Section, Table, Text, fmt_num
 from uwval.errors import ConfigError
 from uwval.gate import GateResult, Thresholds, check, load_thresholds
+from uwval.reports import plots
+from uwval.reports.content import Plot, Report, Section, Table, Text, fmt_num
 from uwval.results import (
     AXES,
     AXIS_UNITS,

@@ -1,7 +1,7 @@
 """The report's content, independent of the output format: sections of text, tables, figures.
 
-:mod:`uwval.reports.builder` fills a :class:`Report`; :mod:`uwval.reports.html` and :mod:`uwval.reports.pdf`
-render the same object, so the HTML page and the PDF always say the same thing.
+:mod:`uwval.reports.builder` fills a :class:`Report`; :mod:`uwval.reports.html` and
+:mod:`uwval.reports.pdf` render the same object, so the HTML page and the PDF say the same thing.
 """
 
 from __future__ import annotations

@@ -14,9 +14,9 @@ from pathlib import Path
 from jinja2 import Environment, FileSystemLoader, StrictUndefined, select_autoescape
 from matplotlib.figure import Figure
 
+from uwval.errors import UwvalError
 from uwval.reports.content import Plot, Report
 from uwval.reports.plots import freeze_ticks
-from uwval.errors import UwvalError
 
 TEMPLATES = Path(__file__).resolve().parent / "templates"
 

@@ -25,12 +25,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from uwval.simulator.dynamics import N_STATE, build_params, get_kernel, initial_state
-from uwval.simulator.inputs import Constant, InputProfile, constant_inputs
-from uwval.simulator.vehicle import Vehicle
 from uwval.errors import SimulationError
 from uwval.posestream import PoseStream
 from uwval.rotations import quat_from_rpy
+from uwval.simulator.dynamics import N_STATE, build_params, get_kernel, initial_state
+from uwval.simulator.inputs import Constant, InputProfile, constant_inputs
+from uwval.simulator.vehicle import Vehicle
 
 F64 = NDArray[np.float64]
 

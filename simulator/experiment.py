@@ -46,6 +46,7 @@ from typing import Any
 
 import numpy as np
 
+from uwval.errors import ConfigError
 from uwval.simulator.inputs import (
     Constant,
     InputProfile,
@@ -61,7 +62,6 @@ from uwval.simulator.vehicle import (
     load_vehicle,
     read_toml,
 )
-from uwval.errors import ConfigError
 
 _WRENCH_KINDS = ("force", "torque", "current")
 _AXES = {"x": 0, "y": 1, "z": 2}
@@ -95,7 +95,7 @@ class RunSpec:
     repeat: int = 0
 
     def simulate_kwargs(self) -> dict[str, Any]:
-        """Keyword arguments for :func:`uwval.simulator.simulate` besides vehicle/inputs/duration."""
+        """Keyword arguments of :func:`uwval.simulator.simulate` but vehicle, inputs, duration."""
         return {
             "dt": self.dt,
             "publish_rate": self.publish_rate,

@@ -24,13 +24,13 @@ from pathlib import Path
 
 import numpy as np
 
+from uwval.errors import ConfigError
 from uwval.simulator.vehicle import (
     DEFAULT_GRAVITY,
     DEFAULT_WATER_DENSITY,
     Vehicle,
     classify_hydro_name,
 )
-from uwval.errors import ConfigError
 
 _HYDRO_PLUGINS = ("hydrodynamics",)
 _BUOYANCY_PLUGINS = ("buoyancy",)

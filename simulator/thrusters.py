@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from uwval.simulator.inputs import ZERO, InputProfile, Signal
 from uwval.errors import ConfigError
+from uwval.simulator.inputs import ZERO, InputProfile, Signal
 
 F64 = NDArray[np.float64]
 

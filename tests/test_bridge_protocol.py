@@ -1,4 +1,4 @@
-"""ROS-TCP framing and message bodies (uwval.bridge.protocol) against the protocol facts and rosbags."""
+"""ROS-TCP framing and message bodies (uwval.bridge.protocol) vs the protocol facts and rosbags."""
 
 from __future__ import annotations
 

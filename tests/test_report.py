@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from uwval.gate import parse_thresholds
 from uwval.reports import build_report
 from uwval.reports.builder import sha256_of
-from uwval.gate import parse_thresholds
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_results import VEHICLE, write_experiment, write_pair_log

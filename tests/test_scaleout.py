@@ -157,9 +157,9 @@ def test_worker_killed_mid_sweep_every_run_present_once(tmp_path: Path, executor
     import cloudpickle
     import executor_tasks
 
-    from uwval.simulator import load_experiment
     from uwval.cli.pipeline import RunJob, log_path_for
     from uwval.executors import run_tasks
+    from uwval.simulator import load_experiment
 
     cloudpickle.register_pickle_by_value(executor_tasks)
     specs = load_experiment(data_path("experiments", "default.toml")).runs()

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from uwval.simulator import load_experiment, simulate, simulate_batch
 from uwval.errors import ConfigError
+from uwval.simulator import load_experiment, simulate, simulate_batch
 
 EXPERIMENTS = Path(__file__).resolve().parents[1] / "data" / "experiments"
 

@@ -9,6 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from uwval.errors import ConfigError, SimulationError
+from uwval.rotations import quat_from_rpy, rotate_vectors
 from uwval.simulator import (
     CAMERA_TOPIC,
     VEHICLE_TOPIC,
@@ -25,8 +27,6 @@ from uwval.simulator import (
     simulate,
 )
 from uwval.simulator.inputs import signal_from_spec
-from uwval.errors import ConfigError, SimulationError
-from uwval.rotations import quat_from_rpy, rotate_vectors
 
 
 def A(values: object) -> np.ndarray:

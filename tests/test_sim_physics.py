@@ -7,6 +7,8 @@ import math
 import numpy as np
 import pytest
 
+from uwval.errors import SimulationError
+from uwval.rotations import matrix_from_quat, quat_from_rpy, rpy_from_quat
 from uwval.simulator import (
     Vehicle,
     constant_inputs,
@@ -18,8 +20,6 @@ from uwval.simulator import (
     simulate_batch,
 )
 from uwval.simulator.dynamics import build_params, get_kernel, initial_state
-from uwval.errors import SimulationError
-from uwval.rotations import matrix_from_quat, quat_from_rpy, rpy_from_quat
 
 TETHYS = load_vehicle("tethys")
 

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from uwval.errors import ConfigError
 from uwval.simulator import load_vehicle, load_vehicle_sdf, preset_names
 from uwval.simulator.vehicle import Vehicle, classify_hydro_name
-from uwval.errors import ConfigError
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "vehicles"
 SDF = DATA / "tethys_sdf" / "model.sdf"

@@ -120,8 +120,8 @@ def run_one(job: RunJob) -> dict[str, Any]:
     Module-level so that process pools and Dask workers can run it.
     """
     from uwval.bridge.session import run_session, ticks_from_streams
-    from uwval.simulator import simulate
     from uwval.io import open_writer
+    from uwval.simulator import simulate
 
     spec = job.spec
     opts = job.session
