@@ -23,8 +23,10 @@ def _machine() -> str:
     import os
 
     cpu = platform.processor() or platform.machine()
-    return f"{platform.system()} {platform.machine()} ({cpu}), {os.cpu_count()} cores, " \
-           f"Python {platform.python_version()}"
+    return (
+        f"{platform.system()} {platform.machine()} ({cpu}), {os.cpu_count()} cores, "
+        f"Python {platform.python_version()}"
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -32,8 +34,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="smaller inputs, fewer repetitions")
     parser.add_argument("--only", nargs="*", default=None, help=f"areas: {', '.join(AREAS)}")
     parser.add_argument("--json", type=Path, default=None, help="write the rows as JSON here")
-    parser.add_argument("--markdown", type=Path, default=None,
-                        help="write the table as Markdown here (for benchmarks/README.md)")
+    parser.add_argument(
+        "--markdown",
+        type=Path,
+        default=None,
+        help="write the table as Markdown here (for benchmarks/README.md)",
+    )
     args = parser.parse_args(argv)
     rows: list[BenchRow] = []
     failures = []
@@ -53,8 +59,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.markdown:
         args.markdown.write_text(markdown_table(rows))
     if args.json:
-        args.json.write_text(json.dumps(
-            {"machine": _machine(), "rows": [r.as_dict() for r in rows]}, indent=1))
+        args.json.write_text(
+            json.dumps({"machine": _machine(), "rows": [r.as_dict() for r in rows]}, indent=1)
+        )
     return 1 if failures else 0
 
 
@@ -63,15 +70,20 @@ def markdown_table(rows: list[BenchRow]) -> str:
     import datetime
 
     when = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    lines = [f"Measured {when} on {_machine()}.", "",
-             "| benchmark | uwval | peer | ratio | target | met | notes |",
-             "| --- | ---: | ---: | ---: | --- | --- | --- |"]
+    lines = [
+        f"Measured {when} on {_machine()}.",
+        "",
+        "| benchmark | uwval | peer | ratio | target | met | notes |",
+        "| --- | ---: | ---: | ---: | --- | --- | --- |",
+    ]
     for r in rows:
         peer = "" if r.peer is None else f"{r.peer:.4g} {r.unit} ({r.peer_name})"
         ratio = "" if r.ratio is None else f"{r.ratio:.1f}x"
         met = "" if r.met is None else ("yes" if r.met else "**no**")
-        lines.append(f"| {r.name} | {r.uwval:.4g} {r.unit} | {peer} | {ratio} | {r.target} "
-                     f"| {met} | {r.notes} |")
+        lines.append(
+            f"| {r.name} | {r.uwval:.4g} {r.unit} | {peer} | {ratio} | {r.target} "
+            f"| {met} | {r.notes} |"
+        )
     return "\n".join(lines) + "\n"
 
 

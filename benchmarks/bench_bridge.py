@@ -54,8 +54,12 @@ print(json.dumps({"got": got, "t_first": t_first, "t_last": t_last, "lat_ns": la
 
 
 def _consumer(port: int, n: int) -> subprocess.Popen[str]:
-    proc = subprocess.Popen([sys.executable, "-c", CONSUMER, str(port), str(n)],
-                            stdout=subprocess.PIPE, text=True, cwd=REPO)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", CONSUMER, str(port), str(n)],
+        stdout=subprocess.PIPE,
+        text=True,
+        cwd=REPO,
+    )
     assert proc.stdout is not None
     if proc.stdout.readline().strip() != "ready":
         raise RuntimeError("bridge benchmark consumer failed to start")
@@ -77,8 +81,7 @@ def throughput(n: int) -> tuple[float, int, int]:
         t0 = time.monotonic_ns()
         for k in range(n):
             pos[0] = k
-            srv.publish("bench", wire.encode_pose_stamped(time.monotonic_ns(), pos, quat,
-                                                          "world"))
+            srv.publish("bench", wire.encode_pose_stamped(time.monotonic_ns(), pos, quat, "world"))
         res = _result(proc)
         dropped = sum(c.dropped for c in srv.clients() + srv.closed_clients())
     got = int(res["got"])  # type: ignore[call-overload]
@@ -104,8 +107,7 @@ def latency_at_rate(rate_hz: float, seconds: float) -> tuple[np.ndarray, int, in
                     break
                 if left > 300_000:
                     time.sleep((left - 200_000) * 1e-9)
-            srv.publish("bench", wire.encode_pose_stamped(time.monotonic_ns(), pos, quat,
-                                                          "world"))
+            srv.publish("bench", wire.encode_pose_stamped(time.monotonic_ns(), pos, quat, "world"))
         res = _result(proc)
     lat = np.asarray(res["lat_ns"], dtype=np.float64) * 1e-9
     return lat, n, int(res["got"])  # type: ignore[call-overload]
@@ -134,26 +136,46 @@ def run(quick: bool = False) -> list[BenchRow]:
     """Measure the bridge; quick mode uses fewer messages and a shorter latency run."""
     rows = []
     rate, got, dropped = throughput(20_000 if quick else 100_000)
-    rows.append(BenchRow("bridge: loopback throughput (PoseStamped, 1 client)", rate, "msg/s",
-                         target=">= 20k msg/s", met=rate >= 20_000 and dropped == 0,
-                         notes=f"{got} received, {dropped} dropped; consumer decodes each"))
+    rows.append(
+        BenchRow(
+            "bridge: loopback throughput (PoseStamped, 1 client)",
+            rate,
+            "msg/s",
+            target=">= 20k msg/s",
+            met=rate >= 20_000 and dropped == 0,
+            notes=f"{got} received, {dropped} dropped; consumer decodes each",
+        )
+    )
     lat, sent, recv = latency_at_rate(1000.0, 1.0 if quick else 5.0)
-    p50, p99, mx = (float(np.percentile(lat, 50)), float(np.percentile(lat, 99)),
-                    float(lat.max()))
-    rows.append(BenchRow("bridge: one-way latency p99 at 1 kHz", p99 * 1e3, "ms",
-                         target="<= 2 ms, zero loss", met=p99 <= 0.002 and recv == sent,
-                         notes=f"p50 {p50 * 1e3:.3f} ms, max {mx * 1e3:.3f} ms, "
-                               f"{recv}/{sent} received",
-                         extra={"p50_ms": p50 * 1e3, "max_ms": mx * 1e3, "sent": sent,
-                                "received": recv}))
+    p50, p99, mx = (float(np.percentile(lat, 50)), float(np.percentile(lat, 99)), float(lat.max()))
+    rows.append(
+        BenchRow(
+            "bridge: one-way latency p99 at 1 kHz",
+            p99 * 1e3,
+            "ms",
+            target="<= 2 ms, zero loss",
+            met=p99 <= 0.002 and recv == sent,
+            notes=f"p50 {p50 * 1e3:.3f} ms, max {mx * 1e3:.3f} ms, {recv}/{sent} received",
+            extra={"p50_ms": p50 * 1e3, "max_ms": mx * 1e3, "sent": sent, "received": recv},
+        )
+    )
     wall = min(session_wall_time() for _ in range(1 if quick else 3))
-    rows.append(BenchRow("bridge: 30 s session (1500 ticks x 2 topics) wall time", wall, "s",
-                         target="< 1-2 s", met=wall < 2.0,
-                         notes="virtual clock, real TCP, MCAP written"))
+    rows.append(
+        BenchRow(
+            "bridge: 30 s session (1500 ticks x 2 topics) wall time",
+            wall,
+            "s",
+            target="< 1-2 s",
+            met=wall < 2.0,
+            notes="virtual clock, real TCP, MCAP written",
+        )
+    )
     return rows
 
 
 if __name__ == "__main__":
     for row in run(quick="--quick" in sys.argv):
-        print(f"{row.name}: {row.uwval:.4g} {row.unit} (target {row.target}; met={row.met}) "
-              f"{row.notes}")
+        print(
+            f"{row.name}: {row.uwval:.4g} {row.unit} (target {row.target}; met={row.met}) "
+            f"{row.notes}"
+        )

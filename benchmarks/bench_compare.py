@@ -37,11 +37,13 @@ def _make_pair(directory: Path, n: int) -> tuple[Path, Path, Path, Path]:
     from uwval.io.tum import write_tum
     from uwval.io.writers import open_writer, write_stream
 
-    ref = vehicle_motion(n, rate_hz=100.0, seed=0, t0_ns=1_700_000_000_000_000_000,
-                         topic="/gazebo/model_rov_pose")
+    ref = vehicle_motion(
+        n, rate_hz=100.0, seed=0, t0_ns=1_700_000_000_000_000_000, topic="/gazebo/model_rov_pose"
+    )
     noise = np.random.default_rng(1).normal(0.0, 0.01, (n, 3))
-    est = ref.with_(t=ref.t + np.int64(3_000_000), position=ref.position + noise,
-                    topic="/unity/model_rov_pose")
+    est = ref.with_(
+        t=ref.t + np.int64(3_000_000), position=ref.position + noise, topic="/unity/model_rov_pose"
+    )
     a, b = directory / "a.tum", directory / "b.tum"
     write_tum(a, ref)
     write_tum(b, est)
@@ -64,14 +66,19 @@ def _whole_command(a: Path, b: Path, ma: Path, mb: Path, reps: int) -> list[Benc
 
     uw = [sys.executable, "-m", "uwval", "compare", str(a), str(b), "--sync", "nearest"]
     script = Path(sys.executable).parent / "uwval"  # the console script users run
-    light = [str(script) if script.exists() else shutil.which("uwval") or "uwval", "compare",
-             str(a), str(b), "--sync", "nearest"]
+    light = [
+        str(script) if script.exists() else shutil.which("uwval") or "uwval",
+        "compare",
+        str(a),
+        str(b),
+        "--sync",
+        "nearest",
+    ]
     evo = [_evo_ape_cmd(), "tum", str(a), str(b)]
     # the same console script with the TUM parser's C accelerator switched off (loadtxt):
     # what an install without a C compiler gets
     no_c = {**os.environ, "UWVAL_NO_ACCELERATOR": "1"}
-    runs: dict[str, list[tuple[float, float]]] = {"uwval": [], "light": [], "evo": [],
-                                                   "no_c": []}
+    runs: dict[str, list[tuple[float, float]]] = {"uwval": [], "light": [], "evo": [], "no_c": []}
     for _ in range(reps):  # alternate so all see the same machine load
         runs["uwval"].append(run_command(uw))
         runs["light"].append(run_command(light))
@@ -81,26 +88,61 @@ def _whole_command(a: Path, b: Path, ma: Path, mb: Path, reps: int) -> list[Benc
     m_evo = max(r[1] for r in runs["evo"])
     rows = []
     c_note = "C accelerator built" if tum._tumparse is not None else "C accelerator NOT built"
-    for key, label in (("uwval", f"python -m uwval ({c_note})"),
-                       ("light", f"uwval console script ({c_note})"),
-                       ("no_c", "console script, UWVAL_NO_ACCELERATOR=1 (loadtxt)")):
+    for key, label in (
+        ("uwval", f"python -m uwval ({c_note})"),
+        ("light", f"uwval console script ({c_note})"),
+        ("no_c", "console script, UWVAL_NO_ACCELERATOR=1 (loadtxt)"),
+    ):
         t_uw = median([r[0] for r in runs[key]])
         m_uw = max(r[1] for r in runs[key])
         rows += [
-            BenchRow(f"compare TUM 360k, whole command (nearest), {label}", t_uw, "s", t_evo,
-                     "evo_ape 1.38.1", ">= 10x faster", t_evo / t_uw >= 10.0,
-                     notes=f"{reps} alternating runs, medians"),
-            BenchRow(f"compare TUM 360k, peak RSS, {label}", m_uw, "MiB", m_evo,
-                     "evo_ape 1.38.1", "<= 1/5 of evo's", m_uw <= m_evo / 5.0,
-                     notes="max over runs"),
+            BenchRow(
+                f"compare TUM 360k, whole command (nearest), {label}",
+                t_uw,
+                "s",
+                t_evo,
+                "evo_ape 1.38.1",
+                ">= 10x faster",
+                t_evo / t_uw >= 10.0,
+                notes=f"{reps} alternating runs, medians",
+            ),
+            BenchRow(
+                f"compare TUM 360k, peak RSS, {label}",
+                m_uw,
+                "MiB",
+                m_evo,
+                "evo_ape 1.38.1",
+                "<= 1/5 of evo's",
+                m_uw <= m_evo / 5.0,
+                notes="max over runs",
+            ),
         ]
-    mc = [sys.executable, "-m", "uwval", "compare", str(ma), str(mb), "--sync", "nearest",
-          "--gazebo-topic", "/gazebo/model_rov_pose", "--unity-topic", "/unity/model_rov_pose"]
+    mc = [
+        sys.executable,
+        "-m",
+        "uwval",
+        "compare",
+        str(ma),
+        str(mb),
+        "--sync",
+        "nearest",
+        "--gazebo-topic",
+        "/gazebo/model_rov_pose",
+        "--unity-topic",
+        "/unity/model_rov_pose",
+    ]
     mcap_runs = [run_command(mc) for _ in range(reps)]
     t_mc = median([r[0] for r in mcap_runs])
-    rows.append(BenchRow("compare MCAP 360k PoseStamped, whole command", t_mc, "s",
-                         target="< 1 s", met=t_mc < 1.0,
-                         notes=f"peak RSS {max(r[1] for r in mcap_runs):.0f} MiB"))
+    rows.append(
+        BenchRow(
+            "compare MCAP 360k PoseStamped, whole command",
+            t_mc,
+            "s",
+            target="< 1 s",
+            met=t_mc < 1.0,
+            notes=f"peak RSS {max(r[1] for r in mcap_runs):.0f} MiB",
+        )
+    )
     return rows
 
 
@@ -123,8 +165,7 @@ def _engine(a: Path, b: Path, reps: int) -> list[BenchRow]:
         """The same work as evo: association, position-error norm, its statistics (with the
         engine's own row selection: views when the matches are a contiguous run)."""
         m = associate_nearest(ref, est, max_diff=0.01)
-        d = (est.position[index_or_slice(m.other_idx)]
-             - ref.position[index_or_slice(m.ref_idx)])
+        d = est.position[index_or_slice(m.other_idx)] - ref.position[index_or_slice(m.ref_idx)]
         return float(norm_stats(np.sqrt(np.einsum("ij,ij->i", d, d)))["rmse"])
 
     def uw_full() -> float:
@@ -161,16 +202,34 @@ def _engine(a: Path, b: Path, reps: int) -> list[BenchRow]:
 
     a_uw, a_evo = alternate([uw_align_copy, evo_align], reps)
     return [
-        BenchRow("engine: nearest association + metrics (360k)", median(t_uw), "s",
-                 median(t_evo), "evo sync + APE + stats", ">= 50x faster",
-                 median(t_evo) / median(t_uw) >= 50.0,
-                 notes="same work: association, position-error norm, evo's statistics"),
-        BenchRow("engine: full uwval compare() metrics (360k)", median(t_full), "s",
-                 median(t_evo), "evo sync + APE + stats", "(more work than evo)",
-                 notes="per-axis MAE/RMSE/max/p95/bias/std + Pearson r/p/CI x6, geodesic"),
-        BenchRow("engine: SE(3) Umeyama alignment + apply (360k)", median(a_uw), "s",
-                 median(a_evo), "evo PoseTrajectory3D.align", ">= 50x faster",
-                 median(a_evo) / median(a_uw) >= 50.0),
+        BenchRow(
+            "engine: nearest association + metrics (360k)",
+            median(t_uw),
+            "s",
+            median(t_evo),
+            "evo sync + APE + stats",
+            ">= 50x faster",
+            median(t_evo) / median(t_uw) >= 50.0,
+            notes="same work: association, position-error norm, evo's statistics",
+        ),
+        BenchRow(
+            "engine: full uwval compare() metrics (360k)",
+            median(t_full),
+            "s",
+            median(t_evo),
+            "evo sync + APE + stats",
+            "(more work than evo)",
+            notes="per-axis MAE/RMSE/max/p95/bias/std + Pearson r/p/CI x6, geodesic",
+        ),
+        BenchRow(
+            "engine: SE(3) Umeyama alignment + apply (360k)",
+            median(a_uw),
+            "s",
+            median(a_evo),
+            "evo PoseTrajectory3D.align",
+            ">= 50x faster",
+            median(a_evo) / median(a_uw) >= 50.0,
+        ),
     ]
 
 
@@ -204,5 +263,7 @@ if __name__ == "__main__":
     for row in run(quick=quick):
         ratio = f"{row.ratio:.1f}x" if row.ratio else "-"
         peer = f"{row.peer:.4g}" if row.peer is not None else "-"
-        print(f"{row.name:50s} uwval {row.uwval:.4g} {row.unit:4s} peer {peer:>8s} "
-              f"ratio {ratio:>7s} target {row.target:16s} met {row.met}  {row.notes}")
+        print(
+            f"{row.name:50s} uwval {row.uwval:.4g} {row.unit:4s} peer {peer:>8s} "
+            f"ratio {ratio:>7s} target {row.target:16s} met {row.met}  {row.notes}"
+        )

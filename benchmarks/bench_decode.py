@@ -27,8 +27,11 @@ def make_log(path: Path, n: int, seed: int = 7, fmt: str = "mcap") -> PoseStream
     rng = np.random.default_rng(seed)
     q = rng.normal(size=(n, 4))
     q /= np.linalg.norm(q, axis=1)[:, None]
-    s = PoseStream.from_arrays(np.arange(n, dtype=np.int64) * 1_000_000 + 10**18,
-                               np.cumsum(rng.normal(size=(n, 3)) * 1e-3, axis=0), q)
+    s = PoseStream.from_arrays(
+        np.arange(n, dtype=np.int64) * 1_000_000 + 10**18,
+        np.cumsum(rng.normal(size=(n, 3)) * 1e-3, axis=0),
+        q,
+    )
     with open_writer(path, fmt) as w:
         write_stream(w, TOPIC, s, "world")
     return s
@@ -50,11 +53,24 @@ def read_rosbags(path: Path) -> int:
     with AnyReader([path], default_typestore=store) as reader:
         conns = [c for c in reader.connections if c.topic == TOPIC]
         for conn, _t, raw in reader.messages(connections=conns):
-            m: Any = (reader.deserialize(raw, conn.msgtype) if path.suffix == ".bag"
-                      else store.deserialize_cdr(raw, conn.msgtype))
+            m: Any = (
+                reader.deserialize(raw, conn.msgtype)
+                if path.suffix == ".bag"
+                else store.deserialize_cdr(raw, conn.msgtype)
+            )
             p, o = m.pose.position, m.pose.orientation
-            rows.append((m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec,
-                         p.x, p.y, p.z, o.x, o.y, o.z, o.w))
+            rows.append(
+                (
+                    m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec,
+                    p.x,
+                    p.y,
+                    p.z,
+                    o.x,
+                    o.y,
+                    o.z,
+                    o.w,
+                )
+            )
     return len(np.asarray(rows))
 
 
@@ -68,8 +84,18 @@ def read_mcap_ros2(path: Path) -> int:
         reader = make_reader(fh, decoder_factories=[DecoderFactory()])
         for _s, _c, _m, msg in reader.iter_decoded_messages(topics=[TOPIC]):
             p, o = msg.pose.position, msg.pose.orientation
-            rows.append((msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec,
-                         p.x, p.y, p.z, o.x, o.y, o.z, o.w))
+            rows.append(
+                (
+                    msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec,
+                    p.x,
+                    p.y,
+                    p.z,
+                    o.x,
+                    o.y,
+                    o.z,
+                    o.w,
+                )
+            )
     return len(np.asarray(rows))
 
 
@@ -82,14 +108,14 @@ def run(quick: bool = False) -> list[BenchRow]:
         make_log(big, n)
         make_log(small, n_peer)
         reps = 3 if quick else 5
-        t_uw, = alternate([lambda: read_uwval(big)], reps)
+        (t_uw,) = alternate([lambda: read_uwval(big)], reps)
         t_rb, t_mc = alternate([lambda: read_rosbags(small), lambda: read_mcap_ros2(small)], 2)
         # ROS 1 serialization: the same poses in a .bag, rosbags' rosbag1 reader as the peer
         big1, small1 = Path(tmp) / "poses.bag", Path(tmp) / "poses_small.bag"
         make_log(big1, n, fmt="rosbag1")
         make_log(small1, n_peer, fmt="rosbag1")
-        t_uw1, = alternate([lambda: read_uwval(big1)], reps)
-        t_rb1, = alternate([lambda: read_rosbags(small1)], 2)
+        (t_uw1,) = alternate([lambda: read_uwval(big1)], reps)
+        (t_rb1,) = alternate([lambda: read_rosbags(small1)], 2)
     uw1 = n / median(t_uw1)
     rb1 = n_peer / median(t_rb1)
     uw = n / median(t_uw)
@@ -97,12 +123,36 @@ def run(quick: bool = False) -> list[BenchRow]:
     mc = n_peer / median(t_mc)
     note = f"uwval on {n} msgs, peers on {n_peer} msgs (rate is per message)"
     return [
-        BenchRow("decode PoseStamped MCAP vs rosbags", uw, "msg/s", rb, "rosbags",
-                 ">= 1.2M msg/s", uw >= 1.2e6, note),
-        BenchRow("decode PoseStamped MCAP vs mcap_ros2", uw, "msg/s", mc, "mcap_ros2",
-                 ">= 1.2M msg/s", uw >= 1.2e6, note),
-        BenchRow("decode PoseStamped ROS 1 bag vs rosbags", uw1, "msg/s", rb1, "rosbags",
-                 ">= 1.2M msg/s", uw1 >= 1.2e6, note),
+        BenchRow(
+            "decode PoseStamped MCAP vs rosbags",
+            uw,
+            "msg/s",
+            rb,
+            "rosbags",
+            ">= 1.2M msg/s",
+            uw >= 1.2e6,
+            note,
+        ),
+        BenchRow(
+            "decode PoseStamped MCAP vs mcap_ros2",
+            uw,
+            "msg/s",
+            mc,
+            "mcap_ros2",
+            ">= 1.2M msg/s",
+            uw >= 1.2e6,
+            note,
+        ),
+        BenchRow(
+            "decode PoseStamped ROS 1 bag vs rosbags",
+            uw1,
+            "msg/s",
+            rb1,
+            "rosbags",
+            ">= 1.2M msg/s",
+            uw1 >= 1.2e6,
+            note,
+        ),
     ]
 
 
@@ -110,6 +160,8 @@ if __name__ == "__main__":
     import sys
 
     for row in run(quick="--quick" in sys.argv):
-        print(f"{row.name}: uwval {row.uwval:,.0f} {row.unit}, {row.peer_name} "
-              f"{row.peer:,.0f} {row.unit}, ratio {row.ratio:.1f}x, target {row.target} "
-              f"met={row.met} ({row.notes})")
+        print(
+            f"{row.name}: uwval {row.uwval:,.0f} {row.unit}, {row.peer_name} "
+            f"{row.peer:,.0f} {row.unit}, ratio {row.ratio:.1f}x, target {row.target} "
+            f"met={row.met} ({row.notes})"
+        )

@@ -12,13 +12,22 @@ def run(quick: bool = False) -> list[BenchRow]:
     walls, rss = [], []
     with tempfile.TemporaryDirectory() as tmp:
         for i in range(1 if quick else 2):
-            wall, mem = run_command(python_cmd("-m", "uwval", "demo", "-o",
-                                               str(Path(tmp) / f"demo{i}")))
+            wall, mem = run_command(
+                python_cmd("-m", "uwval", "demo", "-o", str(Path(tmp) / f"demo{i}"))
+            )
             walls.append(wall)
             rss.append(mem)
     w = median(walls)
-    return [BenchRow("uwval demo, whole command", w, "s", target="<= 60 s", met=w <= 60,
-                     notes=f"peak RSS of the parent {max(rss):.0f} MiB")]
+    return [
+        BenchRow(
+            "uwval demo, whole command",
+            w,
+            "s",
+            target="<= 60 s",
+            met=w <= 60,
+            notes=f"peak RSS of the parent {max(rss):.0f} MiB",
+        )
+    ]
 
 
 if __name__ == "__main__":

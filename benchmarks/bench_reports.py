@@ -22,19 +22,34 @@ AXES = ("x", "y", "z", "roll", "pitch", "yaw")
 
 def _comparison_json(rng: np.random.Generator) -> dict[str, Any]:
     """A LogComparison-shaped JSON (two topics) with random but plausible metrics."""
+
     def one() -> dict[str, Any]:
         axes = {}
         for a in AXES:
             mae = float(rng.uniform(1e-4, 1e-2))
             r = float(rng.uniform(0.99, 1.0)) if a != "z" else None
-            axes[a] = {"mae": mae, "rmse": mae * 1.2, "max": mae * 3, "p95": mae * 2,
-                       "bias": mae * 0.1, "std": mae, "pearson_r": r, "pearson_p": 1e-9,
-                       "pearson_ci": [r - 1e-3, r] if r is not None else None,
-                       "pearson_reason": None if r is not None else "undefined: constant"}
-        return {"n_samples": 500, "axes": axes,
-                "position_error_norm": {k: float(rng.uniform(0, 0.01)) for k in
-                                        ("mean", "median", "std", "min", "max", "rmse", "sse")},
-                "counts": {"matched": 500, "masked": 0, "dropped": 0}}
+            axes[a] = {
+                "mae": mae,
+                "rmse": mae * 1.2,
+                "max": mae * 3,
+                "p95": mae * 2,
+                "bias": mae * 0.1,
+                "std": mae,
+                "pearson_r": r,
+                "pearson_p": 1e-9,
+                "pearson_ci": [r - 1e-3, r] if r is not None else None,
+                "pearson_reason": None if r is not None else "undefined: constant",
+            }
+        return {
+            "n_samples": 500,
+            "axes": axes,
+            "position_error_norm": {
+                k: float(rng.uniform(0, 0.01))
+                for k in ("mean", "median", "std", "min", "max", "rmse", "sse")
+            },
+            "counts": {"matched": 500, "masked": 0, "dropped": 0},
+        }
+
     return {"topics": {"model_rov_pose": one(), "gui_camera_pose": one()}}
 
 
@@ -60,11 +75,15 @@ def _write_experiment(root: Path, runs: int) -> Path:
         with McapPoseWriter(root / "runs" / f"{name}.mcap") as w:
             for topic in ("model_rov_pose", "gui_camera_pose"):
                 w.write_poses(f"/gazebo/{topic}", (tg * 1e9).astype(np.int64), pg, qg, "enu")
-                w.write_poses(f"/unity/{topic}", (tu * 1e9).astype(np.int64), pu, qu,
-                              "unity-flu")
-        manifest["runs"].append({"name": name, "log": f"runs/{name}.mcap",
-                                 "factors": {"force": 5.0 * (1 + i % 4), "current": 0.1 * (i // 4)},
-                                 "bridge": {"latency_mean_s": lag, "dropped": 0}})
+                w.write_poses(f"/unity/{topic}", (tu * 1e9).astype(np.int64), pu, qu, "unity-flu")
+        manifest["runs"].append(
+            {
+                "name": name,
+                "log": f"runs/{name}.mcap",
+                "factors": {"force": 5.0 * (1 + i % 4), "current": 0.1 * (i // 4)},
+                "bridge": {"latency_mean_s": lag, "dropped": 0},
+            }
+        )
     (root / "manifest.json").write_text(json.dumps(manifest))
     return root
 
@@ -79,8 +98,14 @@ def run(quick: bool = False) -> list[BenchRow]:
     reps = 1 if quick else 3
     n_runs = 50 if quick else 500
     rng = np.random.default_rng(0)
-    items = [(f"run{i:04d}", {"force": float(i % 4), "current": float(i % 3) / 10},
-              _comparison_json(rng)) for i in range(n_runs)]
+    items = [
+        (
+            f"run{i:04d}",
+            {"force": float(i % 4), "current": float(i % 3) / 10},
+            _comparison_json(rng),
+        )
+        for i in range(n_runs)
+    ]
     holder: dict[str, ResultsTable] = {}
 
     def build() -> None:
@@ -88,32 +113,69 @@ def run(quick: bool = False) -> list[BenchRow]:
 
     (t_build,) = alternate([build], reps=reps)
     table = holder["t"]
-    rows.append(BenchRow(f"results table from {n_runs} run comparisons", median(t_build), "s",
-                         target="< 2 s for 500 runs", met=median(t_build) < 2.0 * n_runs / 500,
-                         notes=f"{len(table)} tidy rows"))
+    rows.append(
+        BenchRow(
+            f"results table from {n_runs} run comparisons",
+            median(t_build),
+            "s",
+            target="< 2 s for 500 runs",
+            met=median(t_build) < 2.0 * n_runs / 500,
+            notes=f"{len(table)} tidy rows",
+        )
+    )
     th = load_thresholds(data_path("thresholds", "default.toml"))
     (t_gate,) = alternate([lambda: check(table, th)], reps=reps)
-    rows.append(BenchRow(f"gate: default thresholds on {n_runs} runs", median(t_gate), "s",
-                         target="< 2 s for 500 runs", met=median(t_gate) < 2.0 * n_runs / 500))
+    rows.append(
+        BenchRow(
+            f"gate: default thresholds on {n_runs} runs",
+            median(t_gate),
+            "s",
+            target="< 2 s for 500 runs",
+            met=median(t_gate) < 2.0 * n_runs / 500,
+        )
+    )
     (t_anova,) = alternate([lambda: anova_oneway(table, "force")], reps=reps)
-    rows.append(BenchRow(f"one-way ANOVA per topic/axis, {n_runs} runs", median(t_anova), "s",
-                         target="< 1 s", met=median(t_anova) < 1.0))
+    rows.append(
+        BenchRow(
+            f"one-way ANOVA per topic/axis, {n_runs} runs",
+            median(t_anova),
+            "s",
+            target="< 1 s",
+            met=median(t_anova) < 1.0,
+        )
+    )
     with tempfile.TemporaryDirectory() as tmp:
         exp = _write_experiment(Path(tmp) / "exp", 2 if quick else 8)
         out = Path(tmp) / "out"
         (t_html,) = alternate([lambda: build_report(exp, out / "r.html")], reps=1)
         size = (out / "r.html").stat().st_size / 2**20
-        rows.append(BenchRow(f"HTML report, {2 if quick else 8} runs (compare + plots)",
-                             median(t_html), "s", target="< 30 s", met=median(t_html) < 30,
-                             notes=f"{size:.1f} MiB self-contained HTML"))
-        (t_both,) = alternate([lambda: build_report(exp, out / "r.html", pdf=out / "r.pdf")],
-                              reps=1)
-        rows.append(BenchRow(f"HTML + PDF report, {2 if quick else 8} runs", median(t_both),
-                             "s", target="< 45 s", met=median(t_both) < 45))
+        rows.append(
+            BenchRow(
+                f"HTML report, {2 if quick else 8} runs (compare + plots)",
+                median(t_html),
+                "s",
+                target="< 30 s",
+                met=median(t_html) < 30,
+                notes=f"{size:.1f} MiB self-contained HTML",
+            )
+        )
+        (t_both,) = alternate(
+            [lambda: build_report(exp, out / "r.html", pdf=out / "r.pdf")], reps=1
+        )
+        rows.append(
+            BenchRow(
+                f"HTML + PDF report, {2 if quick else 8} runs",
+                median(t_both),
+                "s",
+                target="< 45 s",
+                met=median(t_both) < 45,
+            )
+        )
     return rows
 
 
 if __name__ == "__main__":
     for r in run(quick="--quick" in sys.argv):
-        print(f"{r.name:55s} {r.uwval:9.3f} {r.unit:4s} target {r.target:22s} "
-              f"met={r.met} {r.notes}")
+        print(
+            f"{r.name:55s} {r.uwval:9.3f} {r.unit:4s} target {r.target:22s} met={r.met} {r.notes}"
+        )

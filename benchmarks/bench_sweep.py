@@ -22,8 +22,14 @@ def _sweep(executor: str, out: Path, workers: int) -> float:
     from uwval.resources import data_path
 
     t0 = time.perf_counter()
-    manifest = run_experiment(data_path("experiments", "default.toml"), out, SessionOptions(),
-                              executor=executor, workers=workers, progress=False)
+    manifest = run_experiment(
+        data_path("experiments", "default.toml"),
+        out,
+        SessionOptions(),
+        executor=executor,
+        workers=workers,
+        progress=False,
+    )
     if manifest["failed"]:
         raise RuntimeError(f"sweep failed: {manifest['failed']}")
     return time.perf_counter() - t0
@@ -47,8 +53,13 @@ def run(quick: bool = False) -> list[BenchRow]:
     from dask.distributed import Client, LocalCluster
 
     t0 = time.perf_counter()
-    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                           dashboard_address=None, silence_logs=40)
+    cluster = LocalCluster(
+        n_workers=workers,
+        threads_per_worker=1,
+        processes=True,
+        dashboard_address=None,
+        silence_logs=40,
+    )
     client = Client(cluster)
     t_start = time.perf_counter() - t0
     n_trivial = 2000
@@ -62,19 +73,41 @@ def run(quick: bool = False) -> list[BenchRow]:
     est = {w: 10_000 * per_run / w + 10_000 * per_task + t_start for w in (16, 128)}
     lm, dm = median(local_t), median(dask_t)
     return [
-        BenchRow("sweep default experiment (8 runs), wall", dm, "s", peer=lm,
-                 peer_name="process pool", target="report Dask overhead",
-                 notes=f"dask/local = {dm / lm:.2f} (includes LocalCluster start); "
-                       f"{workers} workers"),
-        BenchRow("one run (10 s sim + bridge + MCAP), one core", per_run, "s",
-                 target="for scale-out estimate", notes="inline, no pool start-up"),
+        BenchRow(
+            "sweep default experiment (8 runs), wall",
+            dm,
+            "s",
+            peer=lm,
+            peer_name="process pool",
+            target="report Dask overhead",
+            notes=f"dask/local = {dm / lm:.2f} (includes LocalCluster start); {workers} workers",
+        ),
+        BenchRow(
+            "one run (10 s sim + bridge + MCAP), one core",
+            per_run,
+            "s",
+            target="for scale-out estimate",
+            notes="inline, no pool start-up",
+        ),
         BenchRow("Dask LocalCluster start", t_start, "s", notes=f"{workers} worker processes"),
-        BenchRow("Dask per-task overhead (running cluster)", per_task * 1e3, "ms",
-                 notes=f"{n_trivial} trivial tasks"),
-        BenchRow("est. 10,000 runs on 16 workers", est[16], "s",
-                 notes="runs x per-run cost / workers + per-task overhead x runs + start"),
-        BenchRow("est. 10,000 runs on 128 workers", est[128], "s",
-                 notes="scheduler overhead dominates beyond ~100 workers for 10 s runs"),
+        BenchRow(
+            "Dask per-task overhead (running cluster)",
+            per_task * 1e3,
+            "ms",
+            notes=f"{n_trivial} trivial tasks",
+        ),
+        BenchRow(
+            "est. 10,000 runs on 16 workers",
+            est[16],
+            "s",
+            notes="runs x per-run cost / workers + per-task overhead x runs + start",
+        ),
+        BenchRow(
+            "est. 10,000 runs on 128 workers",
+            est[128],
+            "s",
+            notes="scheduler overhead dominates beyond ~100 workers for 10 s runs",
+        ),
     ]
 
 

@@ -82,8 +82,12 @@ def run_command(cmd: Sequence[str], env: dict[str, str] | None = None) -> tuple[
     import shutil
 
     exe = cmd[0] if "/" in cmd[0] else (shutil.which(cmd[0]) or cmd[0])
-    out = subprocess.run([sys.executable, "-S", "-c", _LAUNCHER, exe, *cmd[1:]],
-                         capture_output=True, text=True, env=env)
+    out = subprocess.run(
+        [sys.executable, "-S", "-c", _LAUNCHER, exe, *cmd[1:]],
+        capture_output=True,
+        text=True,
+        env=env,
+    )
     if out.returncode != 0 or not out.stdout.strip():
         raise RuntimeError(f"launcher for {' '.join(cmd)} failed: {out.stderr[-2000:]}")
     wall, rss, code = out.stdout.split()

@@ -32,8 +32,13 @@ DEFAULT_TOPICS = (VEHICLE_TOPIC, CAMERA_TOPIC)
 class GazeboPublisher:
     """Publish pose ticks into a :class:`BridgeServer` as ros_gz_bridge would."""
 
-    def __init__(self, server: BridgeServer, *, topics: Sequence[str] = DEFAULT_TOPICS,
-                 frame_id: str = "world") -> None:
+    def __init__(
+        self,
+        server: BridgeServer,
+        *,
+        topics: Sequence[str] = DEFAULT_TOPICS,
+        frame_id: str = "world",
+    ) -> None:
         self.server = server
         self.protocol = server.protocol
         self.frame_id = frame_id
@@ -44,8 +49,9 @@ class GazeboPublisher:
 
     def encode(self, t_ns: int, position: F64, quat: F64) -> bytes:
         """One PoseStamped body in the server's protocol."""
-        return wire.encode_pose_stamped(t_ns, position, quat, self.frame_id, self.protocol,
-                                     seq=self.seq)
+        return wire.encode_pose_stamped(
+            t_ns, position, quat, self.frame_id, self.protocol, seq=self.seq
+        )
 
     def publish(self, topic: str, t_ns: int, position: F64, quat: F64) -> int:
         """Publish one pose; returns how many clients it was queued to."""
@@ -58,8 +64,7 @@ class GazeboPublisher:
         return {name: self.publish(name, t_ns, p, q) for name, (p, q) in poses.items()}
 
 
-def ticks_from_streams(*streams: PoseStream, names: Sequence[str] | None = None
-                       ) -> Iterator[Tick]:
+def ticks_from_streams(*streams: PoseStream, names: Sequence[str] | None = None) -> Iterator[Tick]:
     """Turn simulator PoseStreams (vehicle, camera, ...) into publish ticks, in time order.
 
     ``names`` default to ``model_rov_pose``, ``gui_camera_pose`` for the first two streams
@@ -69,9 +74,12 @@ def ticks_from_streams(*streams: PoseStream, names: Sequence[str] | None = None
     if not streams:
         raise BridgeError("ticks_from_streams needs at least one pose stream")
     if names is None:
-        names = [DEFAULT_TOPICS[i] if i < len(DEFAULT_TOPICS)
-                 else (s.topic.strip("/").split("/")[-1] or f"pose_{i}")
-                 for i, s in enumerate(streams)]
+        names = [
+            DEFAULT_TOPICS[i]
+            if i < len(DEFAULT_TOPICS)
+            else (s.topic.strip("/").split("/")[-1] or f"pose_{i}")
+            for i, s in enumerate(streams)
+        ]
     if len(names) != len(streams):
         raise BridgeError(f"{len(names)} names for {len(streams)} streams")
     enu = []

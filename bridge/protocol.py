@@ -55,8 +55,19 @@ LOG = "__log"
 WARN = "__warn"
 ERROR = "__error"
 SYSTEM_COMMANDS = frozenset(
-    {HANDSHAKE, SUBSCRIBE, PUBLISH, ROS_SERVICE, UNITY_SERVICE, REQUEST, RESPONSE, TOPIC_LIST,
-     LOG, WARN, ERROR}
+    {
+        HANDSHAKE,
+        SUBSCRIBE,
+        PUBLISH,
+        ROS_SERVICE,
+        UNITY_SERVICE,
+        REQUEST,
+        RESPONSE,
+        TOPIC_LIST,
+        LOG,
+        WARN,
+        ERROR,
+    }
 )
 
 POSE_STAMPED = "geometry_msgs/PoseStamped"
@@ -98,8 +109,9 @@ class Frame:
 # ---------------------------------------------------------------------------- encoding
 
 
-def encode_frame(destination: str, payload: bytes | bytearray | memoryview, *,
-                 nul: bool = False) -> bytes:
+def encode_frame(
+    destination: str, payload: bytes | bytearray | memoryview, *, nul: bool = False
+) -> bytes:
     """One frame. ``nul=True`` appends Unity's trailing NUL to the destination."""
     dest = destination.encode("utf-8") + (b"\x00" if nul and destination else b"")
     return b"".join((_U32.pack(len(dest)), dest, _U32.pack(len(payload)), bytes(payload)))
@@ -111,8 +123,9 @@ def encode_json(params: dict[str, Any], *, nul: bool = False) -> bytes:
     return data + b"\x00" if nul else data
 
 
-def encode_command(command: str, params: dict[str, Any] | None = None, *,
-                   nul: bool = False) -> bytes:
+def encode_command(
+    command: str, params: dict[str, Any] | None = None, *, nul: bool = False
+) -> bytes:
     """A system-command frame, e.g. ``encode_command("__subscribe", {...})``."""
     if not command.startswith("__"):
         raise ProtocolError(f"system command {command!r} must start with '__'")
@@ -139,23 +152,29 @@ def handshake_frame(protocol: Protocol = "ROS2", version: str = VERSION) -> byte
     ``metadata`` is itself a JSON string, as in ROS-TCP-Endpoint.
     """
     check_protocol(protocol)
-    return encode_command(HANDSHAKE, {
-        "version": version, "metadata": json.dumps({"protocol": protocol}),
-    })
+    return encode_command(
+        HANDSHAKE,
+        {
+            "version": version,
+            "metadata": json.dumps({"protocol": protocol}),
+        },
+    )
 
 
 def parse_handshake(frame: Frame) -> tuple[str, Protocol]:
     """(version, protocol) of a ``__handshake`` frame; rejects versions other than v0.7.*."""
     if frame.destination != HANDSHAKE:
-        raise ProtocolError(f"expected {HANDSHAKE} first, got {frame.destination!r} "
-                            f"at byte {frame.offset}")
+        raise ProtocolError(
+            f"expected {HANDSHAKE} first, got {frame.destination!r} at byte {frame.offset}"
+        )
     params = frame.json()
     version = str(params.get("version", ""))
     if not version.startswith("v0.7."):
         raise ProtocolError(f"unsupported ROS-TCP version {version!r} (need v0.7.*)")
     meta_raw = params.get("metadata", "{}")
-    meta = decode_json(meta_raw.encode() if isinstance(meta_raw, str) else b"{}",
-                       where="handshake metadata")
+    meta = decode_json(
+        meta_raw.encode() if isinstance(meta_raw, str) else b"{}", where="handshake metadata"
+    )
     protocol = str(meta.get("protocol", "ROS1"))
     return version, check_protocol(protocol)
 
@@ -189,8 +208,9 @@ class FrameParser:
     parser is unusable (the connection must be closed, since framing is lost).
     """
 
-    def __init__(self, max_frame: int = MAX_FRAME_BYTES,
-                 max_destination: int = MAX_DESTINATION_BYTES) -> None:
+    def __init__(
+        self, max_frame: int = MAX_FRAME_BYTES, max_destination: int = MAX_DESTINATION_BYTES
+    ) -> None:
         self.max_frame = max_frame
         self.max_destination = max_destination
         self._buf = bytearray()
@@ -220,18 +240,18 @@ class FrameParser:
         while n - pos >= 4:
             dlen = unpack(buf, pos)[0]
             if dlen > self.max_destination:
-                self._fail(f"destination length {dlen} exceeds {self.max_destination} bytes",
-                           pos)
+                self._fail(f"destination length {dlen} exceeds {self.max_destination} bytes", pos)
             if n - pos < 8 + dlen:
                 break
             plen = unpack(buf, pos + 4 + dlen)[0]
             if plen > self.max_frame:
-                self._fail(f"payload length {plen} exceeds the frame cap of "
-                           f"{self.max_frame} bytes", pos)
+                self._fail(
+                    f"payload length {plen} exceeds the frame cap of {self.max_frame} bytes", pos
+                )
             end = pos + 8 + dlen + plen
             if end > n:
                 break
-            raw_dest = bytes(buf[pos + 4:pos + 4 + dlen])
+            raw_dest = bytes(buf[pos + 4 : pos + 4 + dlen])
             if raw_dest.endswith(b"\x00"):
                 raw_dest = raw_dest[:-1]
             try:
@@ -240,7 +260,7 @@ class FrameParser:
                 self._fail("destination is not valid UTF-8", pos)
             if "\x00" in dest:
                 self._fail("destination contains an embedded NUL", pos)
-            frames.append(Frame(dest, bytes(buf[pos + 8 + dlen:end]), self._consumed + pos))
+            frames.append(Frame(dest, bytes(buf[pos + 8 + dlen : end]), self._consumed + pos))
             pos = end
         if pos:
             del buf[:pos]
@@ -262,12 +282,20 @@ _POSE = struct.Struct("<7d")
 def _pos_quat(position: Any, quat: Any) -> tuple[float, ...]:
     p = np.asarray(position, dtype=np.float64).reshape(3)
     q = np.asarray(quat, dtype=np.float64).reshape(4)
-    return (float(p[0]), float(p[1]), float(p[2]), float(q[0]), float(q[1]), float(q[2]),
-            float(q[3]))
+    return (
+        float(p[0]),
+        float(p[1]),
+        float(p[2]),
+        float(q[0]),
+        float(q[1]),
+        float(q[2]),
+        float(q[3]),
+    )
 
 
-def encode_pose_stamped(t_ns: int, position: Any, quat: Any, frame_id: str,
-                        protocol: Protocol = "ROS2", seq: int = 0) -> bytes:
+def encode_pose_stamped(
+    t_ns: int, position: Any, quat: Any, frame_id: str, protocol: Protocol = "ROS2", seq: int = 0
+) -> bytes:
     """geometry_msgs/PoseStamped body: ROS 2 CDR (with encapsulation header) or ROS 1.
 
     ``t_ns`` is the header stamp in nanoseconds; ``quat`` is (x, y, z, w).
@@ -282,34 +310,36 @@ def encode_pose_stamped(t_ns: int, position: Any, quat: Any, frame_id: str,
         return CDR_HEADER + head + b"\x00" * pad + _POSE.pack(*values)
     if sec < 0:
         raise ProtocolError(f"ROS 1 time cannot be negative (t_ns={t_ns})")
-    return (_STAMP_ROS1.pack(seq & 0xFFFFFFFF, sec, nsec, len(fid)) + fid
-            + _POSE.pack(*values))
+    return _STAMP_ROS1.pack(seq & 0xFFFFFFFF, sec, nsec, len(fid)) + fid + _POSE.pack(*values)
 
 
-def decode_pose_stamped(data: bytes, protocol: Protocol = "ROS2"
-                        ) -> tuple[int, F64, F64, str]:
+def decode_pose_stamped(data: bytes, protocol: Protocol = "ROS2") -> tuple[int, F64, F64, str]:
     """Parse a PoseStamped body -> (stamp ns, position (3,), quat xyzw (4,), frame_id)."""
     try:
         if protocol == "ROS2":
             if data[:2] != CDR_HEADER[:2]:
                 raise ProtocolError(
                     f"PoseStamped: CDR encapsulation header {bytes(data[:4]).hex()} is not "
-                    "little-endian CDR (00 01 00 00)")
+                    "little-endian CDR (00 01 00 00)"
+                )
             sec, nsec, flen = _STAMP_CDR.unpack_from(data, 4)
             fid_end = 16 + flen
             frame_id = bytes(data[16:fid_end]).rstrip(b"\x00").decode("utf-8")
             start = fid_end + (-(fid_end - 4) % 8)
         else:
             _, sec, nsec, flen = _STAMP_ROS1.unpack_from(data, 0)
-            frame_id = bytes(data[16:16 + flen]).decode("utf-8")
+            frame_id = bytes(data[16 : 16 + flen]).decode("utf-8")
             start = 16 + flen
         vals = _POSE.unpack_from(data, start)
     except (struct.error, UnicodeDecodeError) as exc:
-        raise ProtocolError(f"PoseStamped body of {len(data)} bytes is malformed: {exc}"
-                            ) from None
+        raise ProtocolError(f"PoseStamped body of {len(data)} bytes is malformed: {exc}") from None
     t_ns = int(sec) * 1_000_000_000 + int(nsec)
-    return (t_ns, np.array(vals[:3], dtype=np.float64), np.array(vals[3:], dtype=np.float64),
-            frame_id)
+    return (
+        t_ns,
+        np.array(vals[:3], dtype=np.float64),
+        np.array(vals[3:], dtype=np.float64),
+        frame_id,
+    )
 
 
 def encode_with_rosbags(msg: Any, ros_type: str, protocol: Protocol = "ROS2") -> bytes:
@@ -332,8 +362,7 @@ def decode_with_rosbags(data: bytes, ros_type: str, protocol: Protocol = "ROS2")
             return typestore(2).deserialize_cdr(data, name)
         return typestore(1).deserialize_ros1(data, name)
     except Exception as exc:
-        raise ProtocolError(f"cannot decode {ros_type} body of {len(data)} bytes: {exc}"
-                            ) from None
+        raise ProtocolError(f"cannot decode {ros_type} body of {len(data)} bytes: {exc}") from None
 
 
 def known_message_type(name: str) -> bool:

@@ -39,11 +39,19 @@ GAZEBO_FRAME_ID = "world"
 class PoseWriter(Protocol):
     """What the recorder needs from a log writer (McapPoseWriter's interface)."""
 
-    def write_pose(self, topic: str, t_ns: int, position: F64, quat: F64, frame_id: str,
-                   log_time: int | None = None) -> None: ...
+    def write_pose(
+        self,
+        topic: str,
+        t_ns: int,
+        position: F64,
+        quat: F64,
+        frame_id: str,
+        log_time: int | None = None,
+    ) -> None: ...
 
-    def write_header(self, topic: str, stamp_ns: int, log_time: int,
-                     frame_id: str = "") -> None: ...
+    def write_header(
+        self, topic: str, stamp_ns: int, log_time: int, frame_id: str = ""
+    ) -> None: ...
 
     def close(self) -> None: ...
 
@@ -58,8 +66,14 @@ class BridgeRecorder:
         flush_interval_s: flush when this many wall seconds passed since the last flush.
     """
 
-    def __init__(self, writer: PoseWriter, *, unity_map: str = "unity-flu",
-                 flush_every: int = 1000, flush_interval_s: float = 0.5) -> None:
+    def __init__(
+        self,
+        writer: PoseWriter,
+        *,
+        unity_map: str = "unity-flu",
+        flush_every: int = 1000,
+        flush_interval_s: float = 0.5,
+    ) -> None:
         self.writer = writer
         self.unity_map = get_convention(unity_map).name
         self.flush_every = int(flush_every)
@@ -76,26 +90,37 @@ class BridgeRecorder:
         self.written[topic] = self.written.get(topic, 0) + 1
         self._since_flush += 1
         if (self.flush_every and self._since_flush >= self.flush_every) or (
-                time.monotonic() - self._last_flush >= self.flush_interval_s):
+            time.monotonic() - self._last_flush >= self.flush_interval_s
+        ):
             self.flush()
 
-    def gazebo_pose(self, name: str, t_ns: int, position: F64, quat: F64,
-                    log_time: int | None = None) -> None:
+    def gazebo_pose(
+        self, name: str, t_ns: int, position: F64, quat: F64, log_time: int | None = None
+    ) -> None:
         """One Gazebo pose (ENU/FLU, sim-time stamp ``t_ns``) on ``/gazebo/<name>``."""
         topic = f"{GAZEBO_PREFIX}/{name}"
-        self.writer.write_pose(topic, int(t_ns), position, quat, GAZEBO_FRAME_ID,
-                               int(t_ns) if log_time is None else int(log_time))
+        self.writer.write_pose(
+            topic,
+            int(t_ns),
+            position,
+            quat,
+            GAZEBO_FRAME_ID,
+            int(t_ns) if log_time is None else int(log_time),
+        )
         self._count(topic)
 
-    def unity_pose(self, name: str, unity_t_ns: int, position: F64, quat: F64,
-                   applied_stamp_ns: int) -> None:
+    def unity_pose(
+        self, name: str, unity_t_ns: int, position: F64, quat: F64, applied_stamp_ns: int
+    ) -> None:
         """One Unity frame's transform (Unity axes, Unity clock) and its applied stamp."""
         topic = f"{UNITY_PREFIX}/{name}"
-        self.writer.write_pose(topic, int(unity_t_ns), position, quat, self.unity_map,
-                               int(unity_t_ns))
+        self.writer.write_pose(
+            topic, int(unity_t_ns), position, quat, self.unity_map, int(unity_t_ns)
+        )
         self._count(topic)
-        self.writer.write_header(topic + APPLIED_SUFFIX, int(applied_stamp_ns),
-                                 int(unity_t_ns), GAZEBO_FRAME_ID)
+        self.writer.write_header(
+            topic + APPLIED_SUFFIX, int(applied_stamp_ns), int(unity_t_ns), GAZEBO_FRAME_ID
+        )
         self._count(topic + APPLIED_SUFFIX)
 
     def flush(self) -> None:
@@ -115,8 +140,9 @@ class BridgeRecorder:
             self.closed = True
 
 
-def open_mcap_writer(path: str | Path, *, metadata: dict[str, str] | None = None,
-                     chunk_size: int = 64 * 1024) -> Any:
+def open_mcap_writer(
+    path: str | Path, *, metadata: dict[str, str] | None = None, chunk_size: int = 64 * 1024
+) -> Any:
     """An :class:`~uwval.io.mcap_io.McapPoseWriter` whose ``flush()`` really flushes.
 
     McapPoseWriter.flush pushes closed chunks only; a crash-safe recorder needs the open
@@ -159,9 +185,11 @@ class RecoveryReport:
         n = sum(self.messages.values())
         if self.complete:
             return f"{self.path}: complete, {n} messages"
-        return (f"{self.path}: truncated after byte {self.valid_bytes} of {self.total_bytes}"
-                f" ({self.lost_bytes} bytes of an unfinished record lost); {n} messages "
-                f"recovered ({self.error})")
+        return (
+            f"{self.path}: truncated after byte {self.valid_bytes} of {self.total_bytes}"
+            f" ({self.lost_bytes} bytes of an unfinished record lost); {n} messages "
+            f"recovered ({self.error})"
+        )
 
 
 def scan_mcap(path: str | Path) -> RecoveryReport:

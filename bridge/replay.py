@@ -51,8 +51,9 @@ def check_replay_options(speed: float, loops: int) -> None:
         raise BridgeError(f"replay loops must be >= 0 (0 = forever), got {loops}")
 
 
-def load_replay_ticks(path: str | Path, topics: Sequence[str] = DEFAULT_REPLAY_TOPICS
-                      ) -> list[Tick]:
+def load_replay_ticks(
+    path: str | Path, topics: Sequence[str] = DEFAULT_REPLAY_TOPICS
+) -> list[Tick]:
     """Read a log's Gazebo topics into ticks named by their ROS topic basenames."""
     streams = [read_stream(path, t) for t in topics]
     ticks = list(ticks_from_streams(*streams, names=[ros_topic_name(t) for t in topics]))
@@ -61,12 +62,18 @@ def load_replay_ticks(path: str | Path, topics: Sequence[str] = DEFAULT_REPLAY_T
     return ticks
 
 
-def replay_log(path: str | Path, server: BridgeServer, *,
-               topics: Sequence[str] = DEFAULT_REPLAY_TOPICS, speed: float = 1.0,
-               loops: int = 1, wait_for_subscriber_s: float | None = 30.0,
-               should_stop: Callable[[], bool] | None = None,
-               progress: Callable[[int, int], None] | None = None,
-               ticks: list[Tick] | None = None) -> ReplayStats:
+def replay_log(
+    path: str | Path,
+    server: BridgeServer,
+    *,
+    topics: Sequence[str] = DEFAULT_REPLAY_TOPICS,
+    speed: float = 1.0,
+    loops: int = 1,
+    wait_for_subscriber_s: float | None = 30.0,
+    should_stop: Callable[[], bool] | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    ticks: list[Tick] | None = None,
+) -> ReplayStats:
     """Publish a log's Gazebo poses through ``server`` at recorded speed x ``speed``.
 
     Args:

@@ -84,8 +84,12 @@ class _Client:
             if self.closed:
                 return False
             assert self.stats is not None
-            if (_DONTWAIT and not self.queue and not self.partial
-                    and self.send_lock.acquire(blocking=False)):
+            if (
+                _DONTWAIT
+                and not self.queue
+                and not self.partial
+                and self.send_lock.acquire(blocking=False)
+            ):
                 try:
                     try:
                         sent = self.sock.send(item, _DONTWAIT)
@@ -125,9 +129,15 @@ class BridgeServer:
         max_frame: cap on one incoming frame's payload, bytes.
     """
 
-    def __init__(self, host: str = wire.DEFAULT_HOST, port: int = wire.DEFAULT_PORT, *,
-                 protocol: wire.Protocol = "ROS2", queue_size: int = 1024,
-                 max_frame: int = wire.MAX_FRAME_BYTES) -> None:
+    def __init__(
+        self,
+        host: str = wire.DEFAULT_HOST,
+        port: int = wire.DEFAULT_PORT,
+        *,
+        protocol: wire.Protocol = "ROS2",
+        queue_size: int = 1024,
+        max_frame: int = wire.MAX_FRAME_BYTES,
+    ) -> None:
         self.host = host
         self.port = port
         self.protocol = wire.check_protocol(protocol)
@@ -169,8 +179,9 @@ class BridgeServer:
         sock.settimeout(0.1)
         self._listener = sock
         self.port = sock.getsockname()[1]
-        self._accept_thread = threading.Thread(target=self._accept_loop, daemon=True,
-                                               name=f"bridge-accept-{self.port}")
+        self._accept_thread = threading.Thread(
+            target=self._accept_loop, daemon=True, name=f"bridge-accept-{self.port}"
+        )
         self._accept_thread.start()
         self._event(f"listening on {self.host}:{self.port} ({self.protocol})")
         return self
@@ -185,9 +196,13 @@ class BridgeServer:
         self._stopping.set()
         if self._accept_thread is not None:
             # Wake accept() at once with a throwaway connection instead of waiting it out.
-            with contextlib.suppress(OSError), socket.create_connection(
-                    (self.host if self.host not in ("", "0.0.0.0") else "127.0.0.1",
-                     self.port), timeout=0.5):
+            with (
+                contextlib.suppress(OSError),
+                socket.create_connection(
+                    (self.host if self.host not in ("", "0.0.0.0") else "127.0.0.1", self.port),
+                    timeout=0.5,
+                ),
+            ):
                 pass
             self._accept_thread.join(timeout=2)
         if self._listener is not None:
@@ -239,21 +254,23 @@ class BridgeServer:
     def call_unity_service(self, name: str, request: bytes, timeout: float = 5.0) -> bytes:
         """Call a service that a Unity client registered with ``__unity_service``."""
         with self._lock:
-            client = next((c for c in self._clients.values() if name in c.unity_services),
-                          None)
+            client = next((c for c in self._clients.values() if name in c.unity_services), None)
             if client is None:
                 raise BridgeError(f"no connected client offers Unity service {name!r}")
             srv_id = next(self._srv_ids)
             done = threading.Event()
             box: list[bytes] = []
             self._waiting[srv_id] = (done, box)
-        client.enqueue(wire.encode_command(wire.REQUEST, {"srv_id": srv_id}, nul=False)
-                       + wire.encode_frame(name, request, nul=False))
+        client.enqueue(
+            wire.encode_command(wire.REQUEST, {"srv_id": srv_id}, nul=False)
+            + wire.encode_frame(name, request, nul=False)
+        )
         if not done.wait(timeout):
             with self._lock:
                 self._waiting.pop(srv_id, None)
-            raise BridgeError(f"Unity service {name!r} (srv_id {srv_id}) timed out after "
-                              f"{timeout} s")
+            raise BridgeError(
+                f"Unity service {name!r} (srv_id {srv_id}) timed out after {timeout} s"
+            )
         return box[0]
 
     def send_log(self, level: str, text: str) -> None:
@@ -268,8 +285,9 @@ class BridgeServer:
         """Block until ``count`` connected clients subscribe to ``topic``."""
         self.wait_for_registration(topic, "subscribe", count, timeout)
 
-    def wait_for_registration(self, topic: str, kind: str = "subscribe", count: int = 1,
-                              timeout: float = 5.0) -> None:
+    def wait_for_registration(
+        self, topic: str, kind: str = "subscribe", count: int = 1, timeout: float = 5.0
+    ) -> None:
         """Block until ``count`` clients registered ``topic`` as ``kind`` (``subscribe``,
         ``publish``, ``ros_service`` or ``unity_service``)."""
         deadline = time.monotonic() + timeout
@@ -277,8 +295,10 @@ class BridgeServer:
             while self.registration_count(topic, kind) < count:
                 left = deadline - time.monotonic()
                 if left <= 0:
-                    raise BridgeError(f"timed out after {timeout} s waiting for {count} "
-                                      f"{kind} registration(s) of {topic!r}")
+                    raise BridgeError(
+                        f"timed out after {timeout} s waiting for {count} "
+                        f"{kind} registration(s) of {topic!r}"
+                    )
                 self._sub_cond.wait(left)
 
     def subscriber_count(self, topic: str) -> int:
@@ -287,8 +307,12 @@ class BridgeServer:
 
     def registration_count(self, topic: str, kind: str = "subscribe") -> int:
         """How many connected clients registered ``topic`` as ``kind``."""
-        attr = {"subscribe": "subscriptions", "publish": "publications",
-                "ros_service": "ros_services", "unity_service": "unity_services"}[kind]
+        attr = {
+            "subscribe": "subscriptions",
+            "publish": "publications",
+            "ros_service": "ros_services",
+            "unity_service": "unity_services",
+        }[kind]
         with self._lock:
             return sum(topic in getattr(c, attr) for c in self._clients.values())
 
@@ -343,10 +367,12 @@ class BridgeServer:
             client.queue.append(wire.handshake_frame(self.protocol))
             with self._lock:
                 self._clients[cid] = client
-            reader = threading.Thread(target=self._read_loop, args=(client,), daemon=True,
-                                      name=f"bridge-read-{cid}")
-            writer = threading.Thread(target=self._write_loop, args=(client,), daemon=True,
-                                      name=f"bridge-write-{cid}")
+            reader = threading.Thread(
+                target=self._read_loop, args=(client,), daemon=True, name=f"bridge-read-{cid}"
+            )
+            writer = threading.Thread(
+                target=self._write_loop, args=(client,), daemon=True, name=f"bridge-write-{cid}"
+            )
             client.threads = [reader, writer]
             self._event(f"client {cid} connected from {address}")
             writer.start()
@@ -391,8 +417,10 @@ class BridgeServer:
                     break
                 if not data:
                     if parser.buffered:
-                        reason = (f"peer closed mid-frame: {parser.buffered} bytes of an "
-                                  f"incomplete frame at byte {parser.offset}")
+                        reason = (
+                            f"peer closed mid-frame: {parser.buffered} bytes of an "
+                            f"incomplete frame at byte {parser.offset}"
+                        )
                     break
                 c.stats.bytes_in += len(data)
                 for frame in parser.feed(data):
@@ -450,14 +478,19 @@ class BridgeServer:
             return
         topic = frame.destination
         if topic not in c.publications:
-            self._reply(c, wire.ERROR, {"text": f"Not registered to publish topic '{topic}'! "
-                                             f"Valid publish topics are: "
-                                             f"{sorted(c.publications)}"})
+            self._reply(
+                c,
+                wire.ERROR,
+                {
+                    "text": f"Not registered to publish topic '{topic}'! "
+                    f"Valid publish topics are: "
+                    f"{sorted(c.publications)}"
+                },
+            )
             return
         with self._lock:
             callbacks = list(self._callbacks.get(topic, ()))
-            others = [o for o in self._clients.values()
-                      if o is not c and topic in o.subscriptions]
+            others = [o for o in self._clients.values() if o is not c and topic in o.subscriptions]
         for cb in callbacks:
             cb(topic, frame.payload, c.client_id)
         if others:
@@ -470,17 +503,25 @@ class BridgeServer:
         with self._lock:
             handler = self._services.get(name)
         if handler is None:
-            self._reply(c, wire.ERROR, {"text": f"Service destination '{name}' is not "
-                                             f"registered! Known services are: "
-                                             f"{sorted(self._services)}"})
+            self._reply(
+                c,
+                wire.ERROR,
+                {
+                    "text": f"Service destination '{name}' is not "
+                    f"registered! Known services are: "
+                    f"{sorted(self._services)}"
+                },
+            )
             return
         try:
             response = handler(frame.payload)
         except Exception as exc:
             self._reply(c, wire.ERROR, {"text": f"service {name!r} failed: {exc}"})
             return
-        c.enqueue(wire.encode_command(wire.RESPONSE, {"srv_id": srv_id}, nul=False)
-                  + wire.encode_frame(name, response, nul=False))
+        c.enqueue(
+            wire.encode_command(wire.RESPONSE, {"srv_id": srv_id}, nul=False)
+            + wire.encode_frame(name, response, nul=False)
+        )
 
     def _command(self, c: _Client, frame: wire.Frame) -> None:
         cmd = frame.destination
@@ -494,12 +535,22 @@ class BridgeServer:
                 return
             if name.count("/") != 1 or not all(name.split("/")):
                 # ROS-TCP-Endpoint cannot resolve such a class and does not register it.
-                self._reply(c, wire.ERROR, {"text": f"{cmd}({topic}, {name}) - Unknown "
-                                                    f"message class '{name}' (expected "
-                                                    "pkg/Type)"})
+                self._reply(
+                    c,
+                    wire.ERROR,
+                    {
+                        "text": f"{cmd}({topic}, {name}) - Unknown "
+                        f"message class '{name}' (expected "
+                        "pkg/Type)"
+                    },
+                )
                 return
-            table = {wire.SUBSCRIBE: c.subscriptions, wire.PUBLISH: c.publications,
-                     wire.ROS_SERVICE: c.ros_services, wire.UNITY_SERVICE: c.unity_services}[cmd]
+            table = {
+                wire.SUBSCRIBE: c.subscriptions,
+                wire.PUBLISH: c.publications,
+                wire.ROS_SERVICE: c.ros_services,
+                wire.UNITY_SERVICE: c.unity_services,
+            }[cmd]
             with self._lock:
                 table[topic] = name
                 self._sub_cond.notify_all()
@@ -508,8 +559,9 @@ class BridgeServer:
             try:
                 srv_id = int(params["srv_id"])
             except (KeyError, TypeError, ValueError, OverflowError):
-                raise wire.ProtocolError(f"{cmd} at byte {frame.offset} lacks an integer srv_id"
-                                      ) from None
+                raise wire.ProtocolError(
+                    f"{cmd} at byte {frame.offset} lacks an integer srv_id"
+                ) from None
             c.pending_srv = (srv_id, cmd == wire.REQUEST)
         elif cmd == wire.TOPIC_LIST:
             with self._lock:
@@ -520,8 +572,9 @@ class BridgeServer:
             names = sorted(topics)
             self._reply(c, wire.TOPIC_LIST, {"topics": names, "types": [topics[t] for t in names]})
         elif cmd in (wire.LOG, wire.WARN, wire.ERROR):
-            level = {wire.LOG: logging.INFO, wire.WARN: logging.WARNING,
-                     wire.ERROR: logging.ERROR}[cmd]
+            level = {wire.LOG: logging.INFO, wire.WARN: logging.WARNING, wire.ERROR: logging.ERROR}[
+                cmd
+            ]
             self._event(f"{where}: {params.get('text', '')}", level)
         elif cmd == wire.HANDSHAKE:
             pass  # a client echoing a handshake is harmless

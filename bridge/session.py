@@ -92,8 +92,14 @@ class _Flight:
 
     def needed_by(self, t_ns: int) -> int:
         """How many of the sent messages have a stamp <= t_ns (stamps are sorted)."""
-        return int(np.searchsorted(np.asarray(self.stamps[self.received:], dtype=np.int64),
-                                   t_ns, side="right")) + self.received
+        return (
+            int(
+                np.searchsorted(
+                    np.asarray(self.stamps[self.received :], dtype=np.int64), t_ns, side="right"
+                )
+            )
+            + self.received
+        )
 
 
 def run_session(
@@ -143,12 +149,22 @@ def run_session(
     proto = wire.check_protocol(protocol)
     wall0 = time.perf_counter()
     stats = SessionStats(protocol=proto, unity_map=unity_map)
-    faults = FaultModel(latency_s=latency_s, latency_jitter_s=latency_jitter_s,
-                        drop_prob=drop_prob, disconnects=tuple(disconnects),
-                        reconnect_delay_s=reconnect_delay_s, seed=seed)
-    scene = RenderLoop(topics, unity_map=unity_map, frame_rate=frame_rate,
-                       frame_jitter_s=jitter_s, clock_offset_s=unity_clock_offset_s,
-                       seed=seed)
+    faults = FaultModel(
+        latency_s=latency_s,
+        latency_jitter_s=latency_jitter_s,
+        drop_prob=drop_prob,
+        disconnects=tuple(disconnects),
+        reconnect_delay_s=reconnect_delay_s,
+        seed=seed,
+    )
+    scene = RenderLoop(
+        topics,
+        unity_map=unity_map,
+        frame_rate=frame_rate,
+        frame_jitter_s=jitter_s,
+        clock_offset_s=unity_clock_offset_s,
+        seed=seed,
+    )
     recorder = BridgeRecorder(writer, unity_map=scene.unity_map, flush_every=flush_every)
     stats.unity_map = scene.unity_map
     lookahead_ns = 0 if realtime else int(lookahead_s * 1e9)
@@ -164,9 +180,9 @@ def run_session(
     t0 = int(first[0])
     with BridgeServer(host, port, protocol=proto, queue_size=1 << 16) as server:
         gazebo = GazeboPublisher(server, topics=topics)
-        conn = UnityConnection(host, server.port,
-                               subscriptions={t: wire.POSE_STAMPED for t in topics},
-                               protocol=proto)
+        conn = UnityConnection(
+            host, server.port, subscriptions={t: wire.POSE_STAMPED for t in topics}, protocol=proto
+        )
 
         def connect() -> None:
             conn.connect()
@@ -190,7 +206,8 @@ def run_session(
                 if not frames and not conn.has_pending and flight.received < count:
                     raise BridgeError(
                         f"Unity client waited {_POLL_TIMEOUT_S} s for message "
-                        f"{flight.received + 1} of {count}; the endpoint sent nothing")
+                        f"{flight.received + 1} of {count}; the endpoint sent nothing"
+                    )
                 batch, arrivals = [], []
                 for f in frames:
                     pose = decode_pose_frame(f, proto)
@@ -269,8 +286,9 @@ def run_session(
             pace(frame_ns)
             stats.frames += 1
             for tr in scene.render(frame_ns):
-                recorder.unity_pose(tr.topic, tr.unity_t_ns, tr.position, tr.orientation,
-                                    tr.applied_stamp_ns)
+                recorder.unity_pose(
+                    tr.topic, tr.unity_t_ns, tr.position, tr.orientation, tr.applied_stamp_ns
+                )
                 applied_per_topic[tr.topic] = applied_per_topic.get(tr.topic, 0) + 1
                 lags.append(frame_ns - tr.applied_stamp_ns)
             if last_frame:
@@ -280,7 +298,8 @@ def run_session(
             receive_until(len(flight.stamps))
         conn.close()
         stats.server_dropped = sum(c.dropped for c in server.clients()) + sum(
-            c.dropped for c in server.closed_clients())
+            c.dropped for c in server.closed_clients()
+        )
     recorder.flush()
     stats.applied = sum(applied_per_topic.values())
     stats.per_topic_applied = applied_per_topic
@@ -306,8 +325,9 @@ def _local_address(conn: UnityConnection) -> str:
     return f"{host}:{port}"
 
 
-def _wait_registered(server: BridgeServer, conn: UnityConnection, topics: Sequence[str],
-                     timeout: float = 5.0) -> None:
+def _wait_registered(
+    server: BridgeServer, conn: UnityConnection, topics: Sequence[str], timeout: float = 5.0
+) -> None:
     """Wait until the endpoint has processed this connection's ``__subscribe`` commands."""
     me = _local_address(conn)
     deadline = time.monotonic() + timeout
@@ -316,8 +336,10 @@ def _wait_registered(server: BridgeServer, conn: UnityConnection, topics: Sequen
         if mine and set(topics) <= set(mine[0].subscriptions):
             return
         if time.monotonic() > deadline:
-            raise BridgeError(f"endpoint did not register the Unity client's subscriptions "
-                              f"({', '.join(topics)}) within {timeout} s")
+            raise BridgeError(
+                f"endpoint did not register the Unity client's subscriptions "
+                f"({', '.join(topics)}) within {timeout} s"
+            )
         time.sleep(0.0002)
 
 

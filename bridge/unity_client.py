@@ -81,11 +81,17 @@ class UnityConnection:
         nul: append Unity's trailing NUL to destinations and JSON (ROS 2 Unity does).
     """
 
-    def __init__(self, host: str = wire.DEFAULT_HOST, port: int = wire.DEFAULT_PORT, *,
-                 subscriptions: dict[str, str] | None = None,
-                 publications: dict[str, str] | None = None,
-                 protocol: wire.Protocol = "ROS2", nul: bool | None = None,
-                 max_frame: int = wire.MAX_FRAME_BYTES) -> None:
+    def __init__(
+        self,
+        host: str = wire.DEFAULT_HOST,
+        port: int = wire.DEFAULT_PORT,
+        *,
+        subscriptions: dict[str, str] | None = None,
+        publications: dict[str, str] | None = None,
+        protocol: wire.Protocol = "ROS2",
+        nul: bool | None = None,
+        max_frame: int = wire.MAX_FRAME_BYTES,
+    ) -> None:
         self.host = host
         self.port = port
         self.subscriptions = dict(subscriptions or {})
@@ -131,16 +137,30 @@ class UnityConnection:
                 first = self._next_frame(timeout)
             self.server_version, server_protocol = wire.parse_handshake(first)
             if server_protocol != self.protocol:
-                raise BridgeError(f"endpoint {self.host}:{self.port} speaks {server_protocol}, "
-                                  f"this client was built for {self.protocol}")
+                raise BridgeError(
+                    f"endpoint {self.host}:{self.port} speaks {server_protocol}, "
+                    f"this client was built for {self.protocol}"
+                )
             out = [wire.KEEPALIVE]
             for topic, name in self.subscriptions.items():
-                out.append(wire.encode_command(wire.SUBSCRIBE, {"topic": topic,
-                                                          "message_name": name}, nul=self.nul))
+                out.append(
+                    wire.encode_command(
+                        wire.SUBSCRIBE, {"topic": topic, "message_name": name}, nul=self.nul
+                    )
+                )
             for topic, name in self.publications.items():
-                out.append(wire.encode_command(wire.PUBLISH, {
-                    "topic": topic, "message_name": name, "queue_size": 10, "latch": False,
-                }, nul=self.nul))
+                out.append(
+                    wire.encode_command(
+                        wire.PUBLISH,
+                        {
+                            "topic": topic,
+                            "message_name": name,
+                            "queue_size": 10,
+                            "latch": False,
+                        },
+                        nul=self.nul,
+                    )
+                )
             self._send(b"".join(out))
         except BaseException:
             self.close()
@@ -253,17 +273,22 @@ class FaultModel:
     def __post_init__(self) -> None:
         # ``not x >= 0`` also rejects NaN (which compares false with everything).
         if not (self.latency_s >= 0 and self.latency_jitter_s >= 0) or not (
-                math.isfinite(self.latency_s) and math.isfinite(self.latency_jitter_s)):
-            raise BridgeError(f"latency and latency jitter must be finite and >= 0 s, got "
-                              f"{self.latency_s} and {self.latency_jitter_s}")
+            math.isfinite(self.latency_s) and math.isfinite(self.latency_jitter_s)
+        ):
+            raise BridgeError(
+                f"latency and latency jitter must be finite and >= 0 s, got "
+                f"{self.latency_s} and {self.latency_jitter_s}"
+            )
         if not 0.0 <= self.drop_prob <= 1.0:
             raise BridgeError(f"drop probability must be in [0, 1], got {self.drop_prob}")
         if not (0 < self.reconnect_delay_s < math.inf):
-            raise BridgeError(f"reconnect delay must be finite and > 0 s, "
-                              f"got {self.reconnect_delay_s}")
+            raise BridgeError(
+                f"reconnect delay must be finite and > 0 s, got {self.reconnect_delay_s}"
+            )
         if not all(math.isfinite(d) and d >= 0 for d in self.disconnects):
-            raise BridgeError(f"disconnect times must be finite and >= 0 s, "
-                              f"got {list(self.disconnects)}")
+            raise BridgeError(
+                f"disconnect times must be finite and >= 0 s, got {list(self.disconnects)}"
+            )
         self._rng = np.random.default_rng(self.seed)
 
     def arrival_ns(self, send_ns: int) -> int | None:
@@ -295,9 +320,16 @@ class RenderLoop:
         seed: seed of the frame jitter.
     """
 
-    def __init__(self, topics: Sequence[str], *, unity_map: str = "unity-flu",
-                 frame_rate: float = 60.0, frame_jitter_s: float = 0.0,
-                 clock_offset_s: float = 0.0, seed: int = 0) -> None:
+    def __init__(
+        self,
+        topics: Sequence[str],
+        *,
+        unity_map: str = "unity-flu",
+        frame_rate: float = 60.0,
+        frame_jitter_s: float = 0.0,
+        clock_offset_s: float = 0.0,
+        seed: int = 0,
+    ) -> None:
         # Written as ``not (ok)`` so that NaN fails too; an infinite rate never advances.
         if not (0 < frame_rate < math.inf):
             raise BridgeError(f"frame rate must be finite and positive, got {frame_rate}")
@@ -328,8 +360,11 @@ class RenderLoop:
                 return
             jit = 0.0
             if self.frame_jitter_s > 0:
-                jit = float(np.clip(self._rng.normal(0.0, self.frame_jitter_s),
-                                    -0.45 * period, 0.45 * period))
+                jit = float(
+                    np.clip(
+                        self._rng.normal(0.0, self.frame_jitter_s), -0.45 * period, 0.45 * period
+                    )
+                )
             yield max(start_ns, nominal + round(jit * 1e9))
             k += 1
 
@@ -341,12 +376,16 @@ class RenderLoop:
         """Several poses reached Unity, in arrival order; converted in one vectorised call."""
         if not poses:
             return
-        pos_u, quat_u = convert_arrays(np.array([p.position for p in poses]),
-                                       np.array([p.orientation for p in poses]),
-                                       "enu", self.unity_map)
+        pos_u, quat_u = convert_arrays(
+            np.array([p.position for p in poses]),
+            np.array([p.orientation for p in poses]),
+            "enu",
+            self.unity_map,
+        )
         for k, (pose, arrival) in enumerate(zip(poses, arrivals_ns, strict=True)):
             self._pending.setdefault(pose.topic, []).append(
-                (int(arrival), pose.stamp_ns, pos_u[k], quat_u[k]))
+                (int(arrival), pose.stamp_ns, pos_u[k], quat_u[k])
+            )
 
     def discard_after(self, t_ns: int) -> int:
         """Forget poses arriving after ``t_ns`` (in flight when the connection dropped)."""
@@ -372,8 +411,9 @@ class RenderLoop:
             cur = self._current.get(topic)
             if cur is None:
                 continue  # nothing received yet: Unity shows the scene's initial pose
-            out.append(AppliedTransform(topic, frame_ns + self.offset_ns, frame_ns, cur[1],
-                                        cur[2], cur[0]))
+            out.append(
+                AppliedTransform(topic, frame_ns + self.offset_ns, frame_ns, cur[1], cur[2], cur[0])
+            )
         return out
 
 
@@ -394,17 +434,32 @@ class UnityClient:
     from ``faults``, on the wall clock.
     """
 
-    def __init__(self, host: str = wire.DEFAULT_HOST, port: int = wire.DEFAULT_PORT, *,
-                 topics: Sequence[str] = ("model_rov_pose", "gui_camera_pose"),
-                 unity_map: str = "unity-flu", frame_rate: float = 60.0,
-                 frame_jitter_s: float = 0.0, clock_offset_s: float = 0.0,
-                 protocol: wire.Protocol = "ROS2", faults: FaultModel | None = None,
-                 reconnect_delay_s: float = RECONNECT_DELAY_S, seed: int = 0) -> None:
+    def __init__(
+        self,
+        host: str = wire.DEFAULT_HOST,
+        port: int = wire.DEFAULT_PORT,
+        *,
+        topics: Sequence[str] = ("model_rov_pose", "gui_camera_pose"),
+        unity_map: str = "unity-flu",
+        frame_rate: float = 60.0,
+        frame_jitter_s: float = 0.0,
+        clock_offset_s: float = 0.0,
+        protocol: wire.Protocol = "ROS2",
+        faults: FaultModel | None = None,
+        reconnect_delay_s: float = RECONNECT_DELAY_S,
+        seed: int = 0,
+    ) -> None:
         self.connection = UnityConnection(
-            host, port, subscriptions={t: wire.POSE_STAMPED for t in topics}, protocol=protocol)
-        self.scene = RenderLoop(topics, unity_map=unity_map, frame_rate=frame_rate,
-                                frame_jitter_s=frame_jitter_s, clock_offset_s=clock_offset_s,
-                                seed=seed)
+            host, port, subscriptions={t: wire.POSE_STAMPED for t in topics}, protocol=protocol
+        )
+        self.scene = RenderLoop(
+            topics,
+            unity_map=unity_map,
+            frame_rate=frame_rate,
+            frame_jitter_s=frame_jitter_s,
+            clock_offset_s=clock_offset_s,
+            seed=seed,
+        )
         self.faults = faults or FaultModel(seed=seed)
         self.protocol = protocol
         self.reconnect_delay_s = reconnect_delay_s
@@ -412,10 +467,13 @@ class UnityClient:
         self.dropped = 0
         self.disconnects = 0
 
-    def run_realtime(self, duration_s: float,
-                     on_frame: Callable[[AppliedTransform], None] | None = None,
-                     connect_timeout: float = 5.0,
-                     stop: threading.Event | None = None) -> list[AppliedTransform]:
+    def run_realtime(
+        self,
+        duration_s: float,
+        on_frame: Callable[[AppliedTransform], None] | None = None,
+        connect_timeout: float = 5.0,
+        stop: threading.Event | None = None,
+    ) -> list[AppliedTransform]:
         """Run the render loop for ``duration_s`` wall seconds (or until ``stop`` is set);
         returns the applied transforms."""
         applied: list[AppliedTransform] = []

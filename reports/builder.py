@@ -152,8 +152,18 @@ def build_report(
     gate: GateResult | None = None
     if th is not None or baseline is not None:
         gate = check(table, th, baseline)
-    report = _compose(exp, details, gate, th, baseline, title=title, command=command,
-                      options=opts, warnings=warnings, detail_topics=detail_topics)
+    report = _compose(
+        exp,
+        details,
+        gate,
+        th,
+        baseline,
+        title=title,
+        command=command,
+        options=opts,
+        warnings=warnings,
+        detail_topics=detail_topics,
+    )
     html_out = Path(html_path)
     from uwval.reports.html import write_html
 
@@ -168,9 +178,13 @@ def build_report(
     return ReportOutcome(html_out, pdf_out, gate, table, len(exp.runs), warnings)
 
 
-def _load_and_compare(src: Path, manifest: str | Path | None, opts: dict[str, Any],
-                      max_detail_runs: int, warnings: list[str]
-                      ) -> tuple[ExperimentResults, list[_RunDetail]]:
+def _load_and_compare(
+    src: Path,
+    manifest: str | Path | None,
+    opts: dict[str, Any],
+    max_detail_runs: int,
+    warnings: list[str],
+) -> tuple[ExperimentResults, list[_RunDetail]]:
     """The results to report and the runs with per-run plots (logs compared here)."""
     if is_log(src):
         from uwval.comparison import compare_logs
@@ -184,8 +198,10 @@ def _load_and_compare(src: Path, manifest: str | Path | None, opts: dict[str, An
         exp = compare_pending(exp, opts)
     details = [_detail_for(run, opts) for run in exp.runs[:max_detail_runs]]
     if len(exp.runs) > max_detail_runs:
-        warnings.append(f"per-run plots shown for the first {max_detail_runs} of "
-                        f"{len(exp.runs)} runs (--max-detail-runs)")
+        warnings.append(
+            f"per-run plots shown for the first {max_detail_runs} of "
+            f"{len(exp.runs)} runs (--max-detail-runs)"
+        )
     return exp, details
 
 
@@ -202,15 +218,26 @@ def _detail_for(run: RunRecord, opts: Mapping[str, Any]) -> _RunDetail:
 
 
 # ----------------------------------------------------------------------------- composing
-def _compose(exp: ExperimentResults, details: list[_RunDetail], gate: GateResult | None,
-             th: Thresholds | None, baseline: Any, *, title: str, command: str,
-             options: Mapping[str, Any], warnings: list[str],
-             detail_topics: Sequence[str] | None) -> Report:
+def _compose(
+    exp: ExperimentResults,
+    details: list[_RunDetail],
+    gate: GateResult | None,
+    th: Thresholds | None,
+    baseline: Any,
+    *,
+    title: str,
+    command: str,
+    options: Mapping[str, Any],
+    warnings: list[str],
+    detail_topics: Sequence[str] | None,
+) -> Report:
     table = exp.table
     now = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")
     verdict = "not checked" if gate is None else ("PASS" if gate.passed else "FAIL")
-    sub = (f"{len(exp.runs)} run(s), topics: {', '.join(table.topics) or 'none'}; "
-           f"factors: {', '.join(table.factors) or 'none'}")
+    sub = (
+        f"{len(exp.runs)} run(s), topics: {', '.join(table.topics) or 'none'}; "
+        f"factors: {', '.join(table.factors) or 'none'}"
+    )
     report = Report(title=title, subtitle=sub, verdict=verdict, generated=now)
     report.sections.append(_verdict_section(gate, th, baseline, exp, warnings))
     report.sections.append(_summary_section(table))
@@ -224,12 +251,18 @@ def _compose(exp: ExperimentResults, details: list[_RunDetail], gate: GateResult
     return report
 
 
-def _verdict_section(gate: GateResult | None, th: Thresholds | None, baseline: Any,
-                     exp: ExperimentResults, warnings: list[str]) -> Section:
+def _verdict_section(
+    gate: GateResult | None,
+    th: Thresholds | None,
+    baseline: Any,
+    exp: ExperimentResults,
+    warnings: list[str],
+) -> Section:
     sec = Section("verdict", "Verdict")
     if gate is None:
-        sec.blocks.append(Text("No thresholds or baseline given: the results are not gated.",
-                               css="neutral"))
+        sec.blocks.append(
+            Text("No thresholds or baseline given: the results are not gated.", css="neutral")
+        )
     else:
         head = gate.format(limit=0).splitlines()[0]
         sec.blocks.append(Text(head, css="pass" if gate.passed else "fail"))
@@ -240,22 +273,49 @@ def _verdict_section(gate: GateResult | None, th: Thresholds | None, baseline: A
             against.append(f"baseline {baseline if not isinstance(baseline, ResultsTable) else ''}")
         sec.blocks.append(Text("Checked against " + " and ".join(against) + "."))
         if gate.violations:
-            t = Table("What regressed", ["kind", "metric", "run", "topic", "axis",
-                                         "factor levels", "value", "bound", "rule"], [])
+            t = Table(
+                "What regressed",
+                [
+                    "kind",
+                    "metric",
+                    "run",
+                    "topic",
+                    "axis",
+                    "factor levels",
+                    "value",
+                    "bound",
+                    "rule",
+                ],
+                [],
+            )
             for v in gate.violations[:200]:
                 levels = ", ".join(f"{k}={fmt_num(x)}" for k, x in v.factors.items())
                 unit = f" {v.unit}" if v.unit else ""
-                t.rows.append([v.kind, v.metric, v.run, v.topic, v.axis, levels,
-                               fmt_num(v.value) + unit, f"{v.op} {fmt_num(v.bound)}{unit}",
-                               v.rule])
+                t.rows.append(
+                    [
+                        v.kind,
+                        v.metric,
+                        v.run,
+                        v.topic,
+                        v.axis,
+                        levels,
+                        fmt_num(v.value) + unit,
+                        f"{v.op} {fmt_num(v.bound)}{unit}",
+                        v.rule,
+                    ]
+                )
                 t.flags[(len(t.rows) - 1, 6)] = "bad"
             if len(gate.violations) > 200:
                 t.caption = f"first 200 of {len(gate.violations)} violations"
             sec.blocks.append(t)
         if gate.skipped:
-            sec.blocks.append(Text([*gate.skipped[:10]] + (
-                [f"... {len(gate.skipped) - 10} more"] if len(gate.skipped) > 10 else []),
-                kind="list"))
+            sec.blocks.append(
+                Text(
+                    [*gate.skipped[:10]]
+                    + ([f"... {len(gate.skipped) - 10} more"] if len(gate.skipped) > 10 else []),
+                    kind="list",
+                )
+            )
     problems = [f"{f.get('name', '?')}: {f.get('error', '')}" for f in exp.failed]
     if problems:
         sec.blocks.append(Text("Failed runs: ", css="fail"))
@@ -270,14 +330,34 @@ def _summary_section(table: ResultsTable) -> Section:
     sec = Section("summary", "Summary: absolute error, MAE and Pearson r")
     levels = factor_levels(table)
     if levels:
-        sec.blocks.append(Text([f"{factor_label(f)}: " + ", ".join(fmt_num(v) for v in lv)
-                                for f, lv in levels.items()], kind="list"))
-    t = Table("All runs", ["topic", "axis", "unit", "MAE mean", "MAE worst", "max |error| worst",
-                           "p95 |error| worst", "Pearson r mean", "Pearson r lowest",
-                           "r undefined"], [],
-              caption="Absolute error = |Unity - Gazebo| per sample; MAE its mean per run; "
-                      "worst = over runs. Pearson r of the Unity and Gazebo series (undefined "
-                      "when a series is constant).")
+        sec.blocks.append(
+            Text(
+                [
+                    f"{factor_label(f)}: " + ", ".join(fmt_num(v) for v in lv)
+                    for f, lv in levels.items()
+                ],
+                kind="list",
+            )
+        )
+    t = Table(
+        "All runs",
+        [
+            "topic",
+            "axis",
+            "unit",
+            "MAE mean",
+            "MAE worst",
+            "max |error| worst",
+            "p95 |error| worst",
+            "Pearson r mean",
+            "Pearson r lowest",
+            "r undefined",
+        ],
+        [],
+        caption="Absolute error = |Unity - Gazebo| per sample; MAE its mean per run; "
+        "worst = over runs. Pearson r of the Unity and Gazebo series (undefined "
+        "when a series is constant).",
+    )
     df = table.df
     for topic in table.topics:
         for a in AXES:
@@ -289,14 +369,26 @@ def _summary_section(table: ResultsTable) -> Section:
                 return rows.loc[rows["metric"] == metric, "value"].to_numpy(dtype=float)
 
             mae, mx, p95, r = vals("mae"), vals("max"), vals("p95"), vals("pearson_r")
-            t.rows.append([topic, a, AXIS_UNITS[a], fmt_num(_nanmean(mae)), fmt_num(_nanmax(mae)),
-                           fmt_num(_nanmax(mx)), fmt_num(_nanmax(p95)), fmt_num(_nanmean(r), 6),
-                           fmt_num(_nanmin(r), 6), str(int(np.isnan(r).sum()))])
+            t.rows.append(
+                [
+                    topic,
+                    a,
+                    AXIS_UNITS[a],
+                    fmt_num(_nanmean(mae)),
+                    fmt_num(_nanmax(mae)),
+                    fmt_num(_nanmax(mx)),
+                    fmt_num(_nanmax(p95)),
+                    fmt_num(_nanmean(r), 6),
+                    fmt_num(_nanmin(r), 6),
+                    str(int(np.isnan(r).sum())),
+                ]
+            )
     sec.blocks.append(t)
     norm = df[(df["axis"] == "position_norm") & df["metric"].isin(["mean", "max", "rmse"])]
     if not norm.empty:
-        piv = norm.pivot_table(index="topic", columns="metric", values="value",
-                               aggfunc="max", sort=False)
+        piv = norm.pivot_table(
+            index="topic", columns="metric", values="value", aggfunc="max", sort=False
+        )
         nt = Table("3-D position error norm (worst run)", ["topic", *list(piv.columns)], [])
         for topic_key, row in piv.iterrows():
             nt.rows.append([str(topic_key), *[fmt_num(v) + " m" for v in row.to_numpy()]])
@@ -325,42 +417,82 @@ def _factor_sections(table: ResultsTable) -> list[Section]:
         sec = Section(f"factor-{f}", f"Factor: {factor_label(f)}")
         summ = summarize_by_level(table, f)
         if not summ.empty:
-            piv = summ.pivot_table(index=[f, "topic", "axis"], columns="metric",
-                                   values=["mean", "max", "min"], sort=False)
-            t = Table(f"Per level of {f}",
-                      [factor_label(f), "topic", "axis", "MAE mean", "max |error| worst",
-                       "Pearson r mean", "Pearson r lowest", "runs"], [])
+            piv = summ.pivot_table(
+                index=[f, "topic", "axis"],
+                columns="metric",
+                values=["mean", "max", "min"],
+                sort=False,
+            )
+            t = Table(
+                f"Per level of {f}",
+                [
+                    factor_label(f),
+                    "topic",
+                    "axis",
+                    "MAE mean",
+                    "max |error| worst",
+                    "Pearson r mean",
+                    "Pearson r lowest",
+                    "runs",
+                ],
+                [],
+            )
             counts = summ[summ["metric"] == "mae"].set_index([f, "topic", "axis"])["n"]
             for key, row in piv.iterrows():
                 level, topic, axis = cast(tuple[Any, Any, Any], key)
-                t.rows.append([fmt_num(level), str(topic), str(axis),
-                               fmt_num(row.get(("mean", "mae"))),
-                               fmt_num(row.get(("max", "max"))),
-                               fmt_num(row.get(("mean", "pearson_r")), 6),
-                               fmt_num(row.get(("min", "pearson_r")), 6),
-                               str(int(counts.get((level, topic, axis), 0)))])
+                t.rows.append(
+                    [
+                        fmt_num(level),
+                        str(topic),
+                        str(axis),
+                        fmt_num(row.get(("mean", "mae"))),
+                        fmt_num(row.get(("max", "max"))),
+                        fmt_num(row.get(("mean", "pearson_r")), 6),
+                        fmt_num(row.get(("min", "pearson_r")), 6),
+                        str(int(counts.get((level, topic, axis), 0))),
+                    ]
+                )
             sec.blocks.append(t)
         an = anova_oneway(table, f)
-        at = Table(f"One-way ANOVA of MAE across levels of {f}",
-                   ["topic", "axis", "F", "p", "df between", "df within", "note"], [],
-                   caption="scipy.stats.f_oneway; p < 0.05 flags a level effect on the error.")
+        at = Table(
+            f"One-way ANOVA of MAE across levels of {f}",
+            ["topic", "axis", "F", "p", "df between", "df within", "note"],
+            [],
+            caption="scipy.stats.f_oneway; p < 0.05 flags a level effect on the error.",
+        )
         for _, row in an.iterrows():
-            at.rows.append([row["topic"], row["axis"], fmt_num(row["f_stat"]),
-                            fmt_num(row["p_value"]), str(row["df_between"]),
-                            str(row["df_within"]), row["note"]])
+            at.rows.append(
+                [
+                    row["topic"],
+                    row["axis"],
+                    fmt_num(row["f_stat"]),
+                    fmt_num(row["p_value"]),
+                    str(row["df_between"]),
+                    str(row["df_within"]),
+                    row["note"],
+                ]
+            )
             if isinstance(row["p_value"], float) and row["p_value"] < 0.05:
                 at.flags[(len(at.rows) - 1, 3)] = "warn"
         sec.blocks.append(at)
         for topic in table.topics:
-            sec.blocks.append(Plot(f"MAE per level of {f}: {topic}",
-                                   plots.box_mae_figure(table, f, topic),
-                                   "Each box holds the runs at one level; whiskers 1.5 IQR."))
+            sec.blocks.append(
+                Plot(
+                    f"MAE per level of {f}: {topic}",
+                    plots.box_mae_figure(table, f, topic),
+                    "Each box holds the runs at one level; whiskers 1.5 IQR.",
+                )
+            )
         out.append(sec)
     me = Section("main-effects", "Main effects")
     for topic in table.topics:
-        me.blocks.append(Plot(f"Main effects on MAE: {topic}",
-                              plots.main_effects_figure(table, topic),
-                              "Mean MAE over all runs at each factor level."))
+        me.blocks.append(
+            Plot(
+                f"Main effects on MAE: {topic}",
+                plots.main_effects_figure(table, topic),
+                "Mean MAE over all runs at each factor level.",
+            )
+        )
     out.append(me)
     pairs = two_way_pairs(table)
     if pairs:
@@ -371,9 +503,14 @@ def _factor_sections(table: ResultsTable) -> list[Section]:
                     piv = two_way_table(table, a, b, topic=topic, axis=axis)
                     if piv.empty:
                         continue
-                    t = Table(f"{topic} {axis} ({AXIS_UNITS[axis]}): {a} (rows) x {b} (columns)",
-                              [f"{factor_label(a)} \\ {factor_label(b)}",
-                               *[fmt_num(c) for c in piv.columns]], [])
+                    t = Table(
+                        f"{topic} {axis} ({AXIS_UNITS[axis]}): {a} (rows) x {b} (columns)",
+                        [
+                            f"{factor_label(a)} \\ {factor_label(b)}",
+                            *[fmt_num(c) for c in piv.columns],
+                        ],
+                        [],
+                    )
                     for level, row in piv.iterrows():
                         t.rows.append([fmt_num(level), *[fmt_num(v) for v in row.to_numpy()]])
                     tw.blocks.append(t)
@@ -385,9 +522,13 @@ def _runs_section(table: ResultsTable) -> Section:
     sec = Section("runs", "Runs")
     rf = table.run_factors()
     for topic in table.topics:
-        cols = ["run", *[factor_label(f) for f in table.factors],
-                *[f"MAE {a} ({AXIS_UNITS[a]})" for a in AXES],
-                "max |e| (m)", *[f"r {a}" for a in AXES]]
+        cols = [
+            "run",
+            *[factor_label(f) for f in table.factors],
+            *[f"MAE {a} ({AXIS_UNITS[a]})" for a in AXES],
+            "max |e| (m)",
+            *[f"r {a}" for a in AXES],
+        ]
         t = Table(f"{topic}", cols, [])
         df = table.df[table.df["topic"] == topic]
         for run in table.runs:
@@ -399,10 +540,15 @@ def _runs_section(table: ResultsTable) -> Section:
                 s = rows.loc[(rows["axis"] == axis) & (rows["metric"] == metric), "value"]
                 return float(s.iloc[0]) if len(s) else float("nan")
 
-            t.rows.append([run, *[fmt_num(rf.loc[run, f]) for f in table.factors],
-                           *[fmt_num(v(a, "mae")) for a in AXES],
-                           fmt_num(v("position_norm", "max")),
-                           *[fmt_num(v(a, "pearson_r"), 6) for a in AXES]])
+            t.rows.append(
+                [
+                    run,
+                    *[fmt_num(rf.loc[run, f]) for f in table.factors],
+                    *[fmt_num(v(a, "mae")) for a in AXES],
+                    fmt_num(v("position_norm", "max")),
+                    *[fmt_num(v(a, "pearson_r"), 6) for a in AXES],
+                ]
+            )
         sec.blocks.append(t)
     return sec
 
@@ -412,8 +558,12 @@ def _detail_sections(details: list[_RunDetail], topics: Sequence[str] | None) ->
     for d in details:
         run = d.run
         levels = ", ".join(f"{k}={fmt_num(v)}" for k, v in run.factors.items())
-        sec = Section(f"run-{run.name}", f"Run {run.name}" + (f" ({levels})" if levels else ""),
-                      level=2, collapsed=len(out) >= 2)
+        sec = Section(
+            f"run-{run.name}",
+            f"Run {run.name}" + (f" ({levels})" if levels else ""),
+            level=2,
+            collapsed=len(out) >= 2,
+        )
         if d.error:
             sec.blocks.append(Text(d.error, css="neutral"))
         comp = run.comparison or {}
@@ -421,17 +571,36 @@ def _detail_sections(details: list[_RunDetail], topics: Sequence[str] | None) ->
 
         per_topic = dict(topic_results(comp)) if comp else {}
         for topic, res in per_topic.items():
-            t = Table(f"{topic}: metrics per axis",
-                      ["axis", "unit", "MAE", "RMSE", "max |e|", "p95 |e|", "bias", "std",
-                       "Pearson r", "r 95% CI", "note"], [])
+            t = Table(
+                f"{topic}: metrics per axis",
+                [
+                    "axis",
+                    "unit",
+                    "MAE",
+                    "RMSE",
+                    "max |e|",
+                    "p95 |e|",
+                    "bias",
+                    "std",
+                    "Pearson r",
+                    "r 95% CI",
+                    "note",
+                ],
+                [],
+            )
             for a in AXES:
                 m = res.get("axes", {}).get(a, {})
                 ci = m.get("pearson_ci")
-                t.rows.append([a, AXIS_UNITS[a], *[fmt_num(m.get(k)) for k in
-                                                    ("mae", "rmse", "max", "p95", "bias", "std")],
-                               fmt_num(m.get("pearson_r"), 6),
-                               f"[{fmt_num(ci[0], 5)}, {fmt_num(ci[1], 5)}]" if ci else "n/a",
-                               str(m.get("pearson_reason") or "")])
+                t.rows.append(
+                    [
+                        a,
+                        AXIS_UNITS[a],
+                        *[fmt_num(m.get(k)) for k in ("mae", "rmse", "max", "p95", "bias", "std")],
+                        fmt_num(m.get("pearson_r"), 6),
+                        f"[{fmt_num(ci[0], 5)}, {fmt_num(ci[1], 5)}]" if ci else "n/a",
+                        str(m.get("pearson_reason") or ""),
+                    ]
+                )
             n = res.get("n_samples")
             t.caption = f"{n} aligned samples" if n is not None else ""
             sec.blocks.append(t)
@@ -443,17 +612,27 @@ def _detail_sections(details: list[_RunDetail], topics: Sequence[str] | None) ->
             res = per_topic.get(topic, {})
             rs = {a: (res.get("axes", {}).get(a, {}) or {}).get("pearson_r") for a in AXES}
             name = f"{run.name} / {topic}"
-            sec.blocks.append(Plot(f"Trajectory overlay: {name}",
-                                   plots.trajectory_figure(pair, name),
-                                   "ENU world: x east, y north, z up (m)."))
-            sec.blocks.append(Plot(f"Per-axis series and error: {name}",
-                                   plots.timeseries_figure(pair, name),
-                                   "Left: both simulators; right: Unity - Gazebo (signed) and "
-                                   "its absolute value."))
-            sec.blocks.append(Plot(f"Unity vs Gazebo: {name}",
-                                   plots.scatter_figure(pair, rs, name),
-                                   "Points on y = x mean perfect correspondence; r from the "
-                                   "compare engine."))
+            sec.blocks.append(
+                Plot(
+                    f"Trajectory overlay: {name}",
+                    plots.trajectory_figure(pair, name),
+                    "ENU world: x east, y north, z up (m).",
+                )
+            )
+            sec.blocks.append(
+                Plot(
+                    f"Per-axis series and error: {name}",
+                    plots.timeseries_figure(pair, name),
+                    "Left: both simulators; right: Unity - Gazebo (signed) and its absolute value.",
+                )
+            )
+            sec.blocks.append(
+                Plot(
+                    f"Unity vs Gazebo: {name}",
+                    plots.scatter_figure(pair, rs, name),
+                    "Points on y = x mean perfect correspondence; r from the compare engine.",
+                )
+            )
         out.append(sec)
     return out
 
@@ -466,24 +645,45 @@ def _bridge_section(exp: ExperimentResults) -> Section | None:
     keys: list[str] = []
     for s in stats.values():
         keys += [k for k in s if k not in keys]
-    t = Table("Per run", ["run", *keys], [],
-              caption="As counted by the TCP bridge and the Unity-side client (latency, drops, "
-                      "queue); units as in the key names.")
+    t = Table(
+        "Per run",
+        ["run", *keys],
+        [],
+        caption="As counted by the TCP bridge and the Unity-side client (latency, drops, "
+        "queue); units as in the key names.",
+    )
     for name, s in stats.items():
-        t.rows.append([name, *[fmt_num(s.get(k)) if not isinstance(s.get(k), (dict, list))
-                               else str(s.get(k)) for k in keys]])
+        t.rows.append(
+            [
+                name,
+                *[
+                    fmt_num(s.get(k)) if not isinstance(s.get(k), (dict, list)) else str(s.get(k))
+                    for k in keys
+                ],
+            ]
+        )
     sec.blocks.append(t)
     fig = plots.bridge_figure(stats)
     if fig is not None:
-        sec.blocks.append(Plot("Bridge statistics per run", fig,
-                               "Bars in the order of the table above, labelled by the part "
-                               "of the run name that tells runs apart (else the row number, "
-                               "from 0)."))
+        sec.blocks.append(
+            Plot(
+                "Bridge statistics per run",
+                fig,
+                "Bars in the order of the table above, labelled by the part "
+                "of the run name that tells runs apart (else the row number, "
+                "from 0).",
+            )
+        )
     return sec
 
 
-def _provenance_section(exp: ExperimentResults, th: Thresholds | None, baseline: Any,
-                        options: Mapping[str, Any], command: str) -> Section:
+def _provenance_section(
+    exp: ExperimentResults,
+    th: Thresholds | None,
+    baseline: Any,
+    options: Mapping[str, Any],
+    command: str,
+) -> Section:
     import uwval
 
     sec = Section("provenance", "Provenance", collapsed=False)
@@ -495,16 +695,25 @@ def _provenance_section(exp: ExperimentResults, th: Thresholds | None, baseline:
     ]
     if command:
         info.append(["command", command])
-    info.append(["compare options", ", ".join(f"{k}={v}" for k, v in options.items())
-                 or "defaults"])
+    info.append(
+        ["compare options", ", ".join(f"{k}={v}" for k, v in options.items()) or "defaults"]
+    )
     info.append(["thresholds", th.source if th is not None else "none"])
     if baseline is not None:
-        info.append(["baseline", str(baseline) if not isinstance(baseline, ResultsTable)
-                     else "in-memory table"])
+        info.append(
+            [
+                "baseline",
+                str(baseline) if not isinstance(baseline, ResultsTable) else "in-memory table",
+            ]
+        )
     if exp.manifest:
         e = exp.manifest.get("experiment") or {}
-        info.append(["experiment", ", ".join(f"{k}={v}" for k, v in e.items()
-                                             if not isinstance(v, (dict, list)))])
+        info.append(
+            [
+                "experiment",
+                ", ".join(f"{k}={v}" for k, v in e.items() if not isinstance(v, (dict, list))),
+            ]
+        )
     sec.blocks.append(Table("Tool and options", ["item", "value"], info))
     inputs: list[Path] = list(exp.sources)
     for r in exp.runs:
@@ -518,8 +727,11 @@ def _provenance_section(exp: ExperimentResults, th: Thresholds | None, baseline:
     for p in inputs:
         if not p.exists():
             continue
-        size = p.stat().st_size if p.is_file() else sum(
-            f.stat().st_size for f in p.rglob("*") if f.is_file())
+        size = (
+            p.stat().st_size
+            if p.is_file()
+            else sum(f.stat().st_size for f in p.rglob("*") if f.is_file())
+        )
         t.rows.append([str(p), str(size), sha256_of(p)])
     sec.blocks.append(t)
     return sec

@@ -41,8 +41,9 @@ class _Pager:
         self.flush()
         self.fig = Figure(figsize=A4)
         self.page += 1
-        self.fig.text(MARGIN, 0.02, f"{self.report.title} - page {self.page}", fontsize=7,
-                      color="#57606a")
+        self.fig.text(
+            MARGIN, 0.02, f"{self.report.title} - page {self.page}", fontsize=7, color="#57606a"
+        )
         self.y = 1.0 - MARGIN
         return self.fig
 
@@ -65,16 +66,30 @@ class _Pager:
             self.text(title, size=13, weight="bold")
             self.y -= 0.006
 
-    def text(self, s: str, size: float = 9, weight: str = "normal", colour: str = "#1f2328",
-             width: int = 110) -> None:
+    def text(
+        self,
+        s: str,
+        size: float = 9,
+        weight: str = "normal",
+        colour: str = "#1f2328",
+        width: int = 110,
+    ) -> None:
         self.put_heading()
         lines = []
         for para in s.splitlines() or [""]:
             lines += textwrap.wrap(para, width=width) or [""]
         for line in lines:
             fig = self.need(LINE * size / 9)
-            fig.text(MARGIN, self.y, line, fontsize=size, weight=weight, color=colour, va="top",
-                     family="DejaVu Sans")
+            fig.text(
+                MARGIN,
+                self.y,
+                line,
+                fontsize=size,
+                weight=weight,
+                color=colour,
+                va="top",
+                family="DejaVu Sans",
+            )
             self.y -= LINE * size / 9
 
     def table(self, t: Table) -> None:
@@ -86,12 +101,15 @@ class _Pager:
             return
         for k, cols in enumerate(groups):
             where = {c: i for i, c in enumerate(cols)}
-            self._table(Table(
-                f"{t.title} (columns {k + 1} of {len(groups)})",
-                [t.columns[c] for c in cols],
-                [[r[c] if c < len(r) else "" for c in cols] for r in t.rows],
-                caption=t.caption if k == len(groups) - 1 else "",
-                flags={(r, where[c]): f for (r, c), f in t.flags.items() if c in where}))
+            self._table(
+                Table(
+                    f"{t.title} (columns {k + 1} of {len(groups)})",
+                    [t.columns[c] for c in cols],
+                    [[r[c] if c < len(r) else "" for c in cols] for r in t.rows],
+                    caption=t.caption if k == len(groups) - 1 else "",
+                    flags={(r, where[c]): f for (r, c), f in t.flags.items() if c in where},
+                )
+            )
 
     def _table(self, t: Table) -> None:
         rows = t.rows or [["(no rows)"] + [""] * (len(t.columns) - 1)]
@@ -102,10 +120,11 @@ class _Pager:
             self.need(0.05 + 0.02 + row_h * (first + layout.header_lines) + 0.03)
         self.put_heading()
         # the caption goes with the last rows: never alone at the top of a page
-        caption_h = (len(textwrap.wrap(t.caption, width=CAPTION_WIDTH)) * LINE * 7 / 9
-                     if t.caption else 0.0)
+        caption_h = (
+            len(textwrap.wrap(t.caption, width=CAPTION_WIDTH)) * LINE * 7 / 9 if t.caption else 0.0
+        )
         for start in range(0, len(rows), ROWS_PER_PAGE):
-            chunk = rows[start:start + ROWS_PER_PAGE]
+            chunk = rows[start : start + ROWS_PER_PAGE]
             n_lines = len(chunk) + layout.header_lines
             height = row_h * n_lines + 0.035  # title line + rows + gap below
             if start + ROWS_PER_PAGE >= len(rows):
@@ -114,13 +133,17 @@ class _Pager:
             cont = " (continued)" if start else ""
             fig.text(MARGIN, self.y, t.title + cont, fontsize=8.5, weight="bold", va="top")
             self.y -= 0.02
-            ax = fig.add_axes((MARGIN, self.y - row_h * n_lines, 1 - 2 * MARGIN,
-                               row_h * n_lines))
+            ax = fig.add_axes((MARGIN, self.y - row_h * n_lines, 1 - 2 * MARGIN, row_h * n_lines))
             ax.axis("off")
-            tab = ax.table(cellText=[[_clip(c) for c in r] for r in chunk],
-                           colLabels=layout.headers, colWidths=layout.widths,
-                           loc="upper left", cellLoc="right", colLoc="center",
-                           bbox=Bbox.from_bounds(0, 0, 1, 1))
+            tab = ax.table(
+                cellText=[[_clip(c) for c in r] for r in chunk],
+                colLabels=layout.headers,
+                colWidths=layout.widths,
+                loc="upper left",
+                cellLoc="right",
+                colLoc="center",
+                bbox=Bbox.from_bounds(0, 0, 1, 1),
+            )
             tab.auto_set_font_size(False)
             tab.set_fontsize(size)
             for (r, c), cell in tab.get_celld().items():
@@ -221,8 +244,13 @@ def write_pdf(report: Report, path: Path) -> Path:
             pager.new_page()
             pager.text(report.title, size=16, weight="bold")
             pager.text(report.subtitle, size=9, colour="#57606a")
-            colour = COLOURS["pass" if report.verdict == "PASS" else
-                             "fail" if report.verdict == "FAIL" else "neutral"]
+            colour = COLOURS[
+                "pass"
+                if report.verdict == "PASS"
+                else "fail"
+                if report.verdict == "FAIL"
+                else "neutral"
+            ]
             pager.text(f"Verdict: {report.verdict}", size=14, weight="bold", colour=colour)
             pager.text(f"generated {report.generated}", size=8, colour="#57606a")
             pager.y -= 0.01
@@ -248,18 +276,25 @@ def _section(pager: _Pager, sec: Section) -> None:
                 for line in b.text:
                     pager.text(f"- {line}", colour=COLOURS.get(b.css, COLOURS[""]))
             else:
-                pager.text(str(b.text), colour=COLOURS.get(b.css, COLOURS[""]),
-                           weight="bold" if b.css in ("pass", "fail") else "normal")
+                pager.text(
+                    str(b.text),
+                    colour=COLOURS.get(b.css, COLOURS[""]),
+                    weight="bold" if b.css in ("pass", "fail") else "normal",
+                )
         elif isinstance(b, Table):
             pager.table(b)
         elif isinstance(b, Plot):
             pager.flush()  # a figure gets a page of its own, at its own size
             fig = b.figure
-            notes = [fig.text(0.01, 0.003, f"{b.title}. {b.caption}", fontsize=7,
-                              color="#57606a", va="bottom")]
+            notes = [
+                fig.text(
+                    0.01, 0.003, f"{b.title}. {b.caption}", fontsize=7, color="#57606a", va="bottom"
+                )
+            ]
             if pager.heading:  # the section opens with a figure: title it on that page
-                notes.append(fig.text(0.01, 0.995, pager.heading, fontsize=11, weight="bold",
-                                      va="top"))
+                notes.append(
+                    fig.text(0.01, 0.995, pager.heading, fontsize=11, weight="bold", va="top")
+                )
                 pager.heading = ""
             pager.pdf.savefig(fig)
             for n in notes:

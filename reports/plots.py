@@ -29,8 +29,14 @@ F64 = NDArray[np.float64]
 
 GAZEBO_STYLE: dict[str, Any] = {"color": "#1f77b4", "lw": 1.6, "label": "Gazebo (reference)"}
 UNITY_STYLE: dict[str, Any] = {"color": "#d62728", "lw": 1.2, "ls": "--", "label": "Unity"}
-AXIS_COLOURS = {"x": "#1f77b4", "y": "#2ca02c", "z": "#9467bd",
-                "roll": "#ff7f0e", "pitch": "#8c564b", "yaw": "#e377c2"}
+AXIS_COLOURS = {
+    "x": "#1f77b4",
+    "y": "#2ca02c",
+    "z": "#9467bd",
+    "roll": "#ff7f0e",
+    "pitch": "#8c564b",
+    "yaw": "#e377c2",
+}
 
 
 class AlignedPair(Protocol):
@@ -148,10 +154,20 @@ def timeseries_figure(pair: AlignedPair, title: str = "") -> Figure:
         left.set_ylabel(f"{a} ({unit})")
         left.grid(True, alpha=0.3)
         err = np.asarray(pair.errors.get(a, oth[a] - ref[a]), dtype=np.float64)
-        right.plot(ts[s][: len(err[s])], err[s], color=AXIS_COLOURS[a], lw=1.0,
-                   label="signed error (Unity - Gazebo)")
-        right.fill_between(ts[s][: len(err[s])], np.abs(err[s]), color=AXIS_COLOURS[a],
-                           alpha=0.2, label="absolute error")
+        right.plot(
+            ts[s][: len(err[s])],
+            err[s],
+            color=AXIS_COLOURS[a],
+            lw=1.0,
+            label="signed error (Unity - Gazebo)",
+        )
+        right.fill_between(
+            ts[s][: len(err[s])],
+            np.abs(err[s]),
+            color=AXIS_COLOURS[a],
+            alpha=0.2,
+            label="absolute error",
+        )
         right.axhline(0.0, color="black", lw=0.6)
         right.set_ylabel(f"error {a} ({unit})")
         right.grid(True, alpha=0.3)
@@ -167,8 +183,9 @@ def timeseries_figure(pair: AlignedPair, title: str = "") -> Figure:
     return fig
 
 
-def scatter_figure(pair: AlignedPair, pearson: Mapping[str, float | None] | None = None,
-                   title: str = "") -> Figure:
+def scatter_figure(
+    pair: AlignedPair, pearson: Mapping[str, float | None] | None = None, title: str = ""
+) -> Figure:
     """Unity vs Gazebo per axis with the y = x line and Pearson r (from the compare JSON)."""
     _, ref, oth = pair_series(pair)
     fig = _new_figure(11, 7)
@@ -183,8 +200,9 @@ def scatter_figure(pair: AlignedPair, pearson: Mapping[str, float | None] | None
             lo = float(min(x.min(), y.min()))
             hi = float(max(x.max(), y.max()))
             pad = 0.05 * (hi - lo) if hi > lo else 1e-3
-            ax.plot([lo - pad, hi + pad], [lo - pad, hi + pad], color="black", lw=0.8,
-                    label="y = x")
+            ax.plot(
+                [lo - pad, hi + pad], [lo - pad, hi + pad], color="black", lw=0.8, label="y = x"
+            )
         r = (pearson or {}).get(a)
         ax.set_title(f"{a}: r = {r:.5f}" if r is not None else f"{a}: r undefined")
         unit = AXIS_UNITS[a]
@@ -198,21 +216,25 @@ def scatter_figure(pair: AlignedPair, pearson: Mapping[str, float | None] | None
     return fig
 
 
-def box_mae_figure(table: ResultsTable, factor: str, topic: str,
-                   metric: str = "mae") -> Figure:
+def box_mae_figure(table: ResultsTable, factor: str, topic: str, metric: str = "mae") -> Figure:
     """Box plots of ``metric`` (default MAE) per level of ``factor``, one panel per axis."""
     fig = _new_figure(11, 6.5)
     grid = fig.subplots(2, 3)
     sub = table.select(metric=metric, topic=topic)
-    levels = sorted(sub[factor].dropna().unique().tolist(),
-                    key=lambda v: (0, v) if isinstance(v, (int, float)) else (1, str(v)))
+    levels = sorted(
+        sub[factor].dropna().unique().tolist(),
+        key=lambda v: (0, v) if isinstance(v, (int, float)) else (1, str(v)),
+    )
     for k, a in enumerate(AXES):
         ax = grid[k // 3][k % 3]
         rows = sub[sub["axis"] == a]
         data = [rows.loc[rows[factor] == lv, "value"].dropna().to_numpy() for lv in levels]
         if any(len(d) for d in data):
-            ax.boxplot([d if len(d) else np.array([np.nan]) for d in data],
-                       tick_labels=[_fmt(lv) for lv in levels], showmeans=True)
+            ax.boxplot(
+                [d if len(d) else np.array([np.nan]) for d in data],
+                tick_labels=[_fmt(lv) for lv in levels],
+                showmeans=True,
+            )
         ax.set_title(f"{metric.upper()} {a}")
         ax.set_xlabel(factor_label(factor))
         ax.set_ylabel(f"{metric.upper()} ({AXIS_UNITS[a]})")
@@ -263,8 +285,11 @@ def bridge_figure(stats: Mapping[str, Mapping[str, Any]]) -> Figure | None:
     if not keys or not stats:
         return None
     # latency, lag and losses first: they are what explains a Unity/Gazebo mismatch
-    keys.sort(key=lambda k: next((i for i, w in enumerate(BRIDGE_PRIORITY) if w in k),
-                                 len(BRIDGE_PRIORITY)))
+    keys.sort(
+        key=lambda k: next(
+            (i for i, w in enumerate(BRIDGE_PRIORITY) if w in k), len(BRIDGE_PRIORITY)
+        )
+    )
     keys = keys[:6]
     runs = list(stats)
     labels = short_run_labels(runs)
@@ -272,8 +297,12 @@ def bridge_figure(stats: Mapping[str, Mapping[str, Any]]) -> Figure | None:
     grid = np.atleast_2d(fig.subplots(math.ceil(len(keys) / 2), 2, squeeze=False))
     for i, key in enumerate(keys):
         ax = grid[i // 2][i % 2]
-        vals = [float(stats[r].get(key, np.nan)) if isinstance(stats[r].get(key), (int, float))
-                else np.nan for r in runs]
+        vals = [
+            float(stats[r].get(key, np.nan))
+            if isinstance(stats[r].get(key), (int, float))
+            else np.nan
+            for r in runs
+        ]
         ax.bar(np.arange(len(runs)), vals, color="#4c72b0")
         ax.set_xticks(np.arange(len(runs)), labels, fontsize=7)
         ax.set_xlabel("run", fontsize=8)

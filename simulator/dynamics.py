@@ -223,9 +223,19 @@ def build_params(
     has_net = any(v.buoyancy != v.weight for v in vehicles)
     has_added_mass = bool(ma_terms)
     structure = KernelStructure(
-        tuple(ma_terms), tuple(lin_terms), tuple(qabs_terms), tuple(quad_terms),
-        tuple(minv_terms), tuple(inertia_terms), has_cob, has_net, has_added_mass,
-        bool(implicit_added_mass), bool(legacy_coriolis), bool(has_current), wrench_frame,
+        tuple(ma_terms),
+        tuple(lin_terms),
+        tuple(qabs_terms),
+        tuple(quad_terms),
+        tuple(minv_terms),
+        tuple(inertia_terms),
+        has_cob,
+        has_net,
+        has_added_mass,
+        bool(implicit_added_mass),
+        bool(legacy_coriolis),
+        bool(has_current),
+        wrench_frame,
         bool(fossen_coriolis),
     )
     return KernelParams(vals, structure)
@@ -254,8 +264,22 @@ def generate_kernel_source(structure: KernelStructure) -> str:
     """Python source of ``kernel(n, k0, S, P, FX, FY, FZ, TX, TY, TZ, CX, CY, CZ) -> S``.
 
     Runs ``n`` steps using inputs ``FX[k0 + k]`` ... (lists of floats, or (steps, N) arrays)."""
-    (ma_terms, lin_terms, qabs_terms, quad_terms, minv_terms, inertia_terms, has_cob,
-     has_net, has_added_mass, implicit, legacy, has_current, wrench_frame, fossen) = structure
+    (
+        ma_terms,
+        lin_terms,
+        qabs_terms,
+        quad_terms,
+        minv_terms,
+        inertia_terms,
+        has_cob,
+        has_net,
+        has_added_mass,
+        implicit,
+        legacy,
+        has_current,
+        wrench_frame,
+        fossen,
+    ) = structure
     names: set[str] = {"dt", "hdt", "mass", "net_up", "buoy", "rbx", "rby", "rbz"}
     names |= {f"mad_{i}{j}" for i, j in ma_terms}
     names |= {f"a{i}" for i in range(6)} | {f"na{i}" for i in range(6)}

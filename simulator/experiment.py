@@ -369,5 +369,6 @@ def experiment_from_mapping(
 def load_experiment(path: str | Path) -> Experiment:
     """Read an experiment TOML file (format in the module docstring)."""
     p = Path(path)
-    return experiment_from_mapping(read_toml(p, "experiment file"), source=str(p),
-                                   base_dir=p.parent)
+    return experiment_from_mapping(
+        read_toml(p, "experiment file"), source=str(p), base_dir=p.parent
+    )

@@ -7,9 +7,16 @@ import sys
 from pathlib import Path
 
 
-def run_uwval(*args: str | Path, timeout: float = 120, check: bool = False,
-              cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
+def run_uwval(
+    *args: str | Path, timeout: float = 120, check: bool = False, cwd: Path | None = None
+) -> subprocess.CompletedProcess[str]:
     """``python -m uwval ARGS`` with no stdin (as in CI); output captured as text."""
-    return subprocess.run([sys.executable, "-m", "uwval", *map(str, args)],
-                          capture_output=True, text=True, timeout=timeout, check=check,
-                          cwd=cwd, stdin=subprocess.DEVNULL)
+    return subprocess.run(
+        [sys.executable, "-m", "uwval", *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        check=check,
+        cwd=cwd,
+        stdin=subprocess.DEVNULL,
+    )

@@ -45,12 +45,14 @@ def fake_endpoint(handshake: dict[str, str]) -> tuple[int, threading.Thread]:
 
 
 def test_client_rejects_other_versions_and_protocols() -> None:
-    port, t = fake_endpoint({"version": "v0.6.0", "metadata": "{\"protocol\": \"ROS2\"}"})
+    port, t = fake_endpoint({"version": "v0.6.0", "metadata": '{"protocol": "ROS2"}'})
     with pytest.raises(BridgeError, match=r"unsupported ROS-TCP version 'v0\.6\.0'"):
         UnityConnection("127.0.0.1", port).connect(timeout=5)
     t.join()
-    with (BridgeServer("127.0.0.1", 0, protocol="ROS1") as srv,
-          pytest.raises(BridgeError, match="speaks ROS1, this client was built for ROS2")):
+    with (
+        BridgeServer("127.0.0.1", 0, protocol="ROS1") as srv,
+        pytest.raises(BridgeError, match="speaks ROS1, this client was built for ROS2"),
+    ):
         UnityConnection("127.0.0.1", srv.port, protocol="ROS2").connect()
     with pytest.raises(BridgeError, match=r"cannot connect to 127\.0\.0\.1"):
         UnityConnection("127.0.0.1", 1).connect(timeout=1)
@@ -59,9 +61,12 @@ def test_client_rejects_other_versions_and_protocols() -> None:
 def test_connection_registers_with_unity_nuls_and_gets_topic_list() -> None:
     with BridgeServer("127.0.0.1", 0) as srv:
         srv.advertise("model_rov_pose", wire.POSE_STAMPED)
-        conn = UnityConnection("127.0.0.1", srv.port,
-                               subscriptions={"model_rov_pose": wire.POSE_STAMPED},
-                               publications={"unity_clicks": "std_msgs/Header"})
+        conn = UnityConnection(
+            "127.0.0.1",
+            srv.port,
+            subscriptions={"model_rov_pose": wire.POSE_STAMPED},
+            publications={"unity_clicks": "std_msgs/Header"},
+        )
         conn.connect()
         assert conn.server_version == "v0.7.0"
         srv.wait_for_subscribers("model_rov_pose")
@@ -80,8 +85,10 @@ def _publisher(srv: BridgeServer, stop: threading.Event) -> None:
     while not stop.is_set():
         t_ns = time.monotonic_ns()
         for topic in ("model_rov_pose", "gui_camera_pose"):
-            srv.publish(topic, wire.encode_pose_stamped(
-                t_ns, [k * 0.01, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0], "world"))
+            srv.publish(
+                topic,
+                wire.encode_pose_stamped(t_ns, [k * 0.01, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0], "world"),
+            )
         k += 1
         time.sleep(0.005)
 
@@ -100,8 +107,13 @@ def live_server() -> Iterator[BridgeServer]:
 
 def test_client_reconnects_after_delay_and_reregisters(live_server: BridgeServer) -> None:
     srv = live_server
-    client = UnityClient("127.0.0.1", srv.port, frame_rate=60.0, reconnect_delay_s=0.3,
-                         faults=FaultModel(latency_s=0.02))
+    client = UnityClient(
+        "127.0.0.1",
+        srv.port,
+        frame_rate=60.0,
+        reconnect_delay_s=0.3,
+        faults=FaultModel(latency_s=0.02),
+    )
     applied = []
 
     def kick() -> None:
@@ -141,9 +153,25 @@ def test_replay_cli_drives_a_unity_client(tmp_path: Path) -> None:
         port = s.getsockname()[1]
     env = dict(os.environ, PYTHONPATH=str(REPO))
     proc = subprocess.Popen(
-        [sys.executable, "-m", "uwval", "bridge", "replay", str(log), "--port", str(port),
-         "--speed", "4", "--wait", "30"], env=env, stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT, text=True)
+        [
+            sys.executable,
+            "-m",
+            "uwval",
+            "bridge",
+            "replay",
+            str(log),
+            "--port",
+            str(port),
+            "--speed",
+            "4",
+            "--wait",
+            "30",
+        ],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
     try:
         client = UnityClient("127.0.0.1", port, reconnect_delay_s=0.2)
         last = 1_000_000_000 + 99 * 20_000_000
@@ -154,8 +182,7 @@ def test_replay_cli_drives_a_unity_client(tmp_path: Path) -> None:
                 done.set()
 
         # Long limit for a loaded machine; the client stops once the last pose showed.
-        applied = client.run_realtime(60.0, on_frame=on_frame, connect_timeout=1.0,
-                                      stop=done)
+        applied = client.run_realtime(60.0, on_frame=on_frame, connect_timeout=1.0, stop=done)
         out, _ = proc.communicate(timeout=30)
     finally:
         proc.kill()
@@ -170,9 +197,22 @@ def test_replay_cli_drives_a_unity_client(tmp_path: Path) -> None:
 
 def test_replay_cli_missing_log_is_a_clean_error(tmp_path: Path) -> None:
     env = dict(os.environ, PYTHONPATH=str(REPO))
-    res = subprocess.run([sys.executable, "-m", "uwval", "bridge", "replay",
-                          str(tmp_path / "nope.mcap"), "--port", "0"], env=env,
-                         capture_output=True, text=True, timeout=60)
+    res = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "uwval",
+            "bridge",
+            "replay",
+            str(tmp_path / "nope.mcap"),
+            "--port",
+            "0",
+        ],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert res.returncode == 2
     assert "nope.mcap: no such file or directory" in res.stderr
 
@@ -199,9 +239,25 @@ def test_serve_cli_accepts_a_client(tmp_path: Path) -> None:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     env = dict(os.environ, PYTHONPATH=str(REPO))
-    proc = subprocess.Popen([sys.executable, "-m", "uwval", "bridge", "serve", "--port",
-                             str(port), "--duration", "30", "--protocol", "ros1"], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "uwval",
+            "bridge",
+            "serve",
+            "--port",
+            str(port),
+            "--duration",
+            "30",
+            "--protocol",
+            "ros1",
+        ],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
     try:
         deadline = time.monotonic() + 30
         conn = UnityConnection("127.0.0.1", port, protocol="ROS1")
@@ -221,8 +277,9 @@ def test_serve_cli_accepts_a_client(tmp_path: Path) -> None:
 
 
 def test_injected_link_drop_then_unity_like_reconnect(live_server: BridgeServer) -> None:
-    client = UnityClient("127.0.0.1", live_server.port, reconnect_delay_s=0.3,
-                         faults=FaultModel(disconnects=[0.4]))
+    client = UnityClient(
+        "127.0.0.1", live_server.port, reconnect_delay_s=0.3, faults=FaultModel(disconnects=[0.4])
+    )
     applied = client.run_realtime(1.5)
     assert client.disconnects == 1
     assert client.connection.connects == 2
@@ -286,12 +343,12 @@ def test_replay_paces_at_recorded_and_scaled_speed(tmp_path: Path, speed: float)
     q = np.array([0.0, 0.0, 0.0, 1.0])
     n, period_ns = 31, 20_000_000  # 0.6 s at 50 Hz
     for k in range(n):
-        rec.gazebo_pose("model_rov_pose", 5_000_000_000 + k * period_ns,
-                        np.array([k, 0.0, 0.0]), q)
+        rec.gazebo_pose("model_rov_pose", 5_000_000_000 + k * period_ns, np.array([k, 0.0, 0.0]), q)
     rec.close()
     with BridgeServer("127.0.0.1", 0) as srv:
-        conn = UnityConnection("127.0.0.1", srv.port,
-                               subscriptions={"model_rov_pose": wire.POSE_STAMPED})
+        conn = UnityConnection(
+            "127.0.0.1", srv.port, subscriptions={"model_rov_pose": wire.POSE_STAMPED}
+        )
         conn.connect()
         arrivals: list[tuple[int, int]] = []  # (wall ns, header stamp ns)
 
@@ -304,8 +361,9 @@ def test_replay_paces_at_recorded_and_scaled_speed(tmp_path: Path, speed: float)
 
         reader = threading.Thread(target=receive)
         reader.start()
-        stats = replay_log(log, srv, topics=["/gazebo/model_rov_pose"], speed=speed,
-                           wait_for_subscriber_s=5)
+        stats = replay_log(
+            log, srv, topics=["/gazebo/model_rov_pose"], speed=speed, wait_for_subscriber_s=5
+        )
         reader.join()
         conn.close()
     assert stats.ticks == stats.published == stats.delivered == n
@@ -336,14 +394,16 @@ def test_replay_paces_at_recorded_and_scaled_speed(tmp_path: Path, speed: float)
         (("unity", "-o", "{tmp}/u.mcap", "--duration", "inf"), "--duration"),
         (("unity", "-o", "{tmp}/u.mcap", "--port", "-1"), "--port"),
         (("unity", "-o", "{tmp}/u.mcap", "--unity-map", "ned"), "Unity map"),
-        (("unity", "-o", "/proc/uwval-no-such-dir/u.mcap", "--duration", "0.1"),
-         "/proc/uwval-no-such-dir/u.mcap"),
+        (
+            ("unity", "-o", "/proc/uwval-no-such-dir/u.mcap", "--duration", "0.1"),
+            "/proc/uwval-no-such-dir/u.mcap",
+        ),
         (("scan", "{tmp}/none.mcap"), "none.mcap"),
     ],
 )
 def test_bridge_cli_bad_input_is_one_clean_line(
-        tmp_path: Path, capsys: pytest.CaptureFixture[str], args: tuple[str, ...],
-        needle: str) -> None:
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], args: tuple[str, ...], needle: str
+) -> None:
     from uwval.cli import main
 
     log = tmp_path / "gz.mcap"

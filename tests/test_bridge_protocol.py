@@ -22,14 +22,18 @@ stamps = st.integers(min_value=0, max_value=2**31 * 10**9 - 1)
 
 
 @settings(max_examples=150, deadline=None)
-@given(t=stamps, p=st.lists(finite, min_size=3, max_size=3),
-       q=st.lists(finite, min_size=4, max_size=4), fid=frame_ids)
-def test_pose_fast_path_is_byte_identical_to_rosbags(t: int, p: list[float], q: list[float],
-                                                     fid: str) -> None:
+@given(
+    t=stamps,
+    p=st.lists(finite, min_size=3, max_size=3),
+    q=st.lists(finite, min_size=4, max_size=4),
+    fid=frame_ids,
+)
+def test_pose_fast_path_is_byte_identical_to_rosbags(
+    t: int, p: list[float], q: list[float], fid: str
+) -> None:
     pos, quat = np.array(p), np.array(q)
     ros2 = bytes(typestore(2).serialize_cdr(pose_stamped(t, pos, quat, fid), PS))
-    ros1 = bytes(typestore(1).serialize_ros1(pose_stamped(t, pos, quat, fid, ros_version=1),
-                                             PS))
+    ros1 = bytes(typestore(1).serialize_ros1(pose_stamped(t, pos, quat, fid, ros_version=1), PS))
     assert wire.encode_pose_stamped(t, pos, quat, fid, "ROS2") == ros2
     assert wire.encode_pose_stamped(t, pos, quat, fid, "ROS1") == ros1
     assert ros2[:4] == b"\x00\x01\x00\x00"  # CDR little-endian encapsulation header
@@ -41,8 +45,9 @@ def test_pose_fast_path_is_byte_identical_to_rosbags(t: int, p: list[float], q: 
 
 
 def test_decode_agrees_with_rosbags_deserializer() -> None:
-    body = wire.encode_pose_stamped(12_000_000_007, [1.5, -2.0, 3.25], [0.0, 0.6, 0.0, 0.8],
-                                    "world")
+    body = wire.encode_pose_stamped(
+        12_000_000_007, [1.5, -2.0, 3.25], [0.0, 0.6, 0.0, 0.8], "world"
+    )
     msg = wire.decode_with_rosbags(body, "geometry_msgs/PoseStamped")
     assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (12, 7)
     assert msg.header.frame_id == "world"
@@ -72,8 +77,8 @@ def test_frame_layout_matches_the_wire_facts() -> None:
     assert wire.KEEPALIVE == _frame_by_hand(b"", b"") == b"\x00" * 8
     sub = wire.encode_command("__subscribe", {"topic": "a", "message_name": "x/Y"}, nul=True)
     dlen = struct.unpack_from("<I", sub)[0]
-    assert sub[4:4 + dlen] == b"__subscribe\x00"
-    payload = sub[8 + dlen:]
+    assert sub[4 : 4 + dlen] == b"__subscribe\x00"
+    payload = sub[8 + dlen :]
     assert payload.endswith(b"\x00")
     assert json.loads(payload[:-1]) == {"topic": "a", "message_name": "x/Y"}
 
@@ -81,8 +86,7 @@ def test_frame_layout_matches_the_wire_facts() -> None:
 def test_handshake_payload_is_exact() -> None:
     frame = wire.FrameParser().feed(wire.handshake_frame("ROS2"))[0]
     assert frame.destination == "__handshake"
-    assert json.loads(frame.payload) == {"version": "v0.7.0",
-                                         "metadata": "{\"protocol\": \"ROS2\"}"}
+    assert json.loads(frame.payload) == {"version": "v0.7.0", "metadata": '{"protocol": "ROS2"}'}
     assert wire.parse_handshake(frame) == ("v0.7.0", "ROS2")
     ros1 = wire.FrameParser().feed(wire.handshake_frame("ROS1"))[0]
     assert wire.parse_handshake(ros1) == ("v0.7.0", "ROS1")
@@ -92,22 +96,27 @@ def test_handshake_rejects_other_versions() -> None:
     bad = wire.encode_command("__handshake", {"version": "v0.6.0", "metadata": "{}"})
     with pytest.raises(wire.ProtocolError, match=r"unsupported ROS-TCP version 'v0\.6\.0'"):
         wire.parse_handshake(wire.FrameParser().feed(bad)[0])
-    newer_patch = wire.encode_command("__handshake", {
-        "version": "v0.7.3", "metadata": json.dumps({"protocol": "ROS1"})})
+    newer_patch = wire.encode_command(
+        "__handshake", {"version": "v0.7.3", "metadata": json.dumps({"protocol": "ROS1"})}
+    )
     assert wire.parse_handshake(wire.FrameParser().feed(newer_patch)[0]) == ("v0.7.3", "ROS1")
 
 
 frames_st = st.lists(
-    st.tuples(st.text(max_size=30).filter(lambda s: "\x00" not in s), st.binary(max_size=300),
-              st.booleans()),
+    st.tuples(
+        st.text(max_size=30).filter(lambda s: "\x00" not in s),
+        st.binary(max_size=300),
+        st.booleans(),
+    ),
     max_size=12,
 )
 
 
 @settings(max_examples=150, deadline=None)
 @given(frames=frames_st, cuts=st.lists(st.integers(min_value=0, max_value=5000), max_size=20))
-def test_parser_reassembles_frames_split_anywhere(frames: list[tuple[str, bytes, bool]],
-                                                  cuts: list[int]) -> None:
+def test_parser_reassembles_frames_split_anywhere(
+    frames: list[tuple[str, bytes, bool]], cuts: list[int]
+) -> None:
     stream = b"".join(wire.encode_frame(d, p, nul=n) for d, p, n in frames)
     points = sorted({c % (len(stream) + 1) for c in cuts} | {0, len(stream)})
     parser = wire.FrameParser()

@@ -25,13 +25,21 @@ def test_clean_close_keeps_every_message_with_the_right_frames(tmp_path: Path) -
     q = np.array([0.0, 0.0, 0.0, 1.0])
     for k in range(50):
         rec.gazebo_pose("model_rov_pose", k * 10_000_000, np.array([k, 0.0, 0.0]), q)
-        rec.unity_pose("model_rov_pose", 5_000_000_000 + k * 16_000_000,
-                       np.array([0.0, 0.0, k]), q, applied_stamp_ns=k * 10_000_000)
+        rec.unity_pose(
+            "model_rov_pose",
+            5_000_000_000 + k * 16_000_000,
+            np.array([0.0, 0.0, k]),
+            q,
+            applied_stamp_ns=k * 10_000_000,
+        )
     rec.close()
     rec.close()  # idempotent
     counts = {t.name: t.count for t in list_topics(path)}
-    assert counts == {"/gazebo/model_rov_pose": 50, "/unity/model_rov_pose": 50,
-                      "/unity/model_rov_pose/applied_stamp": 50}
+    assert counts == {
+        "/gazebo/model_rov_pose": 50,
+        "/unity/model_rov_pose": 50,
+        "/unity/model_rov_pose/applied_stamp": 50,
+    }
     assert rec.flushed == rec.written
     report = scan_mcap(path)
     assert report.complete
@@ -45,11 +53,12 @@ def test_clean_close_keeps_every_message_with_the_right_frames(tmp_path: Path) -
     from mcap.reader import make_reader
 
     with open(path, "rb") as fh:
-        frame_ids = {ch.topic: typestore(2).deserialize_cdr(m.data, s.name).header.frame_id
-                     for s, ch, m in make_reader(fh).iter_messages()
-                     if s is not None and s.name.endswith("PoseStamped")}
-    assert frame_ids == {"/gazebo/model_rov_pose": "world",
-                         "/unity/model_rov_pose": "unity-enu"}
+        frame_ids = {
+            ch.topic: typestore(2).deserialize_cdr(m.data, s.name).header.frame_id
+            for s, ch, m in make_reader(fh).iter_messages()
+            if s is not None and s.name.endswith("PoseStamped")
+        }
+    assert frame_ids == {"/gazebo/model_rov_pose": "world", "/unity/model_rov_pose": "unity-enu"}
 
 
 CHILD = textwrap.dedent("""
@@ -73,8 +82,9 @@ CHILD = textwrap.dedent("""
 def test_sigkill_leaves_everything_up_to_the_last_flush_readable(tmp_path: Path) -> None:
     path = tmp_path / "killed.mcap"
     env = dict(os.environ, PYTHONPATH=str(REPO))
-    proc = subprocess.Popen([sys.executable, "-c", CHILD, str(path)], stdout=subprocess.PIPE,
-                            text=True, env=env)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", CHILD, str(path)], stdout=subprocess.PIPE, text=True, env=env
+    )
     assert proc.stdout is not None
     flushed = 0
     deadline = time.monotonic() + 60
@@ -102,8 +112,11 @@ def test_sigkill_leaves_everything_up_to_the_last_flush_readable(tmp_path: Path)
         try:
             for r in StreamReader(fh).records:
                 if isinstance(r, Message):
-                    xs.append(typestore(2).deserialize_cdr(
-                        r.data, "geometry_msgs/msg/PoseStamped").pose.position.x)
+                    xs.append(
+                        typestore(2)
+                        .deserialize_cdr(r.data, "geometry_msgs/msg/PoseStamped")
+                        .pose.position.x
+                    )
         except Exception:
             pass  # the truncated tail
     assert xs == [float(k) for k in range(got)]

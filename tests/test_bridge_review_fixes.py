@@ -38,8 +38,9 @@ def test_scan_counts_the_bytes_really_lost_after_a_cut(tmp_path: Path) -> None:
 
 
 def test_nothing_delivered_means_no_latency_figures(tmp_path: Path) -> None:
-    res = _uwval("simulate", "--duration", "1", "--drop", "1", "--json",
-                 "-o", str(tmp_path / "d.mcap"))
+    res = _uwval(
+        "simulate", "--duration", "1", "--drop", "1", "--json", "-o", str(tmp_path / "d.mcap")
+    )
     assert res.returncode == 0, res.stderr
     bridge = json.loads(res.stdout)["bridge"]
     assert bridge["delivered"] == 0
@@ -51,8 +52,9 @@ def test_unity_recorder_that_never_connects_fails(tmp_path: Path) -> None:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]  # nothing listens here once closed
-    res = _uwval("bridge", "unity", "--port", str(port), "--duration", "1.5",
-                 "-o", str(tmp_path / "u.mcap"))
+    res = _uwval(
+        "bridge", "unity", "--port", str(port), "--duration", "1.5", "-o", str(tmp_path / "u.mcap")
+    )
     assert res.returncode == 2, res.stdout + res.stderr
     assert "never connected" in res.stderr
     assert "Traceback" not in res.stderr

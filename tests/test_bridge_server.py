@@ -37,8 +37,7 @@ class RawClient:
     def send(self, dest: str, payload: bytes, nul: bool | None = None) -> None:
         add = self.nul if nul is None else nul
         d = dest.encode() + (b"\x00" if add else b"")
-        self.sock.sendall(struct.pack("<I", len(d)) + d + struct.pack("<I", len(payload))
-                          + payload)
+        self.sock.sendall(struct.pack("<I", len(d)) + d + struct.pack("<I", len(payload)) + payload)
 
     def command(self, dest: str, params: dict[str, object]) -> None:
         body = json.dumps(params).encode() + (b"\x00" if self.nul else b"")
@@ -131,8 +130,10 @@ def test_unity_publishes_to_ros_side_and_to_other_clients(server: BridgeServer) 
     listener = _connected(server, "cmd")
     talker = RawClient(server.port)
     talker.handshake()
-    talker.command("__publish", {"topic": "cmd", "message_name": "std_msgs/Header",
-                                 "queue_size": 10, "latch": False})
+    talker.command(
+        "__publish",
+        {"topic": "cmd", "message_name": "std_msgs/Header", "queue_size": 10, "latch": False},
+    )
     talker.send("cmd", b"payload-1")
     assert listener.read() == ("cmd", b"payload-1")
     deadline = time.monotonic() + 5
@@ -144,8 +145,7 @@ def test_unity_publishes_to_ros_side_and_to_other_clients(server: BridgeServer) 
     talker.send("unregistered", b"zz")
     dest, params = talker.read_json()
     assert dest == "__error"
-    assert "Not registered to publish topic 'unregistered'" in str(
-        params["text"])
+    assert "Not registered to publish topic 'unregistered'" in str(params["text"])
 
 
 def test_topic_list_lists_advertised_and_unity_topics(server: BridgeServer) -> None:
@@ -156,8 +156,10 @@ def test_topic_list_lists_advertised_and_unity_topics(server: BridgeServer) -> N
     c.command("__topic_list", {})
     dest, params = c.read_json()
     assert dest == "__topic_list"
-    assert params == {"topics": ["from_unity", "model_rov_pose"],
-                      "types": ["std_msgs/Header", "geometry_msgs/PoseStamped"]}
+    assert params == {
+        "topics": ["from_unity", "model_rov_pose"],
+        "types": ["std_msgs/Header", "geometry_msgs/PoseStamped"],
+    }
 
 
 def test_ros_service_request_response(server: BridgeServer) -> None:
@@ -185,8 +187,9 @@ def test_unity_service_called_from_ros_side(server: BridgeServer) -> None:
     c.command("__unity_service", {"topic": "get_pose", "message_name": "x/GetPose"})
     server.wait_for_registration("get_pose", "unity_service")
     result: list[bytes] = []
-    t = threading.Thread(target=lambda: result.append(
-        server.call_unity_service("get_pose", b"req", timeout=5)))
+    t = threading.Thread(
+        target=lambda: result.append(server.call_unity_service("get_pose", b"req", timeout=5))
+    )
     t.start()
     dest, params = c.read_json()
     assert dest == "__request"
@@ -265,37 +268,66 @@ def test_bounded_queue_drops_oldest_and_counts(server: BridgeServer) -> None:
 
 fuzz_chunks = st.one_of(
     st.binary(max_size=64),  # garbage
-    st.builds(lambda d, p: struct.pack("<I", len(d)) + d + struct.pack("<I", len(p)) + p,
-              st.binary(max_size=20), st.binary(max_size=50)),  # well-formed, random bytes
-    st.builds(lambda n: struct.pack("<I", 1) + b"a" + struct.pack("<I", n),
-              st.integers(min_value=0, max_value=2**32 - 1)),  # any (oversized) length
-    st.builds(lambda d: struct.pack("<I", len(d)) + d,
-              st.binary(max_size=20)),  # truncated
+    st.builds(
+        lambda d, p: struct.pack("<I", len(d)) + d + struct.pack("<I", len(p)) + p,
+        st.binary(max_size=20),
+        st.binary(max_size=50),
+    ),  # well-formed, random bytes
+    st.builds(
+        lambda n: struct.pack("<I", 1) + b"a" + struct.pack("<I", n),
+        st.integers(min_value=0, max_value=2**32 - 1),
+    ),  # any (oversized) length
+    st.builds(lambda d: struct.pack("<I", len(d)) + d, st.binary(max_size=20)),  # truncated
     st.builds(  # system commands with arbitrary (often wrong) JSON or bytes
-        lambda cmd, body, nul: (lambda d, p: struct.pack("<I", len(d)) + d
-                                + struct.pack("<I", len(p)) + p)(
-            cmd.encode() + (b"\x00" if nul else b""), body),
-        st.sampled_from(["__subscribe", "__publish", "__ros_service", "__unity_service",
-                         "__request", "__response", "__topic_list", "__log", "__warn",
-                         "__error", "__handshake", "__nope"]),
-        st.one_of(st.binary(max_size=30), st.recursive(
-            st.none() | st.booleans() | st.floats() | st.integers() | st.text(max_size=8),
-            lambda kids: st.lists(kids, max_size=3) | st.dictionaries(
-                st.sampled_from(["topic", "message_name", "srv_id", "text", "latch"]), kids,
-                max_size=4),
-            max_leaves=6).map(lambda v: json.dumps(v).encode())),
-        st.booleans()),
+        lambda cmd, body, nul: (
+            lambda d, p: struct.pack("<I", len(d)) + d + struct.pack("<I", len(p)) + p
+        )(cmd.encode() + (b"\x00" if nul else b""), body),
+        st.sampled_from(
+            [
+                "__subscribe",
+                "__publish",
+                "__ros_service",
+                "__unity_service",
+                "__request",
+                "__response",
+                "__topic_list",
+                "__log",
+                "__warn",
+                "__error",
+                "__handshake",
+                "__nope",
+            ]
+        ),
+        st.one_of(
+            st.binary(max_size=30),
+            st.recursive(
+                st.none() | st.booleans() | st.floats() | st.integers() | st.text(max_size=8),
+                lambda kids: (
+                    st.lists(kids, max_size=3)
+                    | st.dictionaries(
+                        st.sampled_from(["topic", "message_name", "srv_id", "text", "latch"]),
+                        kids,
+                        max_size=4,
+                    )
+                ),
+                max_leaves=6,
+            ).map(lambda v: json.dumps(v).encode()),
+        ),
+        st.booleans(),
+    ),
 )
 
 
 _fuzz_ids = itertools.count()
 
 
-@settings(max_examples=40, deadline=None,
-          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(
+    max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
 @given(chunks=st.lists(fuzz_chunks, min_size=1, max_size=8))
 def test_fuzzed_client_never_hurts_the_server_or_other_clients(
-        server: BridgeServer, chunks: list[bytes]) -> None:
+    server: BridgeServer, chunks: list[bytes]
+) -> None:
     topic = f"fuzz_target_{next(_fuzz_ids)}"  # fresh topic: stale clients never count
     good = _connected(server, topic)
     evil = RawClient(server.port)
@@ -316,8 +348,11 @@ def test_fuzzed_client_never_hurts_the_server_or_other_clients(
     good.close()
     fresh.close()
     # Every client the server closed was closed for a protocol reason, never a crash.
-    assert not [c.closed_reason for c in server.closed_clients()
-                if c.closed_reason.startswith("internal error")]
+    assert not [
+        c.closed_reason
+        for c in server.closed_clients()
+        if c.closed_reason.startswith("internal error")
+    ]
 
 
 def test_message_names_must_be_pkg_type(server: BridgeServer) -> None:

@@ -33,12 +33,18 @@ def motion(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def ticks(n: int = 200) -> Iterator[tuple[int, dict[str, tuple[np.ndarray, np.ndarray]]]]:
     t, pos, quat = motion(n)
     for k in range(n):
-        yield int(t[k]), {"model_rov_pose": (pos[k], quat[k]),
-                          "gui_camera_pose": (pos[k] + [-3.0, 0.0, 1.0], quat[k])}
+        yield (
+            int(t[k]),
+            {
+                "model_rov_pose": (pos[k], quat[k]),
+                "gui_camera_pose": (pos[k] + [-3.0, 0.0, 1.0], quat[k]),
+            },
+        )
 
 
-def session(tmp_path: Path, name: str = "run.mcap", n: int = 200, **kw: Any
-            ) -> tuple[Path, SessionStats]:
+def session(
+    tmp_path: Path, name: str = "run.mcap", n: int = 200, **kw: Any
+) -> tuple[Path, SessionStats]:
     path = tmp_path / name
     writer = open_mcap_writer(path)
     try:
@@ -53,17 +59,31 @@ def same_rotation(a: np.ndarray, b: np.ndarray, atol: float = 1e-12) -> bool:
     return bool(np.all(np.abs(dots - 1.0) < atol))
 
 
-@pytest.mark.parametrize(("unity_map", "protocol"),
-                         [("unity-flu", "ROS2"), ("unity-enu", "ROS2"), ("unity-flu", "ROS1")])
+@pytest.mark.parametrize(
+    ("unity_map", "protocol"), [("unity-flu", "ROS2"), ("unity-enu", "ROS2"), ("unity-flu", "ROS1")]
+)
 def test_unity_stream_back_in_enu_equals_gazebo_at_applied_stamps(
-        tmp_path: Path, unity_map: str, protocol: str) -> None:
-    path, stats = session(tmp_path, unity_map=unity_map, protocol=protocol, latency_s=0.03,
-                          jitter_s=0.002, drop_prob=0.1, unity_clock_offset_s=2.5, seed=3)
+    tmp_path: Path, unity_map: str, protocol: str
+) -> None:
+    path, stats = session(
+        tmp_path,
+        unity_map=unity_map,
+        protocol=protocol,
+        latency_s=0.03,
+        jitter_s=0.002,
+        drop_prob=0.1,
+        unity_clock_offset_s=2.5,
+        seed=3,
+    )
     topics = {t.name: t for t in list_topics(path)}
     assert set(topics) == {
-        "/gazebo/model_rov_pose", "/gazebo/gui_camera_pose", "/unity/model_rov_pose",
-        "/unity/gui_camera_pose", "/unity/model_rov_pose/applied_stamp",
-        "/unity/gui_camera_pose/applied_stamp"}
+        "/gazebo/model_rov_pose",
+        "/gazebo/gui_camera_pose",
+        "/unity/model_rov_pose",
+        "/unity/gui_camera_pose",
+        "/unity/model_rov_pose/applied_stamp",
+        "/unity/gui_camera_pose/applied_stamp",
+    }
     for name in ("model_rov_pose", "gui_camera_pose"):
         gz = read_stream(path, f"/gazebo/{name}")
         un = read_stream(path, f"/unity/{name}")
@@ -131,8 +151,7 @@ def test_same_seed_same_log_other_seed_other_drops(tmp_path: Path) -> None:
 
 
 def test_disconnect_loses_messages_then_reconnects_and_resubscribes(tmp_path: Path) -> None:
-    path, stats = session(tmp_path, n=250, disconnects=[1.5], reconnect_delay_s=1.0,
-                          latency_s=0.05)
+    path, stats = session(tmp_path, n=250, disconnects=[1.5], reconnect_delay_s=1.0, latency_s=0.05)
     assert stats.disconnects == 1
     assert stats.reconnects == 1
     # Lost: 2 topics x (50 ticks sent during the 1 s outage + the 2 ticks in flight at the
@@ -175,8 +194,10 @@ def test_ticks_from_streams_merges_and_converts() -> None:
     cam = PoseStream.from_arrays(t[::2], pos_u, quat_u, frame="unity-flu")
     out = list(ticks_from_streams(veh, cam))
     assert [k[0] for k in out] == t.tolist()
-    assert [sorted(k[1]) for k in out[:2]] == [["gui_camera_pose", "model_rov_pose"],
-                                               ["model_rov_pose"]]
+    assert [sorted(k[1]) for k in out[:2]] == [
+        ["gui_camera_pose", "model_rov_pose"],
+        ["model_rov_pose"],
+    ]
     np.testing.assert_allclose(out[2][1]["gui_camera_pose"][0], pos[2], atol=1e-12)
     with pytest.raises(BridgeError, match="1 names for 2 streams"):
         list(ticks_from_streams(veh, cam, names=["a"]))
@@ -196,8 +217,9 @@ def test_live_peer_on_the_session_endpoint_gets_the_poses_too(tmp_path: Path) ->
     got: list[int] = []
 
     def live_unity() -> None:
-        conn = UnityConnection("127.0.0.1", port,
-                               subscriptions={"model_rov_pose": wire.POSE_STAMPED})
+        conn = UnityConnection(
+            "127.0.0.1", port, subscriptions={"model_rov_pose": wire.POSE_STAMPED}
+        )
         deadline = time.monotonic() + 20
         while time.monotonic() < deadline:
             try:

@@ -43,9 +43,24 @@ def test_error_messages_with_brackets_are_printed_verbatim(tmp_path: object) -> 
     import subprocess
     import sys
 
-    res = subprocess.run([sys.executable, "-m", "uwval", "simulate", "--vehicle", "[/x].toml",
-                          "--duration", "1", "-o", "/tmp/never.mcap"],
-                         capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL)
+    res = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "uwval",
+            "simulate",
+            "--vehicle",
+            "[/x].toml",
+            "--duration",
+            "1",
+            "-o",
+            "/tmp/never.mcap",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        stdin=subprocess.DEVNULL,
+    )
     assert res.returncode == 2
     assert "Traceback" not in res.stderr
     assert "[/x].toml" in res.stderr
@@ -59,28 +74,37 @@ def test_io_names_resolve_lazily_and_match_all() -> None:
         assert getattr(io_pkg, name) is not None
 
 
-def test_the_command_line_loads_numpy_only_after_it_chose_the_blas_threads(tmp_path: object
-                                                                            ) -> None:
+def test_the_command_line_loads_numpy_only_after_it_chose_the_blas_threads(
+    tmp_path: object,
+) -> None:
     # `import uwval.cli` must not import numpy: main() sets OPENBLAS_NUM_THREADS for a
     # compare before numpy (and OpenBLAS's thread pool) loads; a user's own setting wins
     import subprocess
     import sys
 
-    probe = ("import os, sys, uwval, uwval.cli\n"
-             "assert 'numpy' not in sys.modules, 'numpy imported by uwval.cli'\n"
-             "from uwval.cli import compare_run\n"
-             "compare_run.fast_compare = lambda argv: True  # the compare itself is not needed\n"
-             "os._exit = lambda code: print(os.environ.get('OPENBLAS_NUM_THREADS'))\n"
-             "sys.argv = ['uwval', 'compare', 'a.tum', 'b.tum']\n"
-             "uwval.cli.main()\n")
+    probe = (
+        "import os, sys, uwval, uwval.cli\n"
+        "assert 'numpy' not in sys.modules, 'numpy imported by uwval.cli'\n"
+        "from uwval.cli import compare_run\n"
+        "compare_run.fast_compare = lambda argv: True  # the compare itself is not needed\n"
+        "os._exit = lambda code: print(os.environ.get('OPENBLAS_NUM_THREADS'))\n"
+        "sys.argv = ['uwval', 'compare', 'a.tum', 'b.tum']\n"
+        "uwval.cli.main()\n"
+    )
     for env_value, expected in ((None, "1"), ("3", "3")):
         import os
 
         env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
         if env_value is not None:
             env["OPENBLAS_NUM_THREADS"] = env_value
-        res = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
-                             timeout=60, env=env, stdin=subprocess.DEVNULL)
+        res = subprocess.run(
+            [sys.executable, "-c", probe],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            env=env,
+            stdin=subprocess.DEVNULL,
+        )
         assert res.returncode == 0, res.stderr
         assert res.stdout.strip() == expected
     import uwval
@@ -103,14 +127,29 @@ def test_compare_with_stdout_closed_writes_its_file_and_exits_0(tmp_path: object
 
     d = Path(str(tmp_path))
     n = 200
-    s = PoseStream.from_arrays(np.arange(n, dtype=np.int64) * 10_000_000,
-                               np.random.default_rng(1).normal(size=(n, 3)),
-                               quat_from_rpy(np.zeros((n, 3))))
+    s = PoseStream.from_arrays(
+        np.arange(n, dtype=np.int64) * 10_000_000,
+        np.random.default_rng(1).normal(size=(n, 3)),
+        quat_from_rpy(np.zeros((n, 3))),
+    )
     write_tum(d / "a.tum", s)
     write_tum(d / "b.tum", s.with_(position=s.position + 0.01))
-    res = subprocess.run([sys.executable, "-m", "uwval", "compare", str(d / "a.tum"),
-                          str(d / "b.tum"), "-o", str(d / "out.json")],
-                         preexec_fn=lambda: os.close(1), stderr=subprocess.PIPE, text=True,
-                         timeout=60, stdin=subprocess.DEVNULL)
+    res = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "uwval",
+            "compare",
+            str(d / "a.tum"),
+            str(d / "b.tum"),
+            "-o",
+            str(d / "out.json"),
+        ],
+        preexec_fn=lambda: os.close(1),
+        stderr=subprocess.PIPE,
+        text=True,
+        timeout=60,
+        stdin=subprocess.DEVNULL,
+    )
     assert res.returncode == 0, res.stderr
     assert '"n_samples": 200' in (d / "out.json").read_text()

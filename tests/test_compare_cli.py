@@ -26,9 +26,15 @@ def run_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("logs") / "run.mcap"
     g = vehicle_motion(1000, rate_hz=50.0, seed=21)
     cam = camera_motion(g)
-    write_pair_log(path, g, unity_view(g, convention="unity-flu", latency=0.02),
-                   camera=(cam, unity_view(cam, convention="unity-flu", latency=0.02,
-                                           topic="/unity/gui_camera_pose")))
+    write_pair_log(
+        path,
+        g,
+        unity_view(g, convention="unity-flu", latency=0.02),
+        camera=(
+            cam,
+            unity_view(cam, convention="unity-flu", latency=0.02, topic="/unity/gui_camera_pose"),
+        ),
+    )
     return path
 
 
@@ -46,11 +52,19 @@ def test_compare_json_contract_on_a_log(run_log: Path) -> None:
     assert doc["n_samples"] > 900
     assert set(doc["axes"]) == set(AXES)
     for ax in AXES:
-        for key in ("mae", "rmse", "max", "p95", "bias", "std", "pearson_r", "pearson_p",
-                    "pearson_ci"):
+        for key in (
+            "mae",
+            "rmse",
+            "max",
+            "p95",
+            "bias",
+            "std",
+            "pearson_r",
+            "pearson_p",
+            "pearson_ci",
+        ):
             assert key in doc["axes"][ax]
-    assert set(doc["position_error_norm"]) == {"mean", "median", "std", "min", "max", "rmse",
-                                               "sse"}
+    assert set(doc["position_error_norm"]) == {"mean", "median", "std", "min", "max", "rmse", "sse"}
     # right frame: small error and strong correlation on the moving axes
     assert doc["position_error_norm"]["rmse"] < 0.05
     assert doc["axes"]["x"]["pearson_r"] > 0.99
@@ -92,8 +106,16 @@ def test_frame_auto_fixes_the_wrong_map(wrong_map_log: Path) -> None:
 
 def test_readable_table(run_log: Path) -> None:
     out = _uwval("compare", run_log).stdout
-    for word in ("axis", "MAE", "RMSE", "Pearson", "yaw", "position error norm",
-                 "model_rov_pose", "gui_camera_pose"):
+    for word in (
+        "axis",
+        "MAE",
+        "RMSE",
+        "Pearson",
+        "yaw",
+        "position error norm",
+        "model_rov_pose",
+        "gui_camera_pose",
+    ):
         assert word in out
 
 
@@ -103,8 +125,20 @@ def test_two_tum_files_and_output_file(tmp_path: Path) -> None:
     write_tum(tmp_path / "a.tum", g)
     write_tum(tmp_path / "b.txt", u)
     out = tmp_path / "res.json"
-    doc = json.loads(_uwval("compare", tmp_path / "a.tum", tmp_path / "b.txt", "--sync",
-                            "nearest", "--max-diff", "0.02", "--json", "-o", out).stdout)
+    doc = json.loads(
+        _uwval(
+            "compare",
+            tmp_path / "a.tum",
+            tmp_path / "b.txt",
+            "--sync",
+            "nearest",
+            "--max-diff",
+            "0.02",
+            "--json",
+            "-o",
+            out,
+        ).stdout
+    )
     assert json.loads(out.read_text()) == doc
     assert doc["sync"]["method"] == "nearest"
     assert doc["counts"]["matched"] + doc["counts"]["dropped"] == min(len(g), len(u))
@@ -114,8 +148,11 @@ def test_offset_auto_through_the_cli(tmp_path: Path) -> None:
     g = vehicle_motion(1500, seed=24)
     write_tum(tmp_path / "a.tum", g)
     write_tum(tmp_path / "b.tum", g.with_(t=g.t + 2_500_000_000))
-    doc = json.loads(_uwval("compare", tmp_path / "a.tum", tmp_path / "b.tum", "--offset",
-                            "auto", "--json").stdout)
+    doc = json.loads(
+        _uwval(
+            "compare", tmp_path / "a.tum", tmp_path / "b.tum", "--offset", "auto", "--json"
+        ).stdout
+    )
     assert doc["offset"]["applied_s"] == pytest.approx(-2.5, abs=1e-4)
     assert doc["offset"]["estimate"]["uncertainty_s"] < 1e-3
     assert doc["position_error_norm"]["rmse"] < 1e-3
@@ -132,8 +169,7 @@ def test_offset_auto_through_the_cli(tmp_path: Path) -> None:
         (["{a}", "--offset", "soon"], "--offset must be seconds"),
     ],
 )
-def test_user_errors_exit_2_without_traceback(run_log: Path, args: list[str],
-                                              message: str) -> None:
+def test_user_errors_exit_2_without_traceback(run_log: Path, args: list[str], message: str) -> None:
     proc = _uwval("compare", *[a.format(a=run_log) for a in args], check=False)
     assert proc.returncode == 2, proc.stderr
     assert message in proc.stderr
@@ -160,6 +196,7 @@ def test_compare_path_imports_no_heavy_libraries(tmp_path: Path) -> None:
         "heavy = [m for m in ('pandas', 'scipy', 'matplotlib') if m in sys.modules]\n"
         "print('HEAVY', heavy)\n"
     )
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                          check=True, timeout=60)
+    proc = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60
+    )
     assert "HEAVY []" in proc.stdout

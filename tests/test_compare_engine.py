@@ -25,12 +25,14 @@ from uwval.posestream import PoseStream
 from uwval.rotations import quat_from_rpy
 
 
-def _stream(t_s: np.ndarray, pos: np.ndarray, rpy: np.ndarray | None = None,
-            frame: str = "enu") -> PoseStream:
+def _stream(
+    t_s: np.ndarray, pos: np.ndarray, rpy: np.ndarray | None = None, frame: str = "enu"
+) -> PoseStream:
     n = len(t_s)
     quat = quat_from_rpy(np.zeros((n, 3)) if rpy is None else rpy)
-    return PoseStream.from_arrays(np.round(np.asarray(t_s) * 1e9).astype(np.int64), pos, quat,
-                                  frame=frame, topic="t")
+    return PoseStream.from_arrays(
+        np.round(np.asarray(t_s) * 1e9).astype(np.int64), pos, quat, frame=frame, topic="t"
+    )
 
 
 # ------------------------------------------------------------------ evo's association
@@ -44,8 +46,9 @@ def _stream(t_s: np.ndarray, pos: np.ndarray, rpy: np.ndarray | None = None,
     st.sampled_from([0.0, 0.003, -0.007]),
     st.sampled_from([1, 3, 1 << 15]),
 )
-def test_match_time_indices_equals_evo(a: list[int], b: list[int], max_diff: float,
-                                       offset: float, chunk: int) -> None:
+def test_match_time_indices_equals_evo(
+    a: list[int], b: list[int], max_diff: float, offset: float, chunk: int
+) -> None:
     from evo.core.sync import matching_time_indices
 
     import uwval.comparison.sync as sync_module
@@ -98,8 +101,9 @@ def test_interp_is_exact_on_linear_motion_and_never_extrapolates() -> None:
     t_oth = np.arange(1.05, 8.0, 0.25)
     oth = _stream(t_oth, np.column_stack([t_oth, 2 * t_oth, -t_oth]))
     res = compare(ref, oth)
-    assert res.stats["counts"]["dropped"] == int(((t_ref < 1.05 - 1e-9) |
-                                                  (t_ref > t_oth[-1] + 1e-9)).sum())
+    assert res.stats["counts"]["dropped"] == int(
+        ((t_ref < 1.05 - 1e-9) | (t_ref > t_oth[-1] + 1e-9)).sum()
+    )
     assert res.t[0] >= oth.t[0]
     assert res.t[-1] <= oth.t[-1]
     assert max(abs(res.errors[a]).max() for a in "xyz") < 1e-9
@@ -155,12 +159,16 @@ def test_gaps_longer_than_max_gap_are_masked_and_counted() -> None:
 
 @settings(max_examples=200, deadline=None)
 @given(
-    st.lists(st.one_of(st.floats(-1e6, 1e6), st.sampled_from([0.0, 1.0, -1.0, 2.5])),
-             min_size=1, max_size=40),
+    st.lists(
+        st.one_of(st.floats(-1e6, 1e6), st.sampled_from([0.0, 1.0, -1.0, 2.5])),
+        min_size=1,
+        max_size=40,
+    ),
     st.lists(st.floats(0.0, 100.0), min_size=1, max_size=4),
 )
-def test_percentiles_and_median_equal_numpy_bit_for_bit(values: list[float],
-                                                        q: list[float]) -> None:
+def test_percentiles_and_median_equal_numpy_bit_for_bit(
+    values: list[float], q: list[float]
+) -> None:
     x = np.array(values)
     before = x.copy()
     got = percentiles(x, tuple(q))
@@ -259,10 +267,16 @@ def test_constant_axis_gives_null_r_in_json() -> None:
 def test_yaw_error_wraps_359_vs_1_to_2_degrees() -> None:
     t = np.arange(0.0, 1.0, 0.1)
     n = t.size
-    ref = _stream(t, np.zeros((n, 3)), np.column_stack([np.zeros(n), np.zeros(n),
-                                                        np.full(n, np.radians(359.0))]))
-    oth = _stream(t, np.zeros((n, 3)), np.column_stack([np.zeros(n), np.zeros(n),
-                                                        np.full(n, np.radians(1.0))]))
+    ref = _stream(
+        t,
+        np.zeros((n, 3)),
+        np.column_stack([np.zeros(n), np.zeros(n), np.full(n, np.radians(359.0))]),
+    )
+    oth = _stream(
+        t,
+        np.zeros((n, 3)),
+        np.column_stack([np.zeros(n), np.zeros(n), np.full(n, np.radians(1.0))]),
+    )
     res = compare(ref, oth)
     np.testing.assert_allclose(res.errors["yaw"], 2.0, atol=1e-9)
     np.testing.assert_allclose(res.errors["rotation_angle"], 2.0, atol=1e-6)
@@ -284,8 +298,7 @@ def test_umeyama_matches_evo_and_recovers_a_similarity() -> None:
     rng = np.random.default_rng(4)
     x = rng.normal(size=(200, 3))
     ang = 0.7
-    r = np.array([[math.cos(ang), -math.sin(ang), 0], [math.sin(ang), math.cos(ang), 0],
-                  [0, 0, 1]])
+    r = np.array([[math.cos(ang), -math.sin(ang), 0], [math.sin(ang), math.cos(ang), 0], [0, 0, 1]])
     y = 1.5 * x @ r.T + np.array([1.0, -2.0, 3.0]) + rng.normal(scale=1e-3, size=x.shape)
     ours = umeyama(x, y, with_scale=True)
     theirs = umeyama_alignment(x.T, y.T, True)
@@ -317,8 +330,7 @@ def test_origin_alignment_makes_first_poses_coincide() -> None:
 @pytest.mark.parametrize("clock_offset", [0.0, 0.0123, -3.7, 1000.25])
 def test_offset_auto_recovers_clock_offset_to_sub_sample_precision(clock_offset: float) -> None:
     g = vehicle_motion(3000, rate_hz=50.0, seed=6)  # 60 s
-    u = unity_view(g, convention="unity-flu", rate_hz=60.0, latency=0.0,
-                   clock_offset=clock_offset)
+    u = unity_view(g, convention="unity-flu", rate_hz=60.0, latency=0.0, clock_offset=clock_offset)
     est = estimate_offset(g, convert_stream(u, "enu"))
     # a sample-and-hold at 60 Hz shows poses on average half a Gazebo period late (10 ms)
     # plus half a render period; compare against the true content delay measured directly
@@ -391,8 +403,9 @@ def test_compare_frame_auto_picks_the_right_convention() -> None:
     assert any("fits worse than 'unity-enu'" in w for w in bad.warnings)
     good = compare(g, mislabeled, frame="auto")
     assert good.stats["frame"]["configured"] == "unity-enu"
-    assert good.stats["position_error_norm"]["rmse"] < 0.01 < \
-        bad.stats["position_error_norm"]["rmse"]
+    assert (
+        good.stats["position_error_norm"]["rmse"] < 0.01 < bad.stats["position_error_norm"]["rmse"]
+    )
 
 
 def test_to_dataframe_has_aligned_series() -> None:

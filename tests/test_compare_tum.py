@@ -21,8 +21,11 @@ from uwval.rotations import quat_from_rpy
 REQUIRE_ACCELERATOR = bool(os.environ.get("UWVAL_REQUIRE_ACCELERATOR"))
 
 
-@pytest.fixture(autouse=True, scope="module",
-                params=[pytest.param(True, id="c-accelerator"), pytest.param(False, id="loadtxt")])
+@pytest.fixture(
+    autouse=True,
+    scope="module",
+    params=[pytest.param(True, id="c-accelerator"), pytest.param(False, id="loadtxt")],
+)
 def tum_engine(request: pytest.FixtureRequest) -> Iterator[bool]:
     """Every test of this file runs with the C accelerator and with numpy's loadtxt path."""
     if request.param and tum_module._tumparse is None:
@@ -129,8 +132,11 @@ def test_large_file_is_parsed_in_chunks(tmp_path: Path, monkeypatch: pytest.Monk
     monkeypatch.setattr(tum, "_CHUNK", 64)  # force many chunks and boundary cases
     rng = np.random.default_rng(2)
     n = 300
-    s = PoseStream.from_arrays(np.arange(n, dtype=np.int64) * 10_000_000 + 5,
-                               rng.normal(size=(n, 3)), quat_from_rpy(rng.normal(size=(n, 3))))
+    s = PoseStream.from_arrays(
+        np.arange(n, dtype=np.int64) * 10_000_000 + 5,
+        rng.normal(size=(n, 3)),
+        quat_from_rpy(rng.normal(size=(n, 3))),
+    )
     write_tum(tmp_path / "c.tum", s)
     back = read_tum(tmp_path / "c.tum")
     np.testing.assert_array_equal(back.t, s.t)
@@ -142,8 +148,14 @@ def test_large_file_is_parsed_in_chunks(tmp_path: Path, monkeypatch: pytest.Monk
 
 # ---- the block parser: bit-exact against float(), whatever the layout -----------------------
 
-_FORMATS = (repr, "{:.9f}".format, "{:.17g}".format, "{:.3e}".format, "{:+.6f}".format,
-            lambda x: str(round(x)))
+_FORMATS = (
+    repr,
+    "{:.9f}".format,
+    "{:.17g}".format,
+    "{:.3e}".format,
+    "{:+.6f}".format,
+    lambda x: str(round(x)),
+)
 _value = st.floats(-1e6, 1e6, allow_nan=False, allow_infinity=False)
 _stamp = st.floats(0.0, 4e9, allow_nan=False, allow_infinity=False)
 
@@ -167,9 +179,9 @@ def _tum_text(draw: st.DrawFn) -> tuple[str, list[list[str]]]:
 
 @settings(max_examples=150, deadline=None)
 @given(_tum_text(), st.sampled_from([64, 200, 1 << 18]))
-def test_block_parser_equals_float_bit_for_bit(tmp_path_factory: pytest.TempPathFactory,
-                                               case: tuple[str, list[list[str]]],
-                                               chunk: int) -> None:
+def test_block_parser_equals_float_bit_for_bit(
+    tmp_path_factory: pytest.TempPathFactory, case: tuple[str, list[list[str]]], chunk: int
+) -> None:
     import uwval.io.tum as tum
 
     text, tokens = case
@@ -193,8 +205,9 @@ def test_block_parser_matches_numpy_loadtxt_on_a_large_clean_file(tmp_path: Path
     rng = np.random.default_rng(5)
     n = 20_000
     t = 1_700_000_000_000_000_000 + np.arange(n, dtype=np.int64) * 10**7
-    s = PoseStream.from_arrays(t, rng.normal(size=(n, 3)) * 100,
-                               quat_from_rpy(rng.normal(size=(n, 3))))
+    s = PoseStream.from_arrays(
+        t, rng.normal(size=(n, 3)) * 100, quat_from_rpy(rng.normal(size=(n, 3)))
+    )
     write_tum(tmp_path / "big.tum", s)
     import uwval.io.tum as tum
 
@@ -221,6 +234,7 @@ def test_bad_stamps_are_errors_naming_the_pose_line(tmp_path: Path, stamp: str) 
 
 
 # ---- two files at once: the forked reader gives what reading one after the other gives -----
+
 
 def _pair(tmp_path: Path, n: int = 3000) -> tuple[Path, Path]:
     rng = np.random.default_rng(7)
@@ -296,9 +310,9 @@ def test_parallel_pair_errors_name_the_file_and_reap_the_child(tmp_path: Path) -
     assert _children() == before
 
 
-def test_compare_of_large_tum_pair_is_parallel_and_unchanged(tmp_path: Path,
-                                                              monkeypatch: pytest.MonkeyPatch
-                                                              ) -> None:
+def test_compare_of_large_tum_pair_is_parallel_and_unchanged(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     # compare_logs reads two TUM files through read_tum_pair: the JSON is the same whether the
     # second file is parsed concurrently (thread or forked child) or not
     import os
@@ -338,8 +352,10 @@ def test_compare_of_large_tum_pair_is_parallel_and_unchanged(tmp_path: Path,
 
 # ---- the light command-line path --------------------------------------------------------------
 
-def test_fast_compare_prints_what_typer_prints(tmp_path: Path,
-                                               capsys: pytest.CaptureFixture[str]) -> None:
+
+def test_fast_compare_prints_what_typer_prints(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     from typer.testing import CliRunner
 
     from uwval.cli import _register, app
@@ -347,8 +363,18 @@ def test_fast_compare_prints_what_typer_prints(tmp_path: Path,
 
     _register()
     a, b = _pair(tmp_path, 400)
-    args = [str(a), str(b), "--sync", "nearest", "--max-diff=0.005", "--align", "se3", "--json",
-            "-o", str(tmp_path / "out.json")]
+    args = [
+        str(a),
+        str(b),
+        "--sync",
+        "nearest",
+        "--max-diff=0.005",
+        "--align",
+        "se3",
+        "--json",
+        "-o",
+        str(tmp_path / "out.json"),
+    ]
     assert fast_compare(args)
     fast_out = capsys.readouterr().out
     fast_file = (tmp_path / "out.json").read_text()
@@ -359,20 +385,27 @@ def test_fast_compare_prints_what_typer_prints(tmp_path: Path,
     assert '"matched"' in fast_out
 
 
-@pytest.mark.parametrize("args", [["--help"], ["a.tum", "b.tum", "--sync"],
-                                  ["a.tum", "b.tum", "--bogus", "1"],
-                                  ["a.tum", "b.tum", "--sync", "nearest", "--sync", "interp"],
-                                  ["a.tum", "b.tum", "--max-diff", "1_0"],
-                                  ["a.tum", "b.tum", "c.tum"], []])
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["--help"],
+        ["a.tum", "b.tum", "--sync"],
+        ["a.tum", "b.tum", "--bogus", "1"],
+        ["a.tum", "b.tum", "--sync", "nearest", "--sync", "interp"],
+        ["a.tum", "b.tum", "--max-diff", "1_0"],
+        ["a.tum", "b.tum", "c.tum"],
+        [],
+    ],
+)
 def test_fast_compare_leaves_anything_unusual_to_typer(args: list[str]) -> None:
     from uwval.cli.compare_cmd import fast_compare
 
     assert fast_compare(args) is False
 
 
-def test_pair_is_read_in_this_process_when_other_threads_run(tmp_path: Path,
-                                                              monkeypatch: pytest.MonkeyPatch
-                                                              ) -> None:
+def test_pair_is_read_in_this_process_when_other_threads_run(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     # forking a multi-threaded process can deadlock the child: read sequentially instead
     import threading
 

@@ -19,13 +19,12 @@ from uwval.resources import data_path
 HAS_DASK = importlib.util.find_spec("distributed") is not None
 
 
-
-
 @pytest.fixture(scope="module")
 def run_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     log = tmp_path_factory.mktemp("rv") / "run.mcap"
-    res = _uwval("simulate", "--force", "10,0,0", "--torque", "0,0,1", "--duration", "5",
-                 "-o", str(log))
+    res = _uwval(
+        "simulate", "--force", "10,0,0", "--torque", "0,0,1", "--duration", "5", "-o", str(log)
+    )
     assert res.returncode == 0, res.stderr
     return log
 
@@ -38,24 +37,25 @@ def test_batch_finds_logs_in_folders_named_like_levels(tmp_path: Path, run_log: 
     assert names == ["force_1.5", "force_2"]
 
 
-@pytest.mark.parametrize(("args", "needle"), [
-    (["--offset", "nan"], "finite"),
-    (["--offset", "inf"], "finite"),
-    (["--max-gap", "-1"], "max_gap"),
-    (["--max-gap", "0"], "max_gap"),
-    (["--sync", "nearest", "--max-diff", "-1"], "max_diff"),
-    (["--format", "foo"], "--format 'foo'"),
-])
-def test_bad_compare_options_are_clean_errors(run_log: Path, args: list[str],
-                                              needle: str) -> None:
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["--offset", "nan"], "finite"),
+        (["--offset", "inf"], "finite"),
+        (["--max-gap", "-1"], "max_gap"),
+        (["--max-gap", "0"], "max_gap"),
+        (["--sync", "nearest", "--max-diff", "-1"], "max_diff"),
+        (["--format", "foo"], "--format 'foo'"),
+    ],
+)
+def test_bad_compare_options_are_clean_errors(run_log: Path, args: list[str], needle: str) -> None:
     res = _uwval("compare", str(run_log), *args)
     assert res.returncode == 2, res.stdout + res.stderr
     assert needle in res.stderr
     assert "Traceback" not in res.stderr
 
 
-def test_compare_output_creates_its_folder_or_fails_cleanly(tmp_path: Path,
-                                                           run_log: Path) -> None:
+def test_compare_output_creates_its_folder_or_fails_cleanly(tmp_path: Path, run_log: Path) -> None:
     out = tmp_path / "new" / "dir" / "result.json"
     res = _uwval("compare", str(run_log), "-o", str(out))
     assert res.returncode == 0, res.stderr
@@ -69,12 +69,18 @@ def test_compare_output_creates_its_folder_or_fails_cleanly(tmp_path: Path,
 
 
 def test_check_on_a_manifest_with_one_bad_log_checks_the_rest(tmp_path: Path) -> None:
-    m = run_experiment(data_path("experiments", "default.toml"), tmp_path / "exp",
-                       SessionOptions(), executor="inline", progress=False)
+    m = run_experiment(
+        data_path("experiments", "default.toml"),
+        tmp_path / "exp",
+        SessionOptions(),
+        executor="inline",
+        progress=False,
+    )
     bad = m["runs"][2]
     (tmp_path / "exp" / bad["log"]).write_bytes(b"garbage")
-    res = _uwval("check", str(tmp_path / "exp"), "--thresholds",
-                 str(data_path("thresholds", "default.toml")))
+    res = _uwval(
+        "check", str(tmp_path / "exp"), "--thresholds", str(data_path("thresholds", "default.toml"))
+    )
     assert res.returncode == 1, res.stdout + res.stderr
     assert "1 run(s) failed" in res.stderr
     assert bad["name"] in res.stderr
@@ -109,8 +115,15 @@ def test_dask_does_not_retry_deterministic_errors(tmp_path: Path) -> None:
     from uwval.executors import run_tasks
 
     cloudpickle.register_pickle_by_value(executor_tasks)
-    out = run_tasks(executor_tasks.count_and_fail, [(1, str(tmp_path))], ["one"],
-                    executor="dask", workers=1, retries=3, progress=False)
+    out = run_tasks(
+        executor_tasks.count_and_fail,
+        [(1, str(tmp_path))],
+        ["one"],
+        executor="dask",
+        workers=1,
+        retries=3,
+        progress=False,
+    )
     assert not out[0].ok
     assert "bad parameter" in out[0].error
     assert (tmp_path / "attempts-1").read_text() == "x"  # ran once, not 1 + 3 times

@@ -12,8 +12,13 @@ import pandas as pd
 
 def test_demo_end_to_end(tmp_path: Path) -> None:
     out = tmp_path / "uwval-demo"
-    res = subprocess.run([sys.executable, "-m", "uwval", "demo", "-o", str(out)],
-                         capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL)
+    res = subprocess.run(
+        [sys.executable, "-m", "uwval", "demo", "-o", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        stdin=subprocess.DEVNULL,
+    )
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     assert "uwval check: PASS" in res.stdout
     manifest = json.loads((out / "manifest.json").read_text())

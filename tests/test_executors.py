@@ -15,8 +15,14 @@ HAS_DASK = importlib.util.find_spec("distributed") is not None
 
 @pytest.mark.parametrize("executor", ["inline", "local"])
 def test_results_in_order_and_failures_named(executor: str) -> None:
-    out = run_tasks(tasks.fail_on_three, list(range(6)), [f"run{i}" for i in range(6)],
-                    executor=executor, workers=2, progress=False)
+    out = run_tasks(
+        tasks.fail_on_three,
+        list(range(6)),
+        [f"run{i}" for i in range(6)],
+        executor=executor,
+        workers=2,
+        progress=False,
+    )
     assert [o.key for o in out] == [f"run{i}" for i in range(6)]
     assert [o.value for o in out if o.ok] == [0, 1, 4, 16, 25]
     bad = [o for o in out if not o.ok]
@@ -27,20 +33,34 @@ def test_results_in_order_and_failures_named(executor: str) -> None:
 
 def test_transient_failure_retried(tmp_path: Path) -> None:
     items = [(i, str(tmp_path)) for i in range(3)]
-    out = run_tasks(tasks.flaky_once, items, ["a", "b", "c"], executor="inline",
-                    retries=1, progress=False)
+    out = run_tasks(
+        tasks.flaky_once, items, ["a", "b", "c"], executor="inline", retries=1, progress=False
+    )
     assert all(o.ok for o in out)
     assert [o.attempts for o in out] == [2, 2, 2]
     (tmp_path / "x").mkdir()
-    out = run_tasks(tasks.flaky_once, [(9, str(tmp_path / "x"))], ["z"], executor="inline",
-                    retries=0, progress=False)
+    out = run_tasks(
+        tasks.flaky_once,
+        [(9, str(tmp_path / "x"))],
+        ["z"],
+        executor="inline",
+        retries=0,
+        progress=False,
+    )
     assert not out[0].ok and "transient failure for 9" in out[0].error
 
 
 def test_killed_local_worker_sweep_completes(tmp_path: Path) -> None:
     items = [(i, str(tmp_path)) for i in range(5)]
-    out = run_tasks(tasks.die_once, items, [f"r{i}" for i in range(5)], executor="local",
-                    workers=2, retries=2, progress=False)
+    out = run_tasks(
+        tasks.die_once,
+        items,
+        [f"r{i}" for i in range(5)],
+        executor="local",
+        workers=2,
+        retries=2,
+        progress=False,
+    )
     assert [o.value for o in out] == [100, 101, 102, 103, 104]
     assert (tmp_path / "died-2").exists()
 
@@ -57,7 +77,14 @@ def test_dask_local_cluster_identical_to_local(tmp_path: Path) -> None:
     assert [o.value for o in dask] == [o.value for o in local]
     # a worker killed mid-sweep: the task is rescheduled and every run is present once
     items = [(i, str(tmp_path)) for i in range(5)]
-    out = run_tasks(tasks.die_once, items, [f"r{i}" for i in range(5)], executor="dask",
-                    workers=2, retries=2, progress=False)
+    out = run_tasks(
+        tasks.die_once,
+        items,
+        [f"r{i}" for i in range(5)],
+        executor="dask",
+        workers=2,
+        retries=2,
+        progress=False,
+    )
     assert [o.key for o in out] == [f"r{i}" for i in range(5)]
     assert [o.value for o in out] == [100, 101, 102, 103, 104]

@@ -29,9 +29,11 @@ finite = st.floats(-1e3, 1e3, allow_nan=False, allow_infinity=False)
 
 
 def unit_quats(n: int) -> st.SearchStrategy[np.ndarray]:
-    return arrays(np.float64, (n, 4), elements=st.floats(-1, 1)).filter(
-        lambda a: bool(np.all(np.linalg.norm(a, axis=1) > 0.1))
-    ).map(lambda a: a / np.linalg.norm(a, axis=1, keepdims=True))
+    return (
+        arrays(np.float64, (n, 4), elements=st.floats(-1, 1))
+        .filter(lambda a: bool(np.all(np.linalg.norm(a, axis=1) > 0.1)))
+        .map(lambda a: a / np.linalg.norm(a, axis=1, keepdims=True))
+    )
 
 
 def same_rotation(a: np.ndarray, b: np.ndarray, tol: float = 1e-9) -> bool:
@@ -40,15 +42,14 @@ def same_rotation(a: np.ndarray, b: np.ndarray, tol: float = 1e-9) -> bool:
 
 @settings(max_examples=100, deadline=None)
 @given(quat_a=unit_quats(20), quat_b=unit_quats(20), scale=st.floats(0.5, 2.0))
-def test_geodesic_angle_equals_scipy_and_ignores_sign_and_scale(quat_a: np.ndarray,
-                                                                 quat_b: np.ndarray,
-                                                                 scale: float) -> None:
+def test_geodesic_angle_equals_scipy_and_ignores_sign_and_scale(
+    quat_a: np.ndarray, quat_b: np.ndarray, scale: float
+) -> None:
     from scipy.spatial.transform import Rotation
 
     want = (Rotation.from_quat(quat_b).inv() * Rotation.from_quat(quat_a)).magnitude()
     np.testing.assert_allclose(geodesic_angle(quat_a, quat_b), want, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(geodesic_angle(-scale * quat_a, quat_b), want, rtol=0,
-                               atol=1e-12)
+    np.testing.assert_allclose(geodesic_angle(-scale * quat_a, quat_b), want, rtol=0, atol=1e-12)
 
 
 def test_geodesic_angle_is_exact_near_zero() -> None:
@@ -157,9 +158,7 @@ def test_rpy_matches_scipy() -> None:
 
     rng = np.random.default_rng(1)
     q = Rotation.random(50, random_state=rng).as_quat()
-    np.testing.assert_allclose(
-        rpy_from_quat(q), Rotation.from_quat(q).as_euler("xyz"), atol=1e-9
-    )
+    np.testing.assert_allclose(rpy_from_quat(q), Rotation.from_quat(q).as_euler("xyz"), atol=1e-9)
     assert same_rotation(quat_from_rpy(rpy_from_quat(q)), q)
 
 

@@ -51,18 +51,24 @@ def _x_mae(table: ResultsTable, run: str) -> float:
 
 # ----------------------------------------------------------------------------- thresholds
 def test_threshold_violation_lists_metric_topic_axis_levels_value_bound(
-        table: ResultsTable, tmp_path: Path) -> None:
+    table: ResultsTable, tmp_path: Path
+) -> None:
     ranked = sorted(table.runs, key=lambda r: _x_mae(table, r))
     worst_run = ranked[-1]
     worst = _x_mae(table, worst_run)
     bound = (worst + _x_mae(table, ranked[-2])) / 2  # only the worst run breaks it
-    th = load_thresholds(_toml(tmp_path, f"""
+    th = load_thresholds(
+        _toml(
+            tmp_path,
+            f"""
         [[threshold]]
         metric = "mae"
         axes = ["x"]
         topics = ["{VEHICLE}"]
         max = {bound!r}
-    """))
+    """,
+        )
+    )
     verdict = check(table, th)
     assert not verdict.passed
     assert len(verdict.violations) == 1
@@ -83,55 +89,83 @@ def test_threshold_violation_lists_metric_topic_axis_levels_value_bound(
 
 def test_min_bound_factor_filter_and_undefined_policy(table: ResultsTable) -> None:
     # Pearson r of x is > 0.999 everywhere; z is constant (r undefined)
-    ok = check(table, parse_thresholds({"threshold": [
-        {"metric": "pearson_r", "axes": ["x", "z"], "min": 0.99}]}))
+    ok = check(
+        table,
+        parse_thresholds({"threshold": [{"metric": "pearson_r", "axes": ["x", "z"], "min": 0.99}]}),
+    )
     assert ok.passed
     assert ok.checked == 2 * 2 * len(table.runs)
     assert len(ok.skipped) == 2 * len(table.runs)  # both topics' z, skipped with the reason
     assert "constant" in ok.skipped[0]
-    strict = check(table, parse_thresholds({"threshold": [
-        {"metric": "pearson_r", "axes": ["z"], "min": 0.99, "undefined": "fail"}]}))
+    strict = check(
+        table,
+        parse_thresholds(
+            {
+                "threshold": [
+                    {"metric": "pearson_r", "axes": ["z"], "min": 0.99, "undefined": "fail"}
+                ]
+            }
+        ),
+    )
     assert {v.kind for v in strict.violations} == {"undefined"}
     assert len(strict.violations) == 2 * len(table.runs)
     # a bound that only the current = 0.2 runs break, restricted to current = 0 -> pass
     lo = max(_x_mae(table, r) for r in table.runs if "current0_" in r)
-    only0 = parse_thresholds({"threshold": [{"metric": "mae", "axes": "x", "max": lo,
-                                             "topics": VEHICLE, "factors": {"current": 0.0}}]})
+    only0 = parse_thresholds(
+        {
+            "threshold": [
+                {
+                    "metric": "mae",
+                    "axes": "x",
+                    "max": lo,
+                    "topics": VEHICLE,
+                    "factors": {"current": 0.0},
+                }
+            ]
+        }
+    )
     assert check(table, only0).passed
-    everywhere = parse_thresholds({"threshold": [{"metric": "mae", "axes": "x", "max": lo,
-                                                  "topics": VEHICLE}]})
+    everywhere = parse_thresholds(
+        {"threshold": [{"metric": "mae", "axes": "x", "max": lo, "topics": VEHICLE}]}
+    )
     bad = check(table, everywhere)
     assert not bad.passed
     assert all(v.factors["current"] == 0.2 for v in bad.violations)
 
 
 def test_a_rule_matching_nothing_fails(table: ResultsTable) -> None:
-    verdict = check(table, parse_thresholds({"threshold": [
-        {"metric": "mea", "max": 1.0}]}))  # typo
+    verdict = check(table, parse_thresholds({"threshold": [{"metric": "mea", "max": 1.0}]}))  # typo
     assert not verdict.passed
     assert verdict.violations[0].kind == "no-match"
     assert "matched no results" in verdict.format()
     with pytest.raises(ConfigError, match="filters on factor 'speed'"):
-        check(table, parse_thresholds({"threshold": [
-            {"metric": "mae", "max": 1.0, "factors": {"speed": 1}}]}))
+        check(
+            table,
+            parse_thresholds(
+                {"threshold": [{"metric": "mae", "max": 1.0, "factors": {"speed": 1}}]}
+            ),
+        )
 
 
-@pytest.mark.parametrize(("text", "message"), [
-    ("[[threshold]]\nmetric = 'mae'\n", "give 'max' and/or 'min'"),
-    ("[[threshold]]\nmax = 1\n", "'metric' .* is required"),
-    ("[[threshold]]\nmetric = 'mae'\nmax = 'big'\n", "'max' must be a number"),
-    ("[[threshold]]\nmetric = 'mae'\nmax = 1\nbogus = 2\n", r"unknown key\(s\) \['bogus'\]"),
-    ("[[threshold]]\nmetric = 'mae'\nmax = 1\nundefined = 'maybe'\n", "'undefined' must be"),
-    ("version = 2\n", "unsupported thresholds version 2"),
-    ("threshold = 3\n", "must be an array of tables"),
-    ("[baseline]\nrtol = -1\n", "rtol must be a number >= 0"),
-    ("[[threshold]\n", "not valid TOML"),
-    ("colour = 1\n", r"unknown top-level key\(s\) \['colour'\]"),
-    # a NaN bound compares false both ways and would pass everything
-    ("[[threshold]]\nmetric = 'mae'\nmax = nan\n", "'max' must be a finite number"),
-    ("[[threshold]]\nmetric = 'mae'\nmin = -inf\n", "'min' must be a finite number"),
-    ("[[threshold]]\nmetric = 'mae'\nmin = 2\nmax = 1\n", "'min' 2 is above 'max' 1"),
-])
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("[[threshold]]\nmetric = 'mae'\n", "give 'max' and/or 'min'"),
+        ("[[threshold]]\nmax = 1\n", "'metric' .* is required"),
+        ("[[threshold]]\nmetric = 'mae'\nmax = 'big'\n", "'max' must be a number"),
+        ("[[threshold]]\nmetric = 'mae'\nmax = 1\nbogus = 2\n", r"unknown key\(s\) \['bogus'\]"),
+        ("[[threshold]]\nmetric = 'mae'\nmax = 1\nundefined = 'maybe'\n", "'undefined' must be"),
+        ("version = 2\n", "unsupported thresholds version 2"),
+        ("threshold = 3\n", "must be an array of tables"),
+        ("[baseline]\nrtol = -1\n", "rtol must be a number >= 0"),
+        ("[[threshold]\n", "not valid TOML"),
+        ("colour = 1\n", r"unknown top-level key\(s\) \['colour'\]"),
+        # a NaN bound compares false both ways and would pass everything
+        ("[[threshold]]\nmetric = 'mae'\nmax = nan\n", "'max' must be a finite number"),
+        ("[[threshold]]\nmetric = 'mae'\nmin = -inf\n", "'min' must be a finite number"),
+        ("[[threshold]]\nmetric = 'mae'\nmin = 2\nmax = 1\n", "'min' 2 is above 'max' 1"),
+    ],
+)
 def test_bad_thresholds_name_the_file_and_rule(tmp_path: Path, text: str, message: str) -> None:
     p = _toml(tmp_path, text, "ci-thresholds.toml")
     with pytest.raises(ConfigError, match=message) as info:
@@ -147,8 +181,9 @@ def test_embedded_default_thresholds_parse() -> None:
 
 
 # ----------------------------------------------------------------------------- baseline
-def test_baseline_identical_passes_and_regression_is_caught(table: ResultsTable,
-                                                            tmp_path: Path) -> None:
+def test_baseline_identical_passes_and_regression_is_caught(
+    table: ResultsTable, tmp_path: Path
+) -> None:
     (golden,) = table.save(tmp_path / "golden.json")
     same = check(table, baseline=golden)
     assert same.passed
@@ -177,8 +212,7 @@ def test_baseline_identical_passes_and_regression_is_caught(table: ResultsTable,
 
 
 def test_missing_run_in_results_fails(table: ResultsTable) -> None:
-    part = ResultsTable.from_dataframe(table.df[table.df["run"] != table.runs[0]],
-                                       table.factors)
+    part = ResultsTable.from_dataframe(table.df[table.df["run"] != table.runs[0]], table.factors)
     verdict = check_baseline(part, table)
     assert verdict.violations
     assert {v.kind for v in verdict.violations} == {"missing"}
@@ -195,23 +229,31 @@ def test_check_needs_something_to_check(table: ResultsTable) -> None:
 
 
 def test_cli_check_exit_codes(experiment: Path, table: ResultsTable, tmp_path: Path) -> None:
-    loose = _toml(tmp_path, """
+    loose = _toml(
+        tmp_path,
+        """
         [[threshold]]
         metric = "mae"
         axes = ["x", "y", "z"]
         max = 1.0
-    """, "loose.toml")
+    """,
+        "loose.toml",
+    )
     ok = _uwval("check", str(experiment), "--thresholds", str(loose))
     assert ok.returncode == 0, ok.stderr
     assert "PASS" in ok.stdout
-    tight = _toml(tmp_path, """
+    tight = _toml(
+        tmp_path,
+        """
         [[threshold]]
         name = "vehicle x MAE"
         metric = "mae"
         axes = "x"
         topics = "model_rov_pose"
         max = 1e-6
-    """, "tight.toml")
+    """,
+        "tight.toml",
+    )
     bad = _uwval("check", str(experiment / "results"), "--thresholds", str(tight))
     assert bad.returncode == 1
     assert f"FAIL - {len(table.runs)} regression(s)" in bad.stderr
@@ -234,8 +276,7 @@ def test_cli_check_exit_codes(experiment: Path, table: ResultsTable, tmp_path: P
     assert "needs --thresholds" in none.stderr
 
 
-def test_cli_check_against_baseline(experiment: Path, table: ResultsTable,
-                                    tmp_path: Path) -> None:
+def test_cli_check_against_baseline(experiment: Path, table: ResultsTable, tmp_path: Path) -> None:
     (golden,) = table.save(tmp_path / "golden.csv")
     assert _uwval("check", str(experiment), "--baseline", str(golden)).returncode == 0
     df = pd.read_csv(golden, keep_default_na=False, na_values=[""])
@@ -250,14 +291,19 @@ def test_cli_check_against_baseline(experiment: Path, table: ResultsTable,
 def test_pytest_plugin_pattern_passes_and_fails(experiment: Path, tmp_path: Path) -> None:
     """The documented drop-in pattern, run in a separate pytest session."""
     log = write_pair_log(tmp_path / "rig.mcap", lag_s=0.02)
-    _toml(tmp_path, """
+    _toml(
+        tmp_path,
+        """
         [[threshold]]
         metric = "mae"
         axes = ["x", "y", "z"]
         max = 0.1
-    """, "ci.toml")
+    """,
+        "ci.toml",
+    )
     (tmp_path / "conftest.py").write_text('pytest_plugins = ["uwval.pytest_plugin"]\n')
-    (tmp_path / "test_rig.py").write_text(textwrap.dedent(f"""
+    (tmp_path / "test_rig.py").write_text(
+        textwrap.dedent(f"""
         from uwval.pytest_plugin import assert_pose_correspondence
 
         def test_log_passes():
@@ -270,11 +316,16 @@ def test_pytest_plugin_pattern_passes_and_fails(experiment: Path, tmp_path: Path
         def test_fixture_reports_regressions(uwval_check):
             uwval_check({str(log)!r}, {{"threshold": [
                 {{"metric": "mae", "axes": ["x"], "max": 1e-9}}]}})
-    """))
+    """)
+    )
     (tmp_path / "pytest.ini").write_text("[pytest]\nuwval_thresholds = ci.toml\n")
-    res = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
-                          "test_rig.py"], capture_output=True, text=True, cwd=tmp_path,
-                         timeout=120)
+    res = subprocess.run(
+        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "test_rig.py"],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        timeout=120,
+    )
     out = res.stdout + res.stderr
     assert res.returncode == 1, out
     assert "2 passed" in out
@@ -285,14 +336,30 @@ def test_pytest_plugin_pattern_passes_and_fails(experiment: Path, tmp_path: Path
     # --uwval-thresholds typed in a subdirectory is relative to that directory
     sub = tmp_path / "sub"
     sub.mkdir()
-    (sub / "test_opt.py").write_text(textwrap.dedent(f"""
+    (sub / "test_opt.py").write_text(
+        textwrap.dedent(f"""
         def test_option_path(uwval_check):
             v = uwval_check({str(log)!r})
             assert v.checked == 6
-    """))
-    res = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
-                          "--uwval-thresholds", "../ci.toml", "test_opt.py"],
-                         capture_output=True, text=True, cwd=sub, timeout=120)
+    """)
+    )
+    res = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pytest",
+            "-q",
+            "-p",
+            "no:cacheprovider",
+            "--uwval-thresholds",
+            "../ci.toml",
+            "test_opt.py",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=sub,
+        timeout=120,
+    )
     assert res.returncode == 0, res.stdout + res.stderr
 
 
@@ -307,8 +374,9 @@ def test_noise_level_correlation_in_the_baseline_is_not_gated(table: ResultsTabl
     verdict = check_baseline(ResultsTable.from_dataframe(now, table.factors), base)
     assert verdict.passed
     assert any("r_min" in s for s in verdict.skipped)
-    strict = check_baseline(ResultsTable.from_dataframe(now, table.factors), base,
-                            BaselineTolerance(r_min=-1.0))
+    strict = check_baseline(
+        ResultsTable.from_dataframe(now, table.factors), base, BaselineTolerance(r_min=-1.0)
+    )
     assert not strict.passed
 
 
@@ -320,12 +388,16 @@ def test_default_experiment_passes_the_projects_own_gate(tmp_path: Path) -> None
     ``uwval simulate data/experiments/default.toml -o DIR && uwval check DIR
     --write-baseline data/baselines/default.json``)."""
     out = tmp_path / "default"
-    sim = _uwval("simulate", str(REPO / "data" / "experiments" / "default.toml"), "-o",
-                 str(out))
+    sim = _uwval("simulate", str(REPO / "data" / "experiments" / "default.toml"), "-o", str(out))
     assert sim.returncode == 0, sim.stderr[-3000:]
-    res = _uwval("check", str(out), "--thresholds",
-                 str(REPO / "data" / "thresholds" / "default.toml"), "--baseline",
-                 str(REPO / "data" / "baselines" / "default.json"))
+    res = _uwval(
+        "check",
+        str(out),
+        "--thresholds",
+        str(REPO / "data" / "thresholds" / "default.toml"),
+        "--baseline",
+        str(REPO / "data" / "baselines" / "default.json"),
+    )
     assert res.returncode == 0, res.stdout + res.stderr
     assert "PASS" in res.stdout
 
@@ -347,14 +419,17 @@ def test_cli_check_bad_inputs_one_line_exit_2(experiment: Path, tmp_path: Path) 
     words.write_text("run,topic,axis,metric,value,unit,note\nr1,t,x,mae,abc,m,\n")
     cases = [
         (["check", str(junk), "--thresholds", str(th)], r"r\.parquet: not a readable Parquet"),
-        (["check", str(words), "--thresholds", str(th)],
-         r"words\.csv: row 1 \(r1 t x mae\): value 'abc' is not a number"),
+        (
+            ["check", str(words), "--thresholds", str(th)],
+            r"words\.csv: row 1 \(r1 t x mae\): value 'abc' is not a number",
+        ),
         (["check", str(experiment), "--thresholds", str(tmp_path)], "is a directory"),
         (["check", str(experiment), "--baseline", str(tmp_path)], "is a directory"),
     ]
     for args, message in cases:
-        proc = subprocess.run([sys.executable, "-m", "uwval", *args], capture_output=True,
-                              text=True, timeout=120)
+        proc = subprocess.run(
+            [sys.executable, "-m", "uwval", *args], capture_output=True, text=True, timeout=120
+        )
         assert proc.returncode == 2, (args, proc.stdout, proc.stderr)
         assert "Traceback" not in proc.stderr
         lines = proc.stderr.strip().splitlines()

@@ -45,12 +45,16 @@ def test_csv_euler_mapping_file_and_units(tmp_path: Path) -> None:
     t, pos, euler = _unity_rows()
     path = tmp_path / "unity_euler.csv"
     lines = ["# exported by a Unity script", "frame_ms;X;Y;Z;EX;EY;EZ"]
-    lines += [";".join(repr(float(v)) for v in (t[i] * 1000, *(pos[i] * 100), *euler[i]))
-              for i in range(len(t))]
+    lines += [
+        ";".join(repr(float(v)) for v in (t[i] * 1000, *(pos[i] * 100), *euler[i]))
+        for i in range(len(t))
+    ]
     path.write_text("\n".join(lines) + "\n")
     mapping = tmp_path / "map.yaml"
-    mapping.write_text("time: frame_ms\ntime_unit: ms\nposition: [X, Y, Z]\n"
-                       "euler: [EX, EY, EZ]\nlength_unit: cm\nframe: unity-enu\ndelimiter: ';'\n")
+    mapping.write_text(
+        "time: frame_ms\ntime_unit: ms\nposition: [X, Y, Z]\n"
+        "euler: [EX, EY, EZ]\nlength_unit: cm\nframe: unity-enu\ndelimiter: ';'\n"
+    )
     s = read_csv(path, mapping=mapping)
     assert s.frame == "unity-enu"
     np.testing.assert_allclose(s.position, pos, atol=1e-12)
@@ -76,8 +80,9 @@ def test_csv_errors_name_file_line_and_column(tmp_path: Path) -> None:
 
 
 def _run(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "uwval", *args], capture_output=True,
-                          text=True, timeout=120)
+    return subprocess.run(
+        [sys.executable, "-m", "uwval", *args], capture_output=True, text=True, timeout=120
+    )
 
 
 def test_inspect_json_and_table(tmp_path: Path) -> None:
@@ -155,24 +160,25 @@ def test_csv_unity_euler_means_ros_rpy_of_the_design_note(tmp_path: Path) -> Non
 
     rng = np.random.default_rng(12)
     n = 40
-    euler = np.column_stack([rng.uniform(-70, 70, n) % 360, rng.uniform(0, 360, n),
-                             rng.uniform(0, 360, n)])  # ex away from gimbal lock
+    euler = np.column_stack(
+        [rng.uniform(-70, 70, n) % 360, rng.uniform(0, 360, n), rng.uniform(0, 360, n)]
+    )  # ex away from gimbal lock
     path = tmp_path / "euler.csv"
     lines = ["time,x,y,z,ex,ey,ez"]
     pos_u = rng.normal(size=(n, 3))
-    lines += [",".join(repr(float(v)) for v in (i / 60, *pos_u[i], *euler[i]))
-              for i in range(n)]
+    lines += [",".join(repr(float(v)) for v in (i / 60, *pos_u[i], *euler[i])) for i in range(n)]
     path.write_text("\n".join(lines) + "\n")
     s = read_csv(path)
     assert s.frame == "unity-flu"
     ros = convert_stream(s, "enu")
-    expect = Rotation.from_euler("xyz", np.column_stack(
-        [-euler[:, 2], euler[:, 0], -euler[:, 1]]), degrees=True).as_quat()
-    np.testing.assert_allclose(np.abs(np.sum(ros.orientation * expect, axis=1)), 1.0,
-                               atol=1e-12)
+    expect = Rotation.from_euler(
+        "xyz", np.column_stack([-euler[:, 2], euler[:, 0], -euler[:, 1]]), degrees=True
+    ).as_quat()
+    np.testing.assert_allclose(np.abs(np.sum(ros.orientation * expect, axis=1)), 1.0, atol=1e-12)
     # vector Unity -> ROS: (x, y, z)_ros = (z_u, -x_u, y_u)
-    np.testing.assert_array_equal(ros.position,
-                                  np.column_stack([pos_u[:, 2], -pos_u[:, 0], pos_u[:, 1]]))
+    np.testing.assert_array_equal(
+        ros.position, np.column_stack([pos_u[:, 2], -pos_u[:, 0], pos_u[:, 1]])
+    )
 
 
 def test_csv_spreadsheet_exports_bom_crlf_semicolons_decimal_commas(tmp_path: Path) -> None:
@@ -180,13 +186,20 @@ def test_csv_spreadsheet_exports_bom_crlf_semicolons_decimal_commas(tmp_path: Pa
     head = ["time", "pos_x", "pos_y", "pos_z", "rot_x", "rot_y", "rot_z", "rot_w"]
     rows = [[0.0, 1.5, -2.25, 3.0, 0.0, 0.0, 0.0, 1.0], [0.5, 1.75, -2.5, 3.0, 0.0, 0.0, 0.0, 1.0]]
     variants = {
-        "bom.csv": ("\ufeff" + ",".join(head) + "\r\n"
-                    + "".join(",".join(repr(v) for v in r) + "\r\n" for r in rows)),
-        "semi.csv": (";".join(head) + "\n"
-                     + "".join(";".join(repr(v).replace(".", ",") for v in r) + "\n"
-                               for r in rows)),
-        "tab.csv": "\t".join(head) + "\n" + "".join("\t".join(repr(v) for v in r) + "\n"
-                                                    for r in rows),
+        "bom.csv": (
+            "\ufeff"
+            + ",".join(head)
+            + "\r\n"
+            + "".join(",".join(repr(v) for v in r) + "\r\n" for r in rows)
+        ),
+        "semi.csv": (
+            ";".join(head)
+            + "\n"
+            + "".join(";".join(repr(v).replace(".", ",") for v in r) + "\n" for r in rows)
+        ),
+        "tab.csv": "\t".join(head)
+        + "\n"
+        + "".join("\t".join(repr(v) for v in r) + "\n" for r in rows),
     }
     for name, text in variants.items():
         path = tmp_path / name

@@ -65,8 +65,9 @@ def _sorted(log_time: np.ndarray, stamp: np.ndarray, pose: np.ndarray) -> tuple[
     return log_time[order], stamp[order], pose[order]
 
 
-@pytest.mark.parametrize(("path", "topic", "count"), POSE_TOPICS,
-                         ids=[f"{p.name}:{t}" for p, t, _ in POSE_TOPICS])
+@pytest.mark.parametrize(
+    ("path", "topic", "count"), POSE_TOPICS, ids=[f"{p.name}:{t}" for p, t, _ in POSE_TOPICS]
+)
 def test_real_pose_topics_match_rosbags_and_mcap(path: Path, topic: str, count: int) -> None:
     ref = _reference_rows(path, topic)
     assert len(ref) == count
@@ -74,8 +75,9 @@ def test_real_pose_topics_match_rosbags_and_mcap(path: Path, topic: str, count: 
     fast = decode_poses(raw)
     assert fast.handled.all(), "fast path must cover these fixed-layout messages"
     lt, st, pose = _sorted(raw.log_time, fast.stamp, fast.pose)
-    r_lt, r_st, r_pose = _sorted(ref[:, 0].astype(np.int64), ref[:, 1].astype(np.int64),
-                                 ref[:, 2:].astype(np.float64))
+    r_lt, r_st, r_pose = _sorted(
+        ref[:, 0].astype(np.int64), ref[:, 1].astype(np.int64), ref[:, 2:].astype(np.float64)
+    )
     np.testing.assert_array_equal(lt, r_lt)
     np.testing.assert_array_equal(st, r_st)
     assert np.array_equal(pose.view(np.uint64), r_pose.view(np.uint64))  # bit-identical
@@ -93,8 +95,12 @@ def test_real_pose_topics_match_rosbags_and_mcap(path: Path, topic: str, count: 
 def test_list_topics_counts_agree_with_rosbags() -> None:
     from rosbags.highlevel import AnyReader
 
-    for path in (BAGS / "evo" / "ROS_example.bag", BAGS / "evo" / "tf_example",
-                 BAGS / "rosbag2" / "wbag_split", BAGS / "rosbag_js" / "example-bz2.bag"):
+    for path in (
+        BAGS / "evo" / "ROS_example.bag",
+        BAGS / "evo" / "tf_example",
+        BAGS / "rosbag2" / "wbag_split",
+        BAGS / "rosbag_js" / "example-bz2.bag",
+    ):
         with AnyReader([path]) as reader:
             expect: dict[str, int] = {}
             for c in reader.connections:
@@ -106,8 +112,10 @@ def test_list_topics_counts_agree_with_rosbags() -> None:
 
 def test_ros1_compressions_and_unsorted_chunks_agree() -> None:
     js = BAGS / "rosbag_js"
-    streams = [read_stream(js / f, "/tf", child_frame="turtle2")
-               for f in ("example.bag", "example-lz4.bag", "example-bz2.bag")]
+    streams = [
+        read_stream(js / f, "/tf", child_frame="turtle2")
+        for f in ("example.bag", "example-lz4.bag", "example-bz2.bag")
+    ]
     assert len(streams[0]) > 1000
     # values: the old tf/tfMessage type over several connections, against rosbags' decode
     from rosbags.highlevel import AnyReader
@@ -176,11 +184,14 @@ def test_tf_static_chain_composes_transforms(tmp_path: Path) -> None:
         return T["geometry_msgs/msg/TransformStamped"](
             header=T["std_msgs/msg/Header"](
                 stamp=T["builtin_interfaces/msg/Time"](sec=t_ns // 10**9, nanosec=t_ns % 10**9),
-                frame_id=parent),
+                frame_id=parent,
+            ),
             child_frame_id=child,
             transform=T["geometry_msgs/msg/Transform"](
                 translation=T["geometry_msgs/msg/Vector3"](x=p[0], y=p[1], z=p[2]),
-                rotation=T["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3])))
+                rotation=T["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]),
+            ),
+        )
 
     q_mo = quat_from_rpy(np.array([0.0, 0.0, 0.5]))
     p_mo = np.array([10.0, -2.0, 0.0])
@@ -194,12 +205,25 @@ def test_tf_static_chain_composes_transforms(tmp_path: Path) -> None:
     with Writer(path, version=9) as w:
         cs = w.add_connection("/tf_static", tfm, typestore=ts)
         cd = w.add_connection("/tf", tfm, typestore=ts)
-        w.write(cs, 1, ts.serialize_cdr(T[tfm](transforms=[
-            tr("map", "odom", 0, p_mo, q_mo), tr("base", "cam", 0, p_bc, q_bc)]), tfm))
+        w.write(
+            cs,
+            1,
+            ts.serialize_cdr(
+                T[tfm](
+                    transforms=[tr("map", "odom", 0, p_mo, q_mo), tr("base", "cam", 0, p_bc, q_bc)]
+                ),
+                tfm,
+            ),
+        )
         for i in range(20):
             t = (i + 1) * 10**8
-            w.write(cd, t, ts.serialize_cdr(T[tfm](transforms=[
-                tr("odom", "base", t, dyn_p[i], dyn_q[i])]), tfm))
+            w.write(
+                cd,
+                t,
+                ts.serialize_cdr(
+                    T[tfm](transforms=[tr("odom", "base", t, dyn_p[i], dyn_q[i])]), tfm
+                ),
+            )
     s = read_stream(path, "/tf", child_frame="cam", parent_frame="map", tf_static=True)
     q_mb = quat_multiply(np.broadcast_to(q_mo, (20, 4)), dyn_q)
     p_mb = p_mo + rotate_vectors(np.broadcast_to(q_mo, (20, 4)), dyn_p)
@@ -214,9 +238,17 @@ def test_tf_static_chain_composes_transforms(tmp_path: Path) -> None:
 #: Every log under shared/data/bags and shared/data/evo -> {topic: message count} as ROS
 #: tooling recorded it (counts cross-checked with rosbags / the mcap library below), or the
 #: error a user gets. A new file in those folders fails the coverage test until it is listed.
-TURTLES = {"/rosout": 10, "/tf": 2688, "/tf_static": 1, "/turtle1/cmd_vel": 357,
-           "/turtle1/color_sensor": 1351, "/turtle1/pose": 1344, "/turtle2/cmd_vel": 208,
-           "/turtle2/color_sensor": 1344, "/turtle2/pose": 1344}
+TURTLES = {
+    "/rosout": 10,
+    "/tf": 2688,
+    "/tf_static": 1,
+    "/turtle1/cmd_vel": 357,
+    "/turtle1/color_sensor": 1351,
+    "/turtle1/pose": 1344,
+    "/turtle2/cmd_vel": 208,
+    "/turtle2/color_sensor": 1344,
+    "/turtle2/pose": 1344,
+}
 EXPECTED: dict[str, dict[str, int] | str] = {
     "bags/evo/ROS_example.bag": {"/groundtruth": 12765, "/ORB-SLAM": 8362, "/S-PTAM": 5439},
     "bags/evo/tf_example.bag": {"/tf": 517, "/tf_static": 1},
@@ -228,20 +260,36 @@ EXPECTED: dict[str, dict[str, int] | str] = {
     "bags/rosbag_js/no-messages.bag": {},
     "bags/rosbag_js/empty-file.bag": r"empty-file\.bag: file is empty \(0 bytes\)",
     "bags/rosbag2/bag_with_topics_and_service_events": {
-        "/events/write_split": 0, "/test_service1/_service_event": 4,
-        "/test_service2/_service_event": 4, "/test_topic1": 1, "/test_topic2": 1},
+        "/events/write_split": 0,
+        "/test_service1/_service_event": 4,
+        "/test_service2/_service_event": 4,
+        "/test_topic1": 1,
+        "/test_topic2": 1,
+    },
     "bags/rosbag2/cdr_test_mcap": {"/array_topic": 4, "/test_topic": 3},
     "bags/rosbag2/cdr_test_sqlite3": {"/array_topic": 4, "/test_topic": 3},
     "bags/rosbag2/compressed_bag_file_zstd": {"/parameter_events": 0, "/rosout": 0},
     "bags/rosbag2/empty_bag": {"/parameter_events": 0, "/rosout": 0},
     "bags/rosbag2/talker_mcap": {"/parameter_events": 0, "/rosout": 10, "/topic": 10},
     "bags/rosbag2/test_bag_for_seek": {"/topic1": 5},
-    "bags/rosbag2/wbag_split": {"/AAA": 804, "/BBB": 742, "/CCC": 742, "/DDD": 753,
-                                "/EEE": 804, "/FFF": 772, "/GGG": 731, "/HHH": 726},
+    "bags/rosbag2/wbag_split": {
+        "/AAA": 804,
+        "/BBB": 742,
+        "/CCC": 742,
+        "/DDD": 753,
+        "/EEE": 804,
+        "/FFF": 772,
+        "/GGG": 731,
+        "/HHH": 726,
+    },
     "evo/nav2_turtlebot.mcap": {"/amcl_pose": 135, "/odom": 2639, "/tf": 5422, "/tf_static": 1},
 }
-TEXT_LOGS = ("fr2_desk_ORB.txt", "fr2_desk_groundtruth.txt", "freiburg1_xyz-groundtruth.txt",
-             "freiburg1_xyz-rgbdslam.txt")  # TUM text: read and checked in test_tum_text_*
+TEXT_LOGS = (
+    "fr2_desk_ORB.txt",
+    "fr2_desk_groundtruth.txt",
+    "freiburg1_xyz-groundtruth.txt",
+    "freiburg1_xyz-rgbdslam.txt",
+)  # TUM text: read and checked in test_tum_text_*
 
 
 def _shared_logs() -> set[str]:
@@ -251,8 +299,7 @@ def _shared_logs() -> set[str]:
         out.add(str(p.relative_to(DATA)))
     out |= {str(p.relative_to(DATA)) for p in (BAGS / "rosbag_js").iterdir()}
     out |= {str(p.relative_to(DATA)) for p in (BAGS / "rosbag2").iterdir()}
-    out |= {str(p.relative_to(DATA)) for p in (DATA / "evo").iterdir()
-            if p.name not in TEXT_LOGS}
+    out |= {str(p.relative_to(DATA)) for p in (DATA / "evo").iterdir() if p.name not in TEXT_LOGS}
     return out
 
 
@@ -281,8 +328,14 @@ def test_every_shared_log_reads_with_its_counts_or_fails_clearly(rel: str) -> No
             read_stream(path, "/pose")
 
 
-MCAP_FILES = sorted(r for r in EXPECTED if "mcap" in r or r.endswith("service_events")
-                    or r.endswith("wbag_split") or r.endswith("test_bag_for_seek"))
+MCAP_FILES = sorted(
+    r
+    for r in EXPECTED
+    if "mcap" in r
+    or r.endswith("service_events")
+    or r.endswith("wbag_split")
+    or r.endswith("test_bag_for_seek")
+)
 
 
 @pytest.mark.parametrize("rel", MCAP_FILES)
@@ -300,7 +353,8 @@ def test_mcap_counts_agree_with_the_mcap_library(rel: str) -> None:
         for cid, ch in summary.channels.items():
             name = "/" + ch.topic.strip("/")
             counts[name] = counts.get(name, 0) + summary.statistics.channel_message_counts.get(
-                cid, 0)
+                cid, 0
+            )
     assert counts == EXPECTED[rel]
 
 
@@ -350,8 +404,9 @@ def test_service_event_channels_do_not_stop_pose_reading(tmp_path: Path) -> None
     from uwval.io.encode import encode_pose_stamped
 
     path = tmp_path / "svc.mcap"
-    rows = encode_pose_stamped(np.arange(5) * 10**8, np.ones((5, 3)),
-                               np.tile([0, 0, 0, 1.0], (5, 1)), "world")
+    rows = encode_pose_stamped(
+        np.arange(5) * 10**8, np.ones((5, 3)), np.tile([0, 0, 0, 1.0], (5, 1)), "world"
+    )
     with open(path, "wb") as fh:
         w = Writer(fh)
         w.start(profile="ros2", library="test")
@@ -376,8 +431,11 @@ def test_truncated_mcap_recovers_intact_messages(tmp_path: Path) -> None:
 
     n = 3000
     rng = np.random.default_rng(11)
-    s = PoseStream.from_arrays(np.arange(n, dtype=np.int64) * 10**7 + 10**9,
-                               rng.normal(size=(n, 3)), np.tile([0, 0, 0, 1.0], (n, 1)))
+    s = PoseStream.from_arrays(
+        np.arange(n, dtype=np.int64) * 10**7 + 10**9,
+        rng.normal(size=(n, 3)),
+        np.tile([0, 0, 0, 1.0], (n, 1)),
+    )
     full = tmp_path / "full.mcap"
     w = McapPoseWriter(full, chunk_size=16 * 1024)
     w.write_poses("/gazebo/model_rov_pose", s.t, s.position, s.orientation, "world")
@@ -394,8 +452,9 @@ def test_truncated_mcap_recovers_intact_messages(tmp_path: Path) -> None:
     # A recorder killed right after flush(): no summary, no footer, nothing lost.
     killed = tmp_path / "killed.mcap"
     w2 = McapPoseWriter(killed, chunk_size=1 << 20)
-    w2.write_poses("/gazebo/model_rov_pose", s.t[:100], s.position[:100], s.orientation[:100],
-                   "world")
+    w2.write_poses(
+        "/gazebo/model_rov_pose", s.t[:100], s.position[:100], s.orientation[:100], "world"
+    )
     w2.flush()
     snapshot = killed.read_bytes()
     w2.close()
@@ -423,11 +482,18 @@ def test_old_type_names_without_msg_are_normalised() -> None:
     assert infos[0].count == 5
 
 
-@pytest.mark.parametrize("name", ["evo/ROS_example.bag", "evo/tf_example.bag",
-                                  "rosbag_js/example.bag", "rosbag_js/example-lz4.bag",
-                                  "rosbag_js/example-bz2.bag",
-                                  "rosbag_js/example-unsorted-chunks.bag",
-                                  "rosbag_js/no-messages.bag"])
+@pytest.mark.parametrize(
+    "name",
+    [
+        "evo/ROS_example.bag",
+        "evo/tf_example.bag",
+        "rosbag_js/example.bag",
+        "rosbag_js/example-lz4.bag",
+        "rosbag_js/example-bz2.bag",
+        "rosbag_js/example-unsorted-chunks.bag",
+        "rosbag_js/no-messages.bag",
+    ],
+)
 def test_fast_ros1_scanner_equals_rosbags_reader(name: str) -> None:
     """uwval's chunk/index scanner returns the same topics, times and payloads as rosbags."""
     from uwval.io.bag1_raw import scan_bag1
@@ -451,8 +517,11 @@ def test_damaged_mcap_bytes_never_leak_a_traceback(tmp_path: Path) -> None:
     from uwval.posestream import PoseStream
 
     n = 400
-    s = PoseStream.from_arrays(np.arange(n, dtype=np.int64) * 10**7 + 10**9,
-                               np.zeros((n, 3)), np.tile([0, 0, 0, 1.0], (n, 1)))
+    s = PoseStream.from_arrays(
+        np.arange(n, dtype=np.int64) * 10**7 + 10**9,
+        np.zeros((n, 3)),
+        np.tile([0, 0, 0, 1.0], (n, 1)),
+    )
     good = tmp_path / "good.mcap"
     with McapPoseWriter(good, chunk_size=4096) as w:
         w.write_poses("/p", s.t, s.position, s.orientation, "world")
@@ -492,15 +561,22 @@ def test_db3_with_committed_pages_in_wal_is_read(tmp_path: Path) -> None:
     live = tmp_path / "live.db3"
     con = sqlite3.connect(live)
     con.execute("PRAGMA journal_mode=WAL")
-    con.execute("CREATE TABLE topics(id INTEGER PRIMARY KEY, name TEXT, type TEXT, "
-                "serialization_format TEXT, offered_qos_profiles TEXT)")
-    con.execute("CREATE TABLE messages(id INTEGER PRIMARY KEY, topic_id INTEGER, "
-                "timestamp INTEGER, data BLOB)")
+    con.execute(
+        "CREATE TABLE topics(id INTEGER PRIMARY KEY, name TEXT, type TEXT, "
+        "serialization_format TEXT, offered_qos_profiles TEXT)"
+    )
+    con.execute(
+        "CREATE TABLE messages(id INTEGER PRIMARY KEY, topic_id INTEGER, "
+        "timestamp INTEGER, data BLOB)"
+    )
     con.execute("INSERT INTO topics VALUES (1, '/p', 'geometry_msgs/msg/PoseStamped', 'cdr', '')")
-    rows = encode_pose_stamped(np.arange(30) * 10**8, np.full((30, 3), 2.0),
-                               np.tile([0, 0, 0, 1.0], (30, 1)), "world")
-    con.executemany("INSERT INTO messages(topic_id, timestamp, data) VALUES (1, ?, ?)",
-                    [(i * 10**8, rows[i].tobytes()) for i in range(30)])
+    rows = encode_pose_stamped(
+        np.arange(30) * 10**8, np.full((30, 3), 2.0), np.tile([0, 0, 0, 1.0], (30, 1)), "world"
+    )
+    con.executemany(
+        "INSERT INTO messages(topic_id, timestamp, data) VALUES (1, ?, ?)",
+        [(i * 10**8, rows[i].tobytes()) for i in range(30)],
+    )
     con.commit()
     snap = tmp_path / "snap"
     snap.mkdir()
@@ -549,15 +625,19 @@ def test_tf_example_chain_equals_an_independent_composition() -> None:
     direct = read_stream(bag, "/tf")
     np.testing.assert_array_equal(direct.t, t_ref)
     np.testing.assert_array_equal(direct.position, p_ob)
-    chained = read_stream(bag, "/tf", child_frame="base_link", parent_frame="odom",
-                          tf_static=True)
+    chained = read_stream(bag, "/tf", child_frame="base_link", parent_frame="odom", tf_static=True)
     np.testing.assert_array_equal(chained.t, t_ref)
     np.testing.assert_allclose(chained.position, p_ol, atol=1e-12)
     dot = np.abs(np.sum(chained.orientation * r_ol.as_quat(), axis=1))
     np.testing.assert_allclose(dot, 1.0, atol=1e-12)
     # the rosbag2 sqlite3 copy of the same recording gives the same chained stream
-    db = read_stream(BAGS / "evo" / "tf_example", "tf", child_frame="base_link",
-                     parent_frame="odom", tf_static=True)
+    db = read_stream(
+        BAGS / "evo" / "tf_example",
+        "tf",
+        child_frame="base_link",
+        parent_frame="odom",
+        tf_static=True,
+    )
     np.testing.assert_array_equal(db.position, chained.position)
     with pytest.raises(LogReadError, match="tf_static=True"):
         read_stream(bag, "/tf", child_frame="base_link", parent_frame="odom")
@@ -576,6 +656,8 @@ def test_damaged_containers_fail_on_one_line_naming_file_and_cause(tmp_path: Pat
         list_topics(head)
     cut = tmp_path / "cut.mcap"  # the one zstd chunk is cut: nothing intact, and we say why
     cut.write_bytes((DATA / "evo" / "nav2_turtlebot.mcap").read_bytes()[:200_000])
-    with pytest.warns(TruncatedLogWarning), \
-            pytest.raises(LogReadError, match=r"no topic '/odom'.*truncated: \d+ bytes"):
+    with (
+        pytest.warns(TruncatedLogWarning),
+        pytest.raises(LogReadError, match=r"no topic '/odom'.*truncated: \d+ bytes"),
+    ):
         read_stream(cut, "/odom")

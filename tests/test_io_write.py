@@ -28,21 +28,34 @@ def _stream(n: int = 500, seed: int = 1) -> PoseStream:
     rng = np.random.default_rng(seed)
     q = rng.normal(size=(n, 4))
     q /= np.linalg.norm(q, axis=1)[:, None]
-    return PoseStream.from_arrays(np.arange(n, dtype=np.int64) * 16_666_667 + 1_700_000_000 * 10**9,
-                                  rng.normal(size=(n, 3)) * 5, q,
-                                  applied_stamp=np.arange(n, dtype=np.int64) * 10**7)
+    return PoseStream.from_arrays(
+        np.arange(n, dtype=np.int64) * 16_666_667 + 1_700_000_000 * 10**9,
+        rng.normal(size=(n, 3)) * 5,
+        q,
+        applied_stamp=np.arange(n, dtype=np.int64) * 10**7,
+    )
 
 
-FORMATS = [("mcap", "log.mcap"), ("rosbag2", "log_sqlite"), ("rosbag2-mcap", "log_mcap"),
-           ("rosbag1", "log.bag")]
+FORMATS = [
+    ("mcap", "log.mcap"),
+    ("rosbag2", "log_sqlite"),
+    ("rosbag2-mcap", "log_mcap"),
+    ("rosbag1", "log.bag"),
+]
 
 
 def _write(path: Path, fmt: str, s: PoseStream) -> None:
     with open_writer(path, fmt, metadata={"run": "r1"}) as w:
         write_stream(w, TOPIC, s, "unity-flu")
         for i in range(3):  # the incremental API, as the bridge's recorder uses it
-            w.write_pose("/gazebo/model_rov_pose", 10**9 * (i + 1), np.array([i, 0, 0.0]),
-                         np.array([0, 0, 0, 1.0]), "world", log_time=10**9 * (i + 1) + 5)
+            w.write_pose(
+                "/gazebo/model_rov_pose",
+                10**9 * (i + 1),
+                np.array([i, 0, 0.0]),
+                np.array([0, 0, 0, 1.0]),
+                "world",
+                log_time=10**9 * (i + 1) + 5,
+            )
             w.write_header("/gazebo/model_rov_pose/applied_stamp", 7 * i, 10**9 * (i + 1) + 5)
         w.flush()
 
@@ -67,8 +80,9 @@ def test_written_logs_read_back_by_uwval_and_rosbags(tmp_path: Path, fmt: str, n
 
     with AnyReader([path]) as reader:
         conns = [c for c in reader.connections if c.topic == TOPIC]
-        got: list[Any] = [reader.deserialize(d, c.msgtype)
-                          for c, _, d in reader.messages(connections=conns)]
+        got: list[Any] = [
+            reader.deserialize(d, c.msgtype) for c, _, d in reader.messages(connections=conns)
+        ]
     assert len(got) == len(s)
     assert got[7].header.frame_id == "unity-flu"
     p = got[7].pose.position
@@ -102,8 +116,12 @@ def test_written_mcap_read_by_mcap_library(tmp_path: Path, fmt: str, name: str) 
 
 def _ros1_available() -> bool:
     try:
-        return subprocess.run(["/usr/bin/python3", "-c", "import rosbag"], capture_output=True,
-                              timeout=60).returncode == 0
+        return (
+            subprocess.run(
+                ["/usr/bin/python3", "-c", "import rosbag"], capture_output=True, timeout=60
+            ).returncode
+            == 0
+        )
     except (OSError, subprocess.TimeoutExpired):
         return False
 
@@ -129,8 +147,12 @@ def test_ros1_bag_read_by_ros1_rosbag(tmp_path: Path) -> None:
     s = _stream(300)
     path = tmp_path / "log.bag"
     _write(path, "rosbag1", s)
-    proc = subprocess.run(["/usr/bin/python3", "-c", ROS1_READER, str(path), TOPIC],
-                          capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        ["/usr/bin/python3", "-c", ROS1_READER, str(path), TOPIC],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 0, proc.stderr
     out = json.loads(proc.stdout)
     assert out["topics"][TOPIC] == ["geometry_msgs/PoseStamped", 300]
@@ -169,8 +191,11 @@ finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
 
 
 @settings(max_examples=40, deadline=None)
-@given(fid=frame_ids, t=st.integers(0, 2**31 * 10**9 - 1),
-       vals=st.lists(finite, min_size=7, max_size=7))
+@given(
+    fid=frame_ids,
+    t=st.integers(0, 2**31 * 10**9 - 1),
+    vals=st.lists(finite, min_size=7, max_size=7),
+)
 def test_bulk_encode_equals_rosbags_serialization(fid: str, t: int, vals: list[float]) -> None:
     pos = np.array([vals[:3]])
     q = np.array([vals[3:]])
@@ -183,8 +208,9 @@ def test_bulk_encode_equals_rosbags_serialization(fid: str, t: int, vals: list[f
         assert encode_header([t], fid, enc)[0].tobytes() == ref_h
 
 
-def _msgs(store: Any, msgtype: str, rng: np.random.Generator, frames: list[str],
-          children: list[str]) -> list[Any]:
+def _msgs(
+    store: Any, msgtype: str, rng: np.random.Generator, frames: list[str], children: list[str]
+) -> list[Any]:
     T = store.types
     out = []
     for i, (fid, child) in enumerate(zip(frames, children, strict=True)):
@@ -192,7 +218,8 @@ def _msgs(store: Any, msgtype: str, rng: np.random.Generator, frames: list[str],
         has_seq = "seq" in T["std_msgs/msg/Header"].__dataclass_fields__
         kw: dict[str, Any] = {"seq": i} if has_seq else {}
         hdr = T["std_msgs/msg/Header"](
-            stamp=T["builtin_interfaces/msg/Time"](sec=1000 + i, nanosec=i * 7), frame_id=fid, **kw)
+            stamp=T["builtin_interfaces/msg/Time"](sec=1000 + i, nanosec=i * 7), frame_id=fid, **kw
+        )
         pt = T["geometry_msgs/msg/Point"](x=v[0], y=v[1], z=v[2])
         qt = T["geometry_msgs/msg/Quaternion"](x=v[3], y=v[4], z=v[5], w=v[6])
         pose = T["geometry_msgs/msg/Pose"](position=pt, orientation=qt)
@@ -206,12 +233,14 @@ def _msgs(store: Any, msgtype: str, rng: np.random.Generator, frames: list[str],
             m = T[msgtype](header=hdr, pose=pwc)
         elif msgtype == "geometry_msgs/msg/TransformStamped":
             tr = T["geometry_msgs/msg/Transform"](
-                translation=T["geometry_msgs/msg/Vector3"](x=v[0], y=v[1], z=v[2]), rotation=qt)
+                translation=T["geometry_msgs/msg/Vector3"](x=v[0], y=v[1], z=v[2]), rotation=qt
+            )
             m = T[msgtype](header=hdr, child_frame_id=child, transform=tr)
         else:
             tw = T["geometry_msgs/msg/Twist"](
                 linear=T["geometry_msgs/msg/Vector3"](x=1.0, y=2.0, z=3.0),
-                angular=T["geometry_msgs/msg/Vector3"](x=4.0, y=5.0, z=6.0))
+                angular=T["geometry_msgs/msg/Vector3"](x=4.0, y=5.0, z=6.0),
+            )
             twc = T["geometry_msgs/msg/TwistWithCovariance"](twist=tw, covariance=cov)
             m = T[msgtype](header=hdr, child_frame_id=child, pose=pwc, twist=twc)
         out.append(m)
@@ -220,15 +249,22 @@ def _msgs(store: Any, msgtype: str, rng: np.random.Generator, frames: list[str],
 
 @settings(max_examples=25, deadline=None)
 @given(
-    msgtype=st.sampled_from(["geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/Pose",
-                             "geometry_msgs/msg/PoseWithCovarianceStamped",
-                             "geometry_msgs/msg/TransformStamped", "nav_msgs/msg/Odometry"]),
+    msgtype=st.sampled_from(
+        [
+            "geometry_msgs/msg/PoseStamped",
+            "geometry_msgs/msg/Pose",
+            "geometry_msgs/msg/PoseWithCovarianceStamped",
+            "geometry_msgs/msg/TransformStamped",
+            "nav_msgs/msg/Odometry",
+        ]
+    ),
     ros=st.sampled_from([1, 2]),
     frames=st.lists(frame_ids, min_size=1, max_size=6),
     seed=st.integers(0, 2**16),
 )
-def test_fast_decode_equals_rosbags_on_mixed_layouts(msgtype: str, ros: int, frames: list[str],
-                                                      seed: int) -> None:
+def test_fast_decode_equals_rosbags_on_mixed_layouts(
+    msgtype: str, ros: int, frames: list[str], seed: int
+) -> None:
     """Mixed frame_id / child_frame_id lengths in one topic: fast path == per-message path."""
     rng = np.random.default_rng(seed)
     store = typestore(ros)
@@ -243,10 +279,12 @@ def test_fast_decode_equals_rosbags_on_mixed_layouts(msgtype: str, ros: int, fra
     assert fast.handled.all()
     np.testing.assert_array_equal(fast.stamp, slow.stamp)
     assert np.array_equal(fast.pose.view(np.uint64), slow.pose.view(np.uint64))
-    assert [fast.names[c] if c >= 0 else None for c in fast.frame_code] == \
-        [slow.names[c] if c >= 0 else None for c in slow.frame_code]
-    assert [fast.names[c] if c >= 0 else None for c in fast.child_code] == \
-        [slow.names[c] if c >= 0 else None for c in slow.child_code]
+    assert [fast.names[c] if c >= 0 else None for c in fast.frame_code] == [
+        slow.names[c] if c >= 0 else None for c in slow.frame_code
+    ]
+    assert [fast.names[c] if c >= 0 else None for c in fast.child_code] == [
+        slow.names[c] if c >= 0 else None for c in slow.child_code
+    ]
 
 
 def test_fast_path_leaves_odd_payloads_to_rosbags() -> None:
@@ -298,9 +336,14 @@ def test_pose_without_header_is_stamped_with_log_time(tmp_path: Path) -> None:
         for i in range(10):
             m = T["geometry_msgs/msg/Pose"](
                 position=T["geometry_msgs/msg/Point"](x=float(i), y=0.0, z=0.0),
-                orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
-            w.write_raw("/pose_only", "geometry_msgs/msg/Pose",
-                        bytes(store.serialize_cdr(m, "geometry_msgs/msg/Pose")), 10**9 + i * 10**8)
+                orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+            )
+            w.write_raw(
+                "/pose_only",
+                "geometry_msgs/msg/Pose",
+                bytes(store.serialize_cdr(m, "geometry_msgs/msg/Pose")),
+                10**9 + i * 10**8,
+            )
     s = read_stream(path, "pose_only")
     np.testing.assert_array_equal(s.t, 10**9 + np.arange(10) * 10**8)
     np.testing.assert_array_equal(s.position[:, 0], np.arange(10.0))

@@ -13,9 +13,23 @@ from cli_runner import run_uwval as _uwval
 @pytest.fixture(scope="module")
 def offset_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     log = tmp_path_factory.mktemp("off") / "off.mcap"
-    res = _uwval("simulate", "--force", "10,0,0", "--torque", "0,0,1", "--current", "0,0.2,0",
-                 "--duration", "20", "--unity-clock-offset", "3", "--latency", "0.05",
-                 "-o", str(log))
+    res = _uwval(
+        "simulate",
+        "--force",
+        "10,0,0",
+        "--torque",
+        "0,0,1",
+        "--current",
+        "0,0.2,0",
+        "--duration",
+        "20",
+        "--unity-clock-offset",
+        "3",
+        "--latency",
+        "0.05",
+        "-o",
+        str(log),
+    )
     assert res.returncode == 0, res.stderr
     return log
 

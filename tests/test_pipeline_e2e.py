@@ -20,8 +20,19 @@ def compare_json(*args: str) -> dict[str, Any]:
 @pytest.fixture(scope="module")
 def run_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     log = tmp_path_factory.mktemp("e2e") / "run.mcap"
-    res = uwval("simulate", "--force", "10,0,0", "--torque", "0,0,1", "--current", "0,0.2,0",
-                "--duration", "20", "-o", str(log))
+    res = uwval(
+        "simulate",
+        "--force",
+        "10,0,0",
+        "--torque",
+        "0,0,1",
+        "--current",
+        "0,0.2,0",
+        "--duration",
+        "20",
+        "-o",
+        str(log),
+    )
     assert res.returncode == 0, res.stderr
     return log
 
@@ -61,8 +72,21 @@ def test_compare_table_is_readable(run_log: Path) -> None:
 @pytest.mark.parametrize("fmt", ["rosbag1", "rosbag2"])
 def test_other_log_formats_compare_the_same(tmp_path: Path, run_log: Path, fmt: str) -> None:
     out = tmp_path / ("run.bag" if fmt == "rosbag1" else "run_bag2")
-    res = uwval("simulate", "--force", "10,0,0", "--torque", "0,0,1", "--current", "0,0.2,0",
-                "--duration", "20", "--format", fmt, "-o", str(out))
+    res = uwval(
+        "simulate",
+        "--force",
+        "10,0,0",
+        "--torque",
+        "0,0,1",
+        "--current",
+        "0,0.2,0",
+        "--duration",
+        "20",
+        "--format",
+        fmt,
+        "-o",
+        str(out),
+    )
     assert res.returncode == 0, res.stderr
     a = compare_json(str(run_log))
     b = compare_json(str(out))

@@ -29,11 +29,13 @@ def experiment(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def experiment_report(experiment: Path, tmp_path_factory: pytest.TempPathFactory
-                      ) -> tuple[Path, Path, str]:
+def experiment_report(
+    experiment: Path, tmp_path_factory: pytest.TempPathFactory
+) -> tuple[Path, Path, str]:
     out = tmp_path_factory.mktemp("report-out")
-    outcome = build_report(experiment, out / "report.html", pdf=out / "report.pdf",
-                           max_detail_runs=2)
+    outcome = build_report(
+        experiment, out / "report.html", pdf=out / "report.pdf", max_detail_runs=2
+    )
     assert outcome.n_runs == 8
     return outcome.html, out / "report.pdf", outcome.html.read_text()
 
@@ -64,7 +66,8 @@ def _refs(html: str) -> _Refs:
 
 # ----------------------------------------------------------------------------- content
 def test_experiment_report_sections_and_self_containment(
-        experiment_report: tuple[Path, Path, str]) -> None:
+    experiment_report: tuple[Path, Path, str],
+) -> None:
     _, _, html = experiment_report
     refs = _refs(html)
     # self-contained: images are data: URIs, links are in-page anchors, nothing else
@@ -74,8 +77,17 @@ def test_experiment_report_sections_and_self_containment(
     assert "script" not in refs.tags
     assert not re.search(r"url\((?!data:)", html)  # no CSS-fetched resources
     assert "@import" not in html
-    for section in ("verdict", "summary", "factor-force", "factor-current", "main-effects",
-                    "two-way", "runs", "bridge", "provenance"):
+    for section in (
+        "verdict",
+        "summary",
+        "factor-force",
+        "factor-current",
+        "main-effects",
+        "two-way",
+        "runs",
+        "bridge",
+        "provenance",
+    ):
         assert section in refs.ids, section
     assert "factor-torque" not in refs.ids  # torque does not vary: no section
     assert "One-way ANOVA of MAE across levels of current" in html
@@ -93,9 +105,9 @@ def test_experiment_report_sections_and_self_containment(
     assert "dropped" in html
 
 
-def test_provenance_lists_inputs_with_their_sha256(experiment: Path,
-                                                   experiment_report: tuple[Path, Path, str]
-                                                   ) -> None:
+def test_provenance_lists_inputs_with_their_sha256(
+    experiment: Path, experiment_report: tuple[Path, Path, str]
+) -> None:
     import uwval
 
     _, _, html = experiment_report
@@ -109,8 +121,19 @@ def test_provenance_lists_inputs_with_their_sha256(experiment: Path,
 
 def test_verdict_fail_lists_the_regressions(tmp_path: Path) -> None:
     log = write_pair_log(tmp_path / "laggy.mcap", lag_s=0.2)
-    th = parse_thresholds({"threshold": [{"name": "tight x", "metric": "mae", "axes": ["x"],
-                                          "topics": [VEHICLE], "max": 0.01}]})
+    th = parse_thresholds(
+        {
+            "threshold": [
+                {
+                    "name": "tight x",
+                    "metric": "mae",
+                    "axes": ["x"],
+                    "topics": [VEHICLE],
+                    "max": 0.01,
+                }
+            ]
+        }
+    )
     outcome = build_report(log, tmp_path / "r.html", thresholds=th)
     assert outcome.gate is not None
     assert not outcome.gate.passed
@@ -134,10 +157,24 @@ def test_manifest_without_results_is_compared_on_the_fly(tmp_path: Path) -> None
 # ----------------------------------------------------------------------------- CLI
 def test_cli_report_on_a_single_log(tmp_path: Path) -> None:
     log = write_pair_log(tmp_path / "run.mcap", lag_s=0.02)
-    res = subprocess.run([sys.executable, "-m", "uwval", "report", str(log), "-o",
-                          str(tmp_path / "out" / "r.html"), "--pdf", str(tmp_path / "r.pdf"),
-                          "--results", str(tmp_path / "res.csv")],
-                         capture_output=True, text=True, timeout=180)
+    res = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "uwval",
+            "report",
+            str(log),
+            "-o",
+            str(tmp_path / "out" / "r.html"),
+            "--pdf",
+            str(tmp_path / "r.pdf"),
+            "--results",
+            str(tmp_path / "res.csv"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=180,
+    )
     assert res.returncode == 0, res.stderr
     assert "verdict PASS" in res.stdout
     html = (tmp_path / "out" / "r.html").read_text()
@@ -145,9 +182,20 @@ def test_cli_report_on_a_single_log(tmp_path: Path) -> None:
     assert "Trajectory overlay: run / model_rov_pose" in html
     assert (tmp_path / "r.pdf").read_bytes().startswith(b"%PDF")
     assert (tmp_path / "res.csv").read_text().startswith("run,topic,axis,metric,value")
-    missing = subprocess.run([sys.executable, "-m", "uwval", "report",
-                              str(tmp_path / "nope.mcap"), "-o", str(tmp_path / "x.html")],
-                             capture_output=True, text=True, timeout=120)
+    missing = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "uwval",
+            "report",
+            str(tmp_path / "nope.mcap"),
+            "-o",
+            str(tmp_path / "x.html"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert missing.returncode == 2
     assert "nope.mcap" in missing.stderr
     assert "Traceback" not in missing.stderr
@@ -159,12 +207,27 @@ def _chromium(page: Path, tmp_path: Path) -> tuple[Path, str]:
     assert CHROMIUM is not None
     shot = tmp_path / "shot.png"
     res = subprocess.run(
-        [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
-         "--no-first-run", "--disable-background-networking", "--disable-component-update",
-         "--disable-sync", f"--user-data-dir={tmp_path / 'profile'}", "--enable-logging=stderr",
-         "--v=0", "--hide-scrollbars", "--window-size=1280,1600", f"--screenshot={shot}",
-         page.as_uri()],
-        capture_output=True, text=True, timeout=120,
+        [
+            CHROMIUM,
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            f"--user-data-dir={tmp_path / 'profile'}",
+            "--enable-logging=stderr",
+            "--v=0",
+            "--hide-scrollbars",
+            "--window-size=1280,1600",
+            f"--screenshot={shot}",
+            page.as_uri(),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
     assert res.returncode == 0, res.stderr[-2000:]
     return shot, res.stderr
@@ -185,7 +248,8 @@ def _ink(png: Path) -> tuple[float, float]:
 
 @pytest.mark.skipif(CHROMIUM is None, reason="chromium not installed (.ci/run installs it)")
 def test_html_loads_in_headless_chromium_without_console_errors(
-        experiment_report: tuple[Path, Path, str], tmp_path: Path) -> None:
+    experiment_report: tuple[Path, Path, str], tmp_path: Path
+) -> None:
     page, _, _ = experiment_report
     shot, log = _chromium(page, tmp_path)
     assert _console_errors(log) == []
@@ -198,8 +262,7 @@ def test_html_loads_in_headless_chromium_without_console_errors(
 def test_the_chromium_checks_do_catch_errors_and_blank_pages(tmp_path: Path) -> None:
     # negative control: the same checks flag a page with a script error and no content
     bad = tmp_path / "bad.html"
-    bad.write_text("<!DOCTYPE html><html><body><script>undefinedFunction();</script>"
-                   "</body></html>")
+    bad.write_text("<!DOCTYPE html><html><body><script>undefinedFunction();</script></body></html>")
     shot, log = _chromium(bad, tmp_path)
     assert _console_errors(log), "a script error must show up as a console message"
     ink, _ = _ink(shot)
@@ -208,12 +271,17 @@ def test_the_chromium_checks_do_catch_errors_and_blank_pages(tmp_path: Path) -> 
 
 # ----------------------------------------------------------------------------- PDF
 @pytest.mark.skipif(PDFTOPPM is None, reason="pdftoppm not installed (poppler-utils)")
-def test_pdf_pages_render_and_are_not_blank(experiment_report: tuple[Path, Path, str],
-                                            tmp_path: Path) -> None:
+def test_pdf_pages_render_and_are_not_blank(
+    experiment_report: tuple[Path, Path, str], tmp_path: Path
+) -> None:
     _, pdf, html = experiment_report
     assert PDFTOPPM is not None
-    res = subprocess.run([PDFTOPPM, "-r", "30", "-png", str(pdf), str(tmp_path / "page")],
-                         capture_output=True, text=True, timeout=120)
+    res = subprocess.run(
+        [PDFTOPPM, "-r", "30", "-png", str(pdf), str(tmp_path / "page")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert res.returncode == 0, res.stderr
     pages = sorted(tmp_path.glob("page-*.png"))
     # text pages + one page per figure: at least as many pages as figures in the HTML
@@ -223,19 +291,38 @@ def test_pdf_pages_render_and_are_not_blank(experiment_report: tuple[Path, Path,
         ink, std = _ink(p)
         assert ink > 0.005, f"{p.name} is blank"
         assert std > 3, f"{p.name} is blank"
-    text = subprocess.run(["pdftotext", str(pdf), "-"], capture_output=True, text=True,
-                          timeout=60) if shutil.which("pdftotext") else None
+    text = (
+        subprocess.run(["pdftotext", str(pdf), "-"], capture_output=True, text=True, timeout=60)
+        if shutil.which("pdftotext")
+        else None
+    )
     if text is not None and text.returncode == 0:
-        for words in ("Verdict", "Summary: absolute error, MAE and Pearson r", "Factor: current",
-                      "Provenance"):
+        for words in (
+            "Verdict",
+            "Summary: absolute error, MAE and Pearson r",
+            "Factor: current",
+            "Provenance",
+        ):
             assert words in text.stdout
 
 
 def test_cli_report_names_a_corrupt_manifest(tmp_path: Path) -> None:
     (tmp_path / "exp").mkdir()
     (tmp_path / "exp" / "manifest.json").write_text('{"runs": [')
-    res = subprocess.run([sys.executable, "-m", "uwval", "report", str(tmp_path / "exp"), "-o",
-                          str(tmp_path / "r.html")], capture_output=True, text=True, timeout=120)
+    res = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "uwval",
+            "report",
+            str(tmp_path / "exp"),
+            "-o",
+            str(tmp_path / "r.html"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert res.returncode == 2
     assert "manifest.json: not valid JSON" in res.stderr
     assert not (tmp_path / "r.html").exists()
@@ -291,13 +378,36 @@ def test_pinned_ticks_keep_labels_and_offset_text(experiment: Path) -> None:
 
 
 def test_pdf_tables_fit_the_page_and_headings_stay_with_their_tables(
-        experiment_report: tuple[Path, Path, str]) -> None:
+    experiment_report: tuple[Path, Path, str],
+) -> None:
     from uwval.reports.pdf import A4, MARGIN, _TableLayout
 
-    cols = ["topic", "axis", "unit", "MAE mean", "MAE worst", "max |error| worst",
-            "p95 |error| worst", "Pearson r mean", "Pearson r lowest", "r undefined"]
-    rows = [["gui_camera_pose", "pitch", "deg", "4.603e-15", "5.077e-15", "2.487e-14",
-             "1.421e-14", "0.999996", "0.999982", "8"]]
+    cols = [
+        "topic",
+        "axis",
+        "unit",
+        "MAE mean",
+        "MAE worst",
+        "max |error| worst",
+        "p95 |error| worst",
+        "Pearson r mean",
+        "Pearson r lowest",
+        "r undefined",
+    ]
+    rows = [
+        [
+            "gui_camera_pose",
+            "pitch",
+            "deg",
+            "4.603e-15",
+            "5.077e-15",
+            "2.487e-14",
+            "1.421e-14",
+            "0.999996",
+            "0.999982",
+            "8",
+        ]
+    ]
     lay = _TableLayout(cols, rows)
     usable_pt = A4[0] * (1 - 2 * MARGIN) * 72
     for c, w in enumerate(lay.widths):
@@ -308,10 +418,13 @@ def test_pdf_tables_fit_the_page_and_headings_stay_with_their_tables(
     if shutil.which("pdftotext") is None:
         return
     _, pdf, _ = experiment_report
-    pages = subprocess.run(["pdftotext", "-layout", str(pdf), "-"], capture_output=True,
-                           text=True, timeout=60).stdout.split("\f")
-    for title, first_table in (("Factor: force (N)", "Per level of force"),
-                               ("Factor: current (m/s)", "Per level of current")):
+    pages = subprocess.run(
+        ["pdftotext", "-layout", str(pdf), "-"], capture_output=True, text=True, timeout=60
+    ).stdout.split("\f")
+    for title, first_table in (
+        ("Factor: force (N)", "Per level of force"),
+        ("Factor: current (m/s)", "Per level of current"),
+    ):
         page = next(p for p in pages if title in p)
         assert first_table in page, f"{title!r} is separated from its table"
 
@@ -321,8 +434,10 @@ def test_wide_pdf_tables_split_into_readable_column_groups() -> None:
     from uwval.reports.pdf import MIN_TABLE_FONT, _column_groups, _TableLayout
 
     cols = ["run", *[f"statistic_number_{i}" for i in range(21)]]
-    rows = [[f"default-0{r}-force=5_torque=0.5_current=0.3", *[f"{r * i:.4f}" for i in range(21)]]
-            for r in range(8)]
+    rows = [
+        [f"default-0{r}-force=5_torque=0.5_current=0.3", *[f"{r * i:.4f}" for i in range(21)]]
+        for r in range(8)
+    ]
     t = Table("Per run", cols, rows, flags={(2, 5): "bad"})
     groups = _column_groups(t)
     assert len(groups) > 1
@@ -340,10 +455,10 @@ def test_bridge_bars_are_labelled_with_short_run_ids() -> None:
     names = [f"default-0{i}-force=5_torque=0.5_current=0.{i}" for i in range(4)]
     assert plots.short_run_labels(names) == ["00", "01", "02", "03"]
     assert plots.short_run_labels(["r1", "r2"]) == ["r1", "r2"]
-    assert plots.short_run_labels(["one-very-long-name-a", "another-very-long-name"]) == \
-        ["0", "1"]
-    fig = plots.bridge_figure({n: {"latency_mean_s": 0.01 * i, "dropped": i}
-                               for i, n in enumerate(names)})
+    assert plots.short_run_labels(["one-very-long-name-a", "another-very-long-name"]) == ["0", "1"]
+    fig = plots.bridge_figure(
+        {n: {"latency_mean_s": 0.01 * i, "dropped": i} for i, n in enumerate(names)}
+    )
     assert fig is not None
     ticks = [t.get_text() for t in fig.axes[0].get_xticklabels()]
     assert ticks == ["00", "01", "02", "03"]

@@ -34,9 +34,17 @@ from uwval.rotations import quat_from_rpy
 VEHICLE, CAMERA = "model_rov_pose", "gui_camera_pose"
 
 
-def write_pair_log(path: Path, *, speed: float = 1.0, yaw_rate: float = 0.2,
-                   lag_s: float = 0.0, noise: float = 0.0, duration: float = 4.0,
-                   seed: int = 0, camera: bool = True) -> Path:
+def write_pair_log(
+    path: Path,
+    *,
+    speed: float = 1.0,
+    yaw_rate: float = 0.2,
+    lag_s: float = 0.0,
+    noise: float = 0.0,
+    duration: float = 4.0,
+    seed: int = 0,
+    camera: bool = True,
+) -> Path:
     """A real MCAP log as uwval's recorder writes it: Gazebo poses in ENU at 50 Hz and the
     Unity side (ROS-TCP-Connector FLU map) at 60 Hz, showing the Gazebo pose ``lag_s`` late
     plus Gaussian position noise (m). The vehicle surges along a yawing heading; z is flat
@@ -60,9 +68,13 @@ def write_pair_log(path: Path, *, speed: float = 1.0, yaw_rate: float = 0.2,
             off = np.array([-3.0, 0.0, 1.0]) if topic == CAMERA else 0.0
             w.write_poses(f"/gazebo/{topic}", (tg * 1e9).astype(np.int64), pg + off, qg, "enu")
             cu, cq = convert_arrays(pu + off, qu, "enu", "unity-flu")
-            w.write_poses(f"/unity/{topic}", (tu * 1e9).astype(np.int64),
-                          cu if topic == CAMERA else upos, cq if topic == CAMERA else uquat,
-                          "unity-flu")
+            w.write_poses(
+                f"/unity/{topic}",
+                (tu * 1e9).astype(np.int64),
+                cu if topic == CAMERA else upos,
+                cq if topic == CAMERA else uquat,
+                "unity-flu",
+            )
     return path
 
 
@@ -81,23 +93,43 @@ def write_experiment(root: Path, *, compare: bool = True, reps: int = 2) -> Path
         for current in (0.0, 0.2):
             for rep in range(reps):
                 name = f"force{force:g}_current{current:g}_rep{rep}"
-                log = write_pair_log(root / "runs" / f"{name}.mcap", speed=force / 10,
-                                     lag_s=0.02 + 0.3 * current, noise=0.002, seed=seed)
+                log = write_pair_log(
+                    root / "runs" / f"{name}.mcap",
+                    speed=force / 10,
+                    lag_s=0.02 + 0.3 * current,
+                    noise=0.002,
+                    seed=seed,
+                )
                 seed += 1
                 factors = {"force": force, "torque": 0.0, "current": current}
                 bridge = {"sent": 200, "dropped": rep, "latency_mean_ms": 20 + 100 * current}
-                runs.append({"name": name, "log": f"runs/{log.name}", "factors": factors,
-                             "seed": seed, "bridge": bridge})
+                runs.append(
+                    {
+                        "name": name,
+                        "log": f"runs/{log.name}",
+                        "factors": factors,
+                        "seed": seed,
+                        "bridge": bridge,
+                    }
+                )
                 if compare:
-                    comp_runs.append({"name": name, "log": str(log), "factors": factors,
-                                      "bridge": bridge,
-                                      "comparison": compare_logs(log).to_json()})
-    (root / "manifest.json").write_text(json.dumps(
-        {"experiment": {"name": "test-factorial"}, "runs": runs, "failed": []}))
+                    comp_runs.append(
+                        {
+                            "name": name,
+                            "log": str(log),
+                            "factors": factors,
+                            "bridge": bridge,
+                            "comparison": compare_logs(log).to_json(),
+                        }
+                    )
+    (root / "manifest.json").write_text(
+        json.dumps({"experiment": {"name": "test-factorial"}, "runs": runs, "failed": []})
+    )
     if compare:
         (root / "results").mkdir(exist_ok=True)
         (root / "results" / "comparisons.json").write_text(
-            json.dumps({"runs": comp_runs, "failed": []}))
+            json.dumps({"runs": comp_runs, "failed": []})
+        )
     return root
 
 
@@ -153,9 +185,18 @@ def test_rows_from_a_real_log_comparison(tmp_path: Path) -> None:
 
 
 def test_comparison_json_text_and_dict_are_accepted() -> None:
-    one = {"n_samples": 3, "axes": {a: {"mae": 1.0, "max": 2.0, "pearson_r": None,
-                                         "pearson_reason": "undefined: series is constant"}
-                                     for a in AXES}}
+    one = {
+        "n_samples": 3,
+        "axes": {
+            a: {
+                "mae": 1.0,
+                "max": 2.0,
+                "pearson_r": None,
+                "pearson_reason": "undefined: series is constant",
+            }
+            for a in AXES
+        },
+    }
     t1 = ResultsTable.from_comparisons([("a", None, json.dumps(one))])
     t2 = ResultsTable.from_comparisons([("a", None, one)])
     pd.testing.assert_frame_equal(t1.df, t2.df)
@@ -163,12 +204,15 @@ def test_comparison_json_text_and_dict_are_accepted() -> None:
     assert t1.select(metric="pearson_r")["note"].str.contains("constant").all()
 
 
-@pytest.mark.parametrize(("bad", "message"), [
-    ({"n_samples": 1}, "neither 'axes'"),
-    ({"axes": {"x": {"mae": 1.0}}}, "axes.y is missing"),
-    ("{not json", "not valid JSON"),
-    (42, "cannot read comparison results from a int"),
-])
+@pytest.mark.parametrize(
+    ("bad", "message"),
+    [
+        ({"n_samples": 1}, "neither 'axes'"),
+        ({"axes": {"x": {"mae": 1.0}}}, "axes.y is missing"),
+        ("{not json", "not valid JSON"),
+        (42, "cannot read comparison results from a int"),
+    ],
+)
 def test_bad_comparisons_are_named(bad: Any, message: str) -> None:
     with pytest.raises(ConfigError, match=message):
         ResultsTable.from_comparisons([("run7", {}, bad)])
@@ -200,8 +244,9 @@ def test_csv_json_round_trip_and_directory_save(table: ResultsTable, tmp_path: P
     assert "NaN" not in (tmp_path / "out" / "results.json").read_text()
 
 
-def test_saving_where_nothing_can_be_written_names_the_path(table: ResultsTable,
-                                                             tmp_path: Path) -> None:
+def test_saving_where_nothing_can_be_written_names_the_path(
+    table: ResultsTable, tmp_path: Path
+) -> None:
     blocker = tmp_path / "a-file"
     blocker.write_text("x")
     for name in ("r.csv", "r.json", "out"):
@@ -211,9 +256,18 @@ def test_saving_where_nothing_can_be_written_names_the_path(table: ResultsTable,
 
 def test_csv_keeps_text_columns_text(tmp_path: Path) -> None:
     """Run names that look like numbers and an all-empty note column survive a CSV trip."""
-    df = pd.DataFrame({"run": ["007", "010"], "topic": ["t", "t"], "axis": ["x", "x"],
-                       "metric": ["mae", "mae"], "value": [0.5, float("nan")],
-                       "unit": ["m", "m"], "note": ["", ""], "force": [5.0, 10.0]})
+    df = pd.DataFrame(
+        {
+            "run": ["007", "010"],
+            "topic": ["t", "t"],
+            "axis": ["x", "x"],
+            "metric": ["mae", "mae"],
+            "value": [0.5, float("nan")],
+            "unit": ["m", "m"],
+            "note": ["", ""],
+            "force": [5.0, 10.0],
+        }
+    )
     table = ResultsTable.from_dataframe(df, ["force"])
     (path,) = table.save(tmp_path / "r.csv")
     with warnings.catch_warnings():
@@ -259,8 +313,10 @@ def test_bad_results_files_name_the_file(tmp_path: Path) -> None:
         with pytest.raises(ConfigError, match=r"junk\.parquet: not a readable Parquet file"):
             ResultsTable.load(junk)
     words = tmp_path / "words.csv"
-    words.write_text("run,topic,axis,metric,value,unit,note\nr1,t,x,mae,0.1,m,\n"
-                     "r1,t,y,mae,,m,\nr1,t,z,mae,abc,m,\n")
+    words.write_text(
+        "run,topic,axis,metric,value,unit,note\nr1,t,x,mae,0.1,m,\n"
+        "r1,t,y,mae,,m,\nr1,t,z,mae,abc,m,\n"
+    )
     with pytest.raises(ConfigError, match=r"words\.csv: row 3 \(r1 t z mae\): value 'abc'"):
         ResultsTable.load(words)
 
@@ -271,8 +327,7 @@ def _touch(p: Path) -> Path:
 
 
 # ----------------------------------------------------------------------------- loading
-def test_experiment_directory_and_its_parts_load_the_same(experiment: Path,
-                                                          tmp_path: Path) -> None:
+def test_experiment_directory_and_its_parts_load_the_same(experiment: Path, tmp_path: Path) -> None:
     full = load_experiment_results(experiment)
     assert len(full.runs) == 8
     assert full.manifest is not None
@@ -304,18 +359,25 @@ def test_manifest_only_has_runs_but_no_rows(tmp_path: Path) -> None:
 
 # ----------------------------------------------------------------------------- analysis
 def test_levels_and_varying_factors(table: ResultsTable) -> None:
-    assert factor_levels(table) == {"force": [5.0, 10.0], "torque": [0.0],
-                                    "current": [0.0, 0.2]}
+    assert factor_levels(table) == {"force": [5.0, 10.0], "torque": [0.0], "current": [0.0, 0.2]}
     assert table.varying_factors() == ["force", "current"]
     assert two_way_pairs(table) == [("force", "current")]
 
 
 def test_summary_per_level_matches_pandas(table: ResultsTable) -> None:
     s = summarize_by_level(table, "current")
-    row = s[(s["current"] == 0.2) & (s["topic"] == VEHICLE) & (s["axis"] == "x")
-            & (s["metric"] == "mae")].iloc[0]
-    vals = table.df[(table.df["current"] == 0.2) & (table.df["topic"] == VEHICLE)
-                    & (table.df["axis"] == "x") & (table.df["metric"] == "mae")]["value"]
+    row = s[
+        (s["current"] == 0.2)
+        & (s["topic"] == VEHICLE)
+        & (s["axis"] == "x")
+        & (s["metric"] == "mae")
+    ].iloc[0]
+    vals = table.df[
+        (table.df["current"] == 0.2)
+        & (table.df["topic"] == VEHICLE)
+        & (table.df["axis"] == "x")
+        & (table.df["metric"] == "mae")
+    ]["value"]
     assert row["n"] == 4
     assert row["mean"] == pytest.approx(vals.mean())
     assert row["std"] == pytest.approx(vals.std(ddof=1))
@@ -338,8 +400,9 @@ def test_current_raises_the_error_as_built_in(table: ResultsTable) -> None:
 def test_anova_equals_scipy_and_flags_undefined_cases(table: ResultsTable) -> None:
     an = anova_oneway(table, "current")
     row = an[(an["topic"] == VEHICLE) & (an["axis"] == "x")].iloc[0]
-    sub = table.df[(table.df["topic"] == VEHICLE) & (table.df["axis"] == "x")
-                   & (table.df["metric"] == "mae")]
+    sub = table.df[
+        (table.df["topic"] == VEHICLE) & (table.df["axis"] == "x") & (table.df["metric"] == "mae")
+    ]
     groups = [g["value"].to_numpy() for _, g in sub.groupby("current")]
     ref = stats.f_oneway(*groups)
     assert row["f_stat"] == pytest.approx(ref.statistic)
@@ -350,7 +413,8 @@ def test_anova_equals_scipy_and_flags_undefined_cases(table: ResultsTable) -> No
     assert one["f_stat"].isna().all()
     assert (one["note"] == "torque has one level only").all()
     single = ResultsTable.from_dataframe(
-        table.df[table.df["run"].str.endswith("current0_rep0")], table.factors)
+        table.df[table.df["run"].str.endswith("current0_rep0")], table.factors
+    )
     norep = anova_oneway(single, "force")
     assert norep["note"].str.contains("no replicate").all()
 
@@ -360,8 +424,13 @@ def test_two_way_table_cells_are_means(table: ResultsTable) -> None:
     assert list(tw.index) == [5.0, 10.0]
     assert list(tw.columns) == [0.0, 0.2]
     df = table.df
-    cell = df[(df["force"] == 10.0) & (df["current"] == 0.2) & (df["topic"] == VEHICLE)
-              & (df["axis"] == "x") & (df["metric"] == "mae")]["value"].mean()
+    cell = df[
+        (df["force"] == 10.0)
+        & (df["current"] == 0.2)
+        & (df["topic"] == VEHICLE)
+        & (df["axis"] == "x")
+        & (df["metric"] == "mae")
+    ]["value"].mean()
     assert tw.at[10.0, 0.2] == pytest.approx(cell)
 
 

@@ -24,18 +24,24 @@ def _numbers(runs: list[dict]) -> dict[str, dict]:  # type: ignore[type-arg]
     out = {}
     for r in runs:
         c = r["comparison"]
-        out[r["name"]] = {"factors": r["factors"], "axes": c["axes"],
-                          "pen": c["position_error_norm"], "n": c["n_samples"]}
+        out[r["name"]] = {
+            "factors": r["factors"],
+            "axes": c["axes"],
+            "pen": c["position_error_norm"],
+            "n": c["n_samples"],
+        }
     return out
 
 
 @pytest.mark.skipif(not HAS_DASK, reason="dask.distributed not installed")
 def test_dask_sweep_and_batch_identical_to_local(tmp_path: Path) -> None:
     exp = data_path("experiments", "default.toml")
-    local = run_experiment(exp, tmp_path / "local", SessionOptions(), executor="local",
-                           workers=2, progress=False)
-    dask = run_experiment(exp, tmp_path / "dask", SessionOptions(), executor="dask",
-                          workers=2, progress=False)
+    local = run_experiment(
+        exp, tmp_path / "local", SessionOptions(), executor="local", workers=2, progress=False
+    )
+    dask = run_experiment(
+        exp, tmp_path / "dask", SessionOptions(), executor="dask", workers=2, progress=False
+    )
     assert not local["failed"] and not dask["failed"]
     assert [r["name"] for r in dask["runs"]] == [r["name"] for r in local["runs"]]
     assert len(local["runs"]) == 8
@@ -49,8 +55,7 @@ def test_dask_sweep_and_batch_identical_to_local(tmp_path: Path) -> None:
 
 def test_batch_reports_failing_log_and_completes_others(tmp_path: Path) -> None:
     exp = data_path("experiments", "default.toml")
-    m = run_experiment(exp, tmp_path / "sweep", SessionOptions(), executor="inline",
-                       progress=False)
+    m = run_experiment(exp, tmp_path / "sweep", SessionOptions(), executor="inline", progress=False)
     bad = tmp_path / "sweep" / m["runs"][3]["log"]
     bad.write_bytes(b"not an mcap at all")
     batch = compare_batch(tmp_path / "sweep", executor="local", workers=2, progress=False)
@@ -75,14 +80,31 @@ def test_items_from_errors_name_the_file(tmp_path: Path) -> None:
 
 def test_simulate_experiment_cli_writes_manifest(tmp_path: Path) -> None:
     res = subprocess.run(
-        [sys.executable, "-m", "uwval", "simulate", str(data_path("experiments", "default.toml")),
-         "-o", str(tmp_path / "exp"), "--executor", "local", "--workers", "2"],
-        capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL)
+        [
+            sys.executable,
+            "-m",
+            "uwval",
+            "simulate",
+            str(data_path("experiments", "default.toml")),
+            "-o",
+            str(tmp_path / "exp"),
+            "--executor",
+            "local",
+            "--workers",
+            "2",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        stdin=subprocess.DEVNULL,
+    )
     assert res.returncode == 0, res.stderr
     manifest = json.loads((tmp_path / "exp" / "manifest.json").read_text())
     assert len(manifest["runs"]) == 8
-    levels = {(r["factors"]["force"], r["factors"]["torque"], r["factors"]["current"])
-              for r in manifest["runs"]}
+    levels = {
+        (r["factors"]["force"], r["factors"]["torque"], r["factors"]["current"])
+        for r in manifest["runs"]
+    }
     assert len(levels) == 8  # full factorial: 2 x 2 x 2 distinct combinations
     for r in manifest["runs"]:
         assert (tmp_path / "exp" / r["log"]).is_file()
@@ -92,8 +114,7 @@ def test_simulate_experiment_cli_writes_manifest(tmp_path: Path) -> None:
 def test_logs_on_an_object_store_url_are_fetched(tmp_path: Path) -> None:
     fsspec = pytest.importorskip("fsspec")
     exp = data_path("experiments", "default.toml")
-    m = run_experiment(exp, tmp_path / "sweep", SessionOptions(), executor="inline",
-                       progress=False)
+    m = run_experiment(exp, tmp_path / "sweep", SessionOptions(), executor="inline", progress=False)
     fs = fsspec.filesystem("memory")
     runs = []
     for r in m["runs"][:2]:
@@ -105,8 +126,9 @@ def test_logs_on_an_object_store_url_are_fetched(tmp_path: Path) -> None:
     batch = compare_batch(tmp_path / "remote.json", executor="inline", progress=False)
     local = compare_batch(tmp_path / "sweep", executor="inline", progress=False)
     assert [r["name"] for r in batch.runs] == [r["name"] for r in m["runs"][:2]]
-    assert _numbers(batch.runs) == {k: v for k, v in _numbers(local.runs).items()
-                                    if k in {r["name"] for r in batch.runs}}
+    assert _numbers(batch.runs) == {
+        k: v for k, v in _numbers(local.runs).items() if k in {r["name"] for r in batch.runs}
+    }
     assert batch.failed[0]["name"] == "gone"
     assert "missing.mcap: no such object" in batch.failed[0]["error"]
 
@@ -115,9 +137,23 @@ def test_compare_batch_cli(tmp_path: Path) -> None:
     exp = data_path("experiments", "default.toml")
     run_experiment(exp, tmp_path / "sweep", SessionOptions(), executor="inline", progress=False)
     res = subprocess.run(
-        [sys.executable, "-m", "uwval", "compare", "--batch", str(tmp_path / "sweep"), "-o",
-         str(tmp_path / "res"), "--workers", "2"],
-        capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL)
+        [
+            sys.executable,
+            "-m",
+            "uwval",
+            "compare",
+            "--batch",
+            str(tmp_path / "sweep"),
+            "-o",
+            str(tmp_path / "res"),
+            "--workers",
+            "2",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        stdin=subprocess.DEVNULL,
+    )
     assert res.returncode == 0, res.stderr
     assert "compared 8 logs" in res.stdout
     import pandas as pd
@@ -131,10 +167,18 @@ def test_compare_batch_cli(tmp_path: Path) -> None:
 
 def test_batched_physics_sweep_matches_per_run_physics(tmp_path: Path) -> None:
     exp = data_path("experiments", "default.toml")
-    per_run = run_experiment(exp, tmp_path / "a", SessionOptions(), executor="inline",
-                             progress=False)
-    batched = run_experiment(exp, tmp_path / "b", SessionOptions(), executor="local",
-                             workers=2, progress=False, batched=True)
+    per_run = run_experiment(
+        exp, tmp_path / "a", SessionOptions(), executor="inline", progress=False
+    )
+    batched = run_experiment(
+        exp,
+        tmp_path / "b",
+        SessionOptions(),
+        executor="local",
+        workers=2,
+        progress=False,
+        batched=True,
+    )
     assert [r["name"] for r in batched["runs"]] == [r["name"] for r in per_run["runs"]]
     a = compare_batch(tmp_path / "a", executor="inline", progress=False)
     b = compare_batch(tmp_path / "b", executor="inline", progress=False)
@@ -147,8 +191,9 @@ def test_batched_physics_sweep_matches_per_run_physics(tmp_path: Path) -> None:
         assert abs(ga.position - gb.position).max() < 1e-9  # equal to rounding
     na, nb = _numbers(a.runs), _numbers(b.runs)
     for name in na:
-        assert nb[name]["axes"]["x"]["mae"] == pytest.approx(na[name]["axes"]["x"]["mae"],
-                                                             rel=1e-6, abs=1e-12)
+        assert nb[name]["axes"]["x"]["mae"] == pytest.approx(
+            na[name]["axes"]["x"]["mae"], rel=1e-6, abs=1e-12
+        )
 
 
 @pytest.mark.skipif(not HAS_DASK, reason="dask.distributed not installed")
@@ -164,10 +209,19 @@ def test_worker_killed_mid_sweep_every_run_present_once(tmp_path: Path, executor
     cloudpickle.register_pickle_by_value(executor_tasks)
     specs = load_experiment(data_path("experiments", "default.toml")).runs()
     victim = specs[3].name
-    jobs = [(RunJob(s, str(log_path_for(tmp_path, s.name, "mcap"))), victim, str(tmp_path))
-            for s in specs]
-    out = run_tasks(executor_tasks.run_one_dying_once, jobs, [s.name for s in specs],
-                    executor=executor, workers=2, retries=2, progress=False)
+    jobs = [
+        (RunJob(s, str(log_path_for(tmp_path, s.name, "mcap"))), victim, str(tmp_path))
+        for s in specs
+    ]
+    out = run_tasks(
+        executor_tasks.run_one_dying_once,
+        jobs,
+        [s.name for s in specs],
+        executor=executor,
+        workers=2,
+        retries=2,
+        progress=False,
+    )
     assert (tmp_path / "killed").read_text() == victim  # a worker really died
     assert [o.key for o in out] == [s.name for s in specs]
     assert all(o.ok for o in out), [o.error for o in out if not o.ok]

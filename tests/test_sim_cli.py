@@ -39,10 +39,24 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Path, dict
     d = tmp_path_factory.mktemp("simcli")
     procs = {
         name: subprocess.Popen(
-            [sys.executable, "-m", "uwval", "simulate", *MOTION, "--duration", DURATION,
-             "--json", "-o", str(d / f"{name}.mcap"), *opts],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-            stdin=subprocess.DEVNULL)
+            [
+                sys.executable,
+                "-m",
+                "uwval",
+                "simulate",
+                *MOTION,
+                "--duration",
+                DURATION,
+                "--json",
+                "-o",
+                str(d / f"{name}.mcap"),
+                *opts,
+            ],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            stdin=subprocess.DEVNULL,
+        )
         for name, opts in VARIANTS.items()
     }
     out = {}
@@ -65,8 +79,7 @@ def test_record_says_what_ran(runs: dict[str, tuple[Path, dict[str, Any]]]) -> N
     assert rec["session"]["unity_map"] == "unity-flu"
 
 
-def test_latency_adds_to_the_measured_latency(
-        runs: dict[str, tuple[Path, dict[str, Any]]]) -> None:
+def test_latency_adds_to_the_measured_latency(runs: dict[str, tuple[Path, dict[str, Any]]]) -> None:
     base = compare_json(str(runs["base"][0]))["latency"]
     late = compare_json(str(runs["latency"][0]))["latency"]
     assert late["mean_ms"] - base["mean_ms"] == pytest.approx(50.0, abs=1.0)
@@ -75,7 +88,8 @@ def test_latency_adds_to_the_measured_latency(
 
 
 def test_drop_loses_about_that_share_and_is_counted(
-        runs: dict[str, tuple[Path, dict[str, Any]]]) -> None:
+    runs: dict[str, tuple[Path, dict[str, Any]]],
+) -> None:
     b = runs["drop"][1]["bridge"]
     assert b["dropped"] / b["sent"] == pytest.approx(0.3, abs=0.08)
     assert b["sent"] == b["delivered"] + b["dropped"]
@@ -83,8 +97,7 @@ def test_drop_loses_about_that_share_and_is_counted(
     assert b["render_lag_mean_s"] > runs["base"][1]["bridge"]["render_lag_mean_s"] + 1e-3
 
 
-def test_jitter_makes_render_frames_irregular(
-        runs: dict[str, tuple[Path, dict[str, Any]]]) -> None:
+def test_jitter_makes_render_frames_irregular(runs: dict[str, tuple[Path, dict[str, Any]]]) -> None:
     def frame_period_std(name: str) -> float:
         s = read_stream(runs[name][0], "/unity/model_rov_pose")
         return float(np.diff(s.t).std()) * 1e-9
@@ -94,7 +107,8 @@ def test_jitter_makes_render_frames_irregular(
 
 
 def test_unity_clock_offset_shifts_unity_stamps(
-        runs: dict[str, tuple[Path, dict[str, Any]]]) -> None:
+    runs: dict[str, tuple[Path, dict[str, Any]]],
+) -> None:
     log = str(runs["offset"][0])
     shifted = compare_json(log)["latency"]
     assert shifted["min_ms"] == pytest.approx(200.0, abs=0.5)
@@ -103,20 +117,21 @@ def test_unity_clock_offset_shifts_unity_stamps(
     base = compare_json(str(runs["base"][0]))
     assert corrected["latency"]["mean_ms"] == pytest.approx(base["latency"]["mean_ms"], abs=0.5)
     assert corrected["position_error_norm"]["rmse"] == pytest.approx(
-        base["position_error_norm"]["rmse"], rel=0.2)
+        base["position_error_norm"]["rmse"], rel=0.2
+    )
     u = read_stream(log, "/unity/model_rov_pose")
     g = read_stream(log, "/gazebo/model_rov_pose")
     assert (u.t[0] - g.t[0]) * 1e-9 == pytest.approx(0.2, abs=1e-6)
 
 
-def test_unity_enu_map_is_read_from_frame_id(
-        runs: dict[str, tuple[Path, dict[str, Any]]]) -> None:
+def test_unity_enu_map_is_read_from_frame_id(runs: dict[str, tuple[Path, dict[str, Any]]]) -> None:
     log = str(runs["enu"][0])
     right = compare_json(log)
     assert right["other"]["frame"] == "unity-enu"
     base = compare_json(str(runs["base"][0]))
     assert right["position_error_norm"]["rmse"] == pytest.approx(
-        base["position_error_norm"]["rmse"], rel=1e-6)
+        base["position_error_norm"]["rmse"], rel=1e-6
+    )
     assert right["axes"]["x"]["pearson_r"] > 0.99
     # the same log read with the other Unity map is badly off
     wrong = compare_json(log, "--frame", "unity-flu")
@@ -129,18 +144,21 @@ def test_unity_enu_map_is_read_from_frame_id(
 
 
 def test_realtime_paces_the_run_to_the_wall_clock(
-        runs: dict[str, tuple[Path, dict[str, Any]]]) -> None:
+    runs: dict[str, tuple[Path, dict[str, Any]]],
+) -> None:
     rt = runs["realtime"][1]["bridge"]
     assert rt["wall_time_s"] >= 0.95 * float(DURATION)
     # pacing changes nothing that is logged
-    assert compare_json(str(runs["realtime"][0]))["axes"] == compare_json(
-        str(runs["base"][0]))["axes"]
+    assert (
+        compare_json(str(runs["realtime"][0]))["axes"] == compare_json(str(runs["base"][0]))["axes"]
+    )
 
 
 def test_experiment_manifest_carries_bridge_drops(tmp_path: Path) -> None:
     exp = tmp_path / "tiny.toml"
-    exp.write_text('name = "tiny"\nduration_s = 1.0\n[factors.force]\naxis = "x"\n'
-                   'levels = [5.0, 10.0]\n')
+    exp.write_text(
+        'name = "tiny"\nduration_s = 1.0\n[factors.force]\naxis = "x"\nlevels = [5.0, 10.0]\n'
+    )
     out = tmp_path / "out"
     res = uwval("simulate", str(exp), "-o", str(out), "--drop", "0.3", "--executor", "inline")
     assert res.returncode == 0, res.stderr
@@ -180,14 +198,17 @@ def test_experiment_manifest_carries_bridge_drops(tmp_path: Path) -> None:
         (("/proc/uwval-no-such-dir/x.toml",), "x.toml"),
     ],
 )
-def test_bad_input_is_one_clean_line(tmp_path: Path, capsys: pytest.CaptureFixture[str],
-                                     args: tuple[str, ...], needle: str) -> None:
+def test_bad_input_is_one_clean_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], args: tuple[str, ...], needle: str
+) -> None:
     (tmp_path / "bad.toml").write_text("name = 'x'\n[factors\n")
     (tmp_path / "empty_factor.toml").write_text("[factors]\nforce = []\n")
     (tmp_path / "no_inertia.toml").write_text("mass = 1\n")
     (tmp_path / "bad_mass.sdf").write_text(
-        (REPO / "data" / "vehicles" / "tethys_sdf" / "model.sdf").read_text().replace(
-            "<mass>147.8671</mass>", "<mass>heavy</mass>"))
+        (REPO / "data" / "vehicles" / "tethys_sdf" / "model.sdf")
+        .read_text()
+        .replace("<mass>147.8671</mass>", "<mass>heavy</mass>")
+    )
     argv = [a.replace("{tmp}", str(tmp_path)) for a in args]
     if "-o" not in argv:
         argv += ["-o", str(tmp_path / "run.mcap")]

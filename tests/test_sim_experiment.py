@@ -97,8 +97,10 @@ def test_vehicle_parameter_and_vehicle_factors(tmp_path: Path) -> None:
         ("[factors.force]\nlevels = ['a']\n", r"factors\.force.*levels must be numbers"),
         ("[factors.force]\nlevels = [1, 1]\n", r"factors\.force.*duplicate levels"),
         ("[factors.force]\naxis = 'w'\nlevels = [1]\n", r"factors\.force.*axis must be x, y or z"),
-        ("[factors.force]\nlevels = [1]\nprofile = {kind = 'saw'}\n",
-         r"factors\.force.*unknown profile kind 'saw'"),
+        (
+            "[factors.force]\nlevels = [1]\nprofile = {kind = 'saw'}\n",
+            r"factors\.force.*unknown profile kind 'saw'",
+        ),
         ("[factors.speed]\nlevels = [1]\n", r"factors\.speed.*unknown factor kind 'speed'"),
         ("[factors.mass]\nlevels = [1]\naxis = 'x'\n", r"unknown key\(s\) \['axis'\]"),
         ("duration_s = -1\n", "'duration_s' must be > 0"),

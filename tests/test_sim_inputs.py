@@ -33,6 +33,7 @@ def A(values: object) -> np.ndarray:
     """A float array (the profile and thruster types are annotated with float arrays)."""
     return np.asarray(values, dtype=np.float64)
 
+
 T = np.array([0.0, 0.5, 0.999, 1.0, 1.5, 2.0, 3.0, 10.0])
 TETHYS = load_vehicle()
 

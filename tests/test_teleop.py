@@ -23,8 +23,6 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-
-
 def test_held_keys_add_and_expire() -> None:
     held = HeldKeys(force_step=10.0, torque_step=1.0, hold_s=0.5)
     assert held.press("i", 0.0) and held.press("j", 0.1)
@@ -39,8 +37,19 @@ def test_held_keys_add_and_expire() -> None:
 
 def test_scripted_session_moves_vehicle_forward_and_turns_left(tmp_path: Path) -> None:
     log = tmp_path / "tele.mcap"
-    res = _uwval("teleop", "--keys", "i@0:3;j@0:3", "--duration", "3", "--speed", "0",
-                 "--port", "0", "--record", str(log))
+    res = _uwval(
+        "teleop",
+        "--keys",
+        "i@0:3;j@0:3",
+        "--duration",
+        "3",
+        "--speed",
+        "0",
+        "--port",
+        "0",
+        "--record",
+        str(log),
+    )
     assert res.returncode == 0, res.stderr
     s = read_stream(log, "/gazebo/model_rov_pose")
     assert len(s) == 151
@@ -60,13 +69,26 @@ def test_live_client_receives_poses_over_tcp() -> None:
 
     port = _free_port()
     proc = subprocess.Popen(
-        [sys.executable, "-m", "uwval", "teleop", "--keys", "i@0:5", "--duration", "4",
-         "--port", str(port)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        [
+            sys.executable,
+            "-m",
+            "uwval",
+            "teleop",
+            "--keys",
+            "i@0:5",
+            "--duration",
+            "4",
+            "--port",
+            str(port),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
         stdin=subprocess.DEVNULL,
     )
     try:
-        conn = UnityConnection("127.0.0.1", port,
-                               subscriptions={"model_rov_pose": "geometry_msgs/PoseStamped"})
+        conn = UnityConnection(
+            "127.0.0.1", port, subscriptions={"model_rov_pose": "geometry_msgs/PoseStamped"}
+        )
         deadline = time.monotonic() + 20
         while True:
             try:
@@ -110,8 +132,9 @@ def test_live_client_receives_poses_over_tcp() -> None:
         (("--record", "/proc/uwval-no-such-dir/t.mcap"), "/proc/uwval-no-such-dir/t.mcap"),
     ],
 )
-def test_bad_input_is_one_clean_line(capsys: pytest.CaptureFixture[str],
-                                     args: tuple[str, ...], needle: str) -> None:
+def test_bad_input_is_one_clean_line(
+    capsys: pytest.CaptureFixture[str], args: tuple[str, ...], needle: str
+) -> None:
     from uwval.cli import main
 
     argv = ["--keys", "i@0:1", "--duration", "1", "--speed", "0", "--port", "0"]

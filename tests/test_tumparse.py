@@ -21,10 +21,10 @@ if TYPE_CHECKING:
 
 if tum._tumparse is None:
     if os.environ.get("UWVAL_REQUIRE_ACCELERATOR"):
-        pytest.fail("uwval.io._tumparse was not built (UWVAL_REQUIRE_ACCELERATOR is set)",
-                    pytrace=False)
-    pytest.skip("the C accelerator uwval.io._tumparse is not built here",
-                allow_module_level=True)
+        pytest.fail(
+            "uwval.io._tumparse was not built (UWVAL_REQUIRE_ACCELERATOR is set)", pytrace=False
+        )
+    pytest.skip("the C accelerator uwval.io._tumparse is not built here", allow_module_level=True)
 
 parse_block = tum._tumparse.parse_block
 
@@ -47,17 +47,52 @@ _token = st.one_of(
     st.floats(allow_nan=False, allow_infinity=False).map("{:.17e}".format),
     st.floats(-1e7, 1e7, allow_nan=False).map("{:.9f}".format),
     st.floats(0, 4e9, allow_nan=False).map("{:.6f}".format),
-    st.builds(lambda s, a, b, e: f"{s}{a}.{b}{e}", st.sampled_from(["", "-", "+"]), _digits,
-              _digits, st.sampled_from(["", "e5", "E-7", "e+22", "e-22", "e23", "e-330",
-                                        "e308", "e-300", "E0", "e-5000", "e99999999"])),
+    st.builds(
+        lambda s, a, b, e: f"{s}{a}.{b}{e}",
+        st.sampled_from(["", "-", "+"]),
+        _digits,
+        _digits,
+        st.sampled_from(
+            [
+                "",
+                "e5",
+                "E-7",
+                "e+22",
+                "e-22",
+                "e23",
+                "e-330",
+                "e308",
+                "e-300",
+                "E0",
+                "e-5000",
+                "e99999999",
+            ]
+        ),
+    ),
     st.builds(lambda a: f".{a}", _digits),
     st.builds(lambda a: f"{a}.", _digits),
-    st.sampled_from(["0", "-0", "-0.0", "+0.000", "4.9e-324", "2.4703282292062327e-324",
-                     "1.7976931348623157e308", "1.7976931348623159e308", "9007199254740993",
-                     "9007199254740992", "9007199254740991", "0.1", "1e22", "1e23",
-                     "123456789012345678901234567890",
-                     "0.000000000000000000000000000001", "1700000000.123456789",
-                     "1305031102.175304"]),
+    st.sampled_from(
+        [
+            "0",
+            "-0",
+            "-0.0",
+            "+0.000",
+            "4.9e-324",
+            "2.4703282292062327e-324",
+            "1.7976931348623157e308",
+            "1.7976931348623159e308",
+            "9007199254740993",
+            "9007199254740992",
+            "9007199254740991",
+            "0.1",
+            "1e22",
+            "1e23",
+            "123456789012345678901234567890",
+            "0.000000000000000000000000000001",
+            "1700000000.123456789",
+            "1305031102.175304",
+        ]
+    ),
 )
 
 
@@ -88,12 +123,24 @@ def test_stops_when_the_outputs_are_full() -> None:
     assert table[:, 0].tolist() == [0, 1, 2, 3]
 
 
-@pytest.mark.parametrize("bad", [b"1 2 3 4 5 6 7", b"1 2 3 4 5 6 7 8 9", b"# comment",
-                                 b"1 2 3 4 5 6 7 x", b"1,2,3,4,5,6,7,8", b"nan 1 2 3 4 5 6 7",
-                                 b"1 2 3 4 5 6 7 1e", b"1 2 3 4 5 6 7 +", b"1 2 3 4 5 6 7 .",
-                                 b"1 2 3 4 5 6 7 0x10", b"1 2 3 4 5 6 7 1_0",
-                                 b"1 2 3 4 5 6 7 " + b"1" * 200,
-                                 b"1 2 3 4 5 6 7 0." + b"0" * 5000 + b"1"])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        b"1 2 3 4 5 6 7",
+        b"1 2 3 4 5 6 7 8 9",
+        b"# comment",
+        b"1 2 3 4 5 6 7 x",
+        b"1,2,3,4,5,6,7,8",
+        b"nan 1 2 3 4 5 6 7",
+        b"1 2 3 4 5 6 7 1e",
+        b"1 2 3 4 5 6 7 +",
+        b"1 2 3 4 5 6 7 .",
+        b"1 2 3 4 5 6 7 0x10",
+        b"1 2 3 4 5 6 7 1_0",
+        b"1 2 3 4 5 6 7 " + b"1" * 200,
+        b"1 2 3 4 5 6 7 0." + b"0" * 5000 + b"1",
+    ],
+)
 def test_anything_but_8_plain_decimals_is_refused_with_the_line_offset(bad: bytes) -> None:
     text = b"1 0 0 0 0 0 0 1\n" + bad + b"\n2 0 0 0 0 0 0 1\n"
     with pytest.raises(ValueError, match=r"^byte 16: not a line of 8 decimal numbers"):
@@ -163,9 +210,14 @@ def test_growing_the_arrays_does_not_grow_the_text_buffer(tmp_path: Path) -> Non
     per_block = tum._CHUNK // len(line)  # the arrays fill up exactly at a block's end
     n = 16 * per_block
     reader = _RecordingReader(line * n)
-    t, pose = tum._fill_accelerated(reader, b"", tmp_path / "x.tum",  # type: ignore[arg-type]
-                                    np.empty(per_block, np.int64), np.empty((per_block, 7)),
-                                    False)
+    t, pose = tum._fill_accelerated(
+        reader,
+        b"",
+        tmp_path / "x.tum",  # type: ignore[arg-type]
+        np.empty(per_block, np.int64),
+        np.empty((per_block, 7)),
+        False,
+    )
     assert t.shape == (n,)
     assert np.array_equal(pose, np.tile([0.0, 0, 0, 0, 0, 0, 1], (n, 1)))
     assert max(reader.asked) <= tum._CHUNK
@@ -180,6 +232,12 @@ def test_the_environment_can_switch_the_accelerator_off() -> None:
         env = {k: v for k, v in os.environ.items() if k != "UWVAL_NO_ACCELERATOR"}
         if value is not None:
             env["UWVAL_NO_ACCELERATOR"] = value
-        out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
-                             env=env, timeout=60, check=True)
+        out = subprocess.run(
+            [sys.executable, "-c", probe],
+            capture_output=True,
+            text=True,
+            env=env,
+            timeout=60,
+            check=True,
+        )
         assert out.stdout.strip() == expected

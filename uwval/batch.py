@@ -49,13 +49,18 @@ def items_from(source: Path, options: dict[str, Any] | None = None) -> list[Batc
             log = str(r["log"])
             if not is_url(log) and not Path(log).is_absolute():
                 log = str(base / log)
-            items.append(BatchItem(r["name"], log, dict(r.get("factors", {})), opts,
-                                   dict(r.get("bridge", {}))))
+            items.append(
+                BatchItem(
+                    r["name"], log, dict(r.get("factors", {})), opts, dict(r.get("bridge", {}))
+                )
+            )
         return items
     if source.is_dir():
         logs = sorted(
-            p for p in source.rglob("*")
-            if p.is_file() and p.suffix in LOG_SUFFIXES
+            p
+            for p in source.rglob("*")
+            if p.is_file()
+            and p.suffix in LOG_SUFFIXES
             and not (p.parent / "metadata.yaml").exists()  # files of a rosbag2 directory
         )
         bag_dirs = sorted(p.parent for p in source.rglob("metadata.yaml"))
@@ -89,8 +94,13 @@ def compare_item(item: BatchItem) -> dict[str, Any]:
             result = compare_logs(local, **item.options)
     else:
         result = compare_logs(item.log, **item.options)
-    return {"name": item.name, "log": item.log, "factors": item.factors,
-            "bridge": item.bridge, "comparison": result.to_json()}
+    return {
+        "name": item.name,
+        "log": item.log,
+        "factors": item.factors,
+        "bridge": item.bridge,
+        "comparison": result.to_json(),
+    }
 
 
 def _fetch(url: str, dest: Path) -> None:
@@ -98,8 +108,7 @@ def _fetch(url: str, dest: Path) -> None:
     try:
         import fsspec
     except ImportError as exc:
-        raise ConfigError(f"{url}: reading URLs needs fsspec (pip install 'uwval[dask]')"
-                          ) from exc
+        raise ConfigError(f"{url}: reading URLs needs fsspec (pip install 'uwval[dask]')") from exc
     try:
         with fsspec.open(url, "rb") as src, open(dest, "wb") as out:
             while chunk := src.read(1 << 22):
@@ -123,8 +132,7 @@ class BatchResult:
             out_dir.mkdir(parents=True, exist_ok=True)
             comp.write_text(json.dumps({"runs": self.runs, "failed": self.failed}, indent=1))
         except OSError as exc:
-            raise ConfigError(f"{comp}: cannot write the results: {exc.strerror or exc}"
-                              ) from None
+            raise ConfigError(f"{comp}: cannot write the results: {exc.strerror or exc}") from None
         written = [comp]
         written += list(self.table.save(out_dir))
         return written
@@ -143,9 +151,16 @@ def compare_batch(
     from uwval.results import ResultsTable
 
     items = items_from(source, options)
-    outcomes = run_tasks(compare_item, items, [i.name for i in items], executor=executor,
-                         workers=workers, scheduler=scheduler, progress=progress,
-                         description=f"compare {len(items)} logs")
+    outcomes = run_tasks(
+        compare_item,
+        items,
+        [i.name for i in items],
+        executor=executor,
+        workers=workers,
+        scheduler=scheduler,
+        progress=progress,
+        description=f"compare {len(items)} logs",
+    )
     runs = [o.value for o in outcomes if o.ok and o.value is not None]
     failed = [{"name": o.key, "error": o.error} for o in outcomes if not o.ok]
     table = ResultsTable.from_comparisons(

@@ -65,8 +65,11 @@ class _Progress:
             )
 
             self._bar = Progress(
-                TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-                TimeElapsedColumn(), transient=False,
+                TextColumn("[bold]{task.description}"),
+                BarColumn(),
+                MofNCompleteColumn(),
+                TimeElapsedColumn(),
+                transient=False,
             )
             self._bar.start()
             self._task = self._bar.add_task(description, total=total)
@@ -116,8 +119,9 @@ def run_tasks(
     raise UwvalError(f"unknown executor {executor!r}; choose one of {', '.join(EXECUTORS)}")
 
 
-def _run_inline(fn: Callable[[T], R], items: Sequence[T], keys: Sequence[str], retries: int,
-                bar: _Progress) -> list[TaskOutcome[R]]:
+def _run_inline(
+    fn: Callable[[T], R], items: Sequence[T], keys: Sequence[str], retries: int, bar: _Progress
+) -> list[TaskOutcome[R]]:
     out: list[TaskOutcome[R]] = []
     for item, key in zip(items, keys, strict=True):
         attempt = 0
@@ -135,8 +139,14 @@ def _run_inline(fn: Callable[[T], R], items: Sequence[T], keys: Sequence[str], r
     return out
 
 
-def _run_local(fn: Callable[[T], R], items: Sequence[T], keys: Sequence[str],
-               workers: int | None, retries: int, bar: _Progress) -> list[TaskOutcome[R]]:
+def _run_local(
+    fn: Callable[[T], R],
+    items: Sequence[T],
+    keys: Sequence[str],
+    workers: int | None,
+    retries: int,
+    bar: _Progress,
+) -> list[TaskOutcome[R]]:
     n_workers = max(1, min(workers or os.cpu_count() or 1, len(items) or 1))
     results: dict[int, TaskOutcome[R]] = {}
     attempts = dict.fromkeys(range(len(items)), 0)
@@ -181,9 +191,15 @@ def _guarded(task: tuple[Callable[[Any], Any], Any]) -> tuple[bool, Any]:
         return False, _describe_exc(exc)
 
 
-def _run_dask(fn: Callable[[T], R], items: Sequence[T], keys: Sequence[str],
-              workers: int | None, scheduler: str | None, retries: int,
-              bar: _Progress) -> list[TaskOutcome[R]]:
+def _run_dask(
+    fn: Callable[[T], R],
+    items: Sequence[T],
+    keys: Sequence[str],
+    workers: int | None,
+    scheduler: str | None,
+    retries: int,
+    bar: _Progress,
+) -> list[TaskOutcome[R]]:
     try:
         from dask.distributed import Client, LocalCluster, as_completed
     except ImportError as exc:
@@ -195,16 +211,18 @@ def _run_dask(fn: Callable[[T], R], items: Sequence[T], keys: Sequence[str],
         client = Client(scheduler, timeout="30s")
     else:
         cluster = LocalCluster(
-            n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
-            dashboard_address=None, silence_logs=40,
+            n_workers=workers or os.cpu_count() or 1,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+            silence_logs=40,
         )
         client = Client(cluster)
     try:
         # one Dask key per task, named after the run/log so failures are traceable
         # deterministic errors come back as values (Dask would retry any exception)
         futs = [
-            client.submit(_guarded, (fn, item), key=f"uwval-{key}", retries=retries,
-                          pure=False)
+            client.submit(_guarded, (fn, item), key=f"uwval-{key}", retries=retries, pure=False)
             for item, key in zip(items, keys, strict=True)
         ]
         index = {f.key: i for i, f in enumerate(futs)}
@@ -218,11 +236,15 @@ def _run_dask(fn: Callable[[T], R], items: Sequence[T], keys: Sequence[str],
             try:
                 ok, value = fut.result()
             except Exception as exc:
-                results[i] = TaskOutcome(keys[i], False, error=_describe_exc(exc),
-                                         attempts=retries + 1)
+                results[i] = TaskOutcome(
+                    keys[i], False, error=_describe_exc(exc), attempts=retries + 1
+                )
             else:
-                results[i] = (TaskOutcome(keys[i], True, value) if ok
-                              else TaskOutcome(keys[i], False, error=value))
+                results[i] = (
+                    TaskOutcome(keys[i], True, value)
+                    if ok
+                    else TaskOutcome(keys[i], False, error=value)
+                )
             bar.advance()
         return [results[i] for i in range(len(items))]
     finally:

@@ -128,20 +128,32 @@ class Violation:
 
     def describe(self) -> str:
         levels = " ".join(f"{k}={_fmt_level(v)}" for k, v in self.factors.items())
-        where = " ".join(p for p in (f"run={self.run}" if self.run else "",
-                                     f"topic={self.topic}" if self.topic else "",
-                                     f"axis={self.axis}" if self.axis else "", levels) if p)
+        where = " ".join(
+            p
+            for p in (
+                f"run={self.run}" if self.run else "",
+                f"topic={self.topic}" if self.topic else "",
+                f"axis={self.axis}" if self.axis else "",
+                levels,
+            )
+            if p
+        )
         unit = f" {self.unit}" if self.unit else ""
         if self.kind == "no-match":
             return f"rule [{self.rule}] matched no results ({where or 'any topic/axis'})"
         if self.kind == "missing":
-            return (f"{self.metric} {where}: missing from the results "
-                    f"(baseline {self.bound:.6g}{unit})")
+            return (
+                f"{self.metric} {where}: missing from the results (baseline {self.bound:.6g}{unit})"
+            )
         if self.kind == "undefined":
-            return (f"{self.metric} {where}: undefined (NaN), must be {self.op} "
-                    f"{self.bound:.6g}{unit} [{self.rule}]")
-        return (f"{self.metric} {where}: {self.value:.6g}{unit}, must be {self.op} "
-                f"{self.bound:.6g}{unit} [{self.rule}]")
+            return (
+                f"{self.metric} {where}: undefined (NaN), must be {self.op} "
+                f"{self.bound:.6g}{unit} [{self.rule}]"
+            )
+        return (
+            f"{self.metric} {where}: {self.value:.6g}{unit}, must be {self.op} "
+            f"{self.bound:.6g}{unit} [{self.rule}]"
+        )
 
 
 @dataclass
@@ -158,17 +170,21 @@ class GateResult:
 
     def format(self, limit: int | None = 200) -> str:
         """A readable multi-line verdict for terminals and CI logs."""
-        head = (f"uwval check: PASS ({self.checked} values checked)" if self.passed else
-                f"uwval check: FAIL - {len(self.violations)} regression(s) "
-                f"among {self.checked} values checked")
+        head = (
+            f"uwval check: PASS ({self.checked} values checked)"
+            if self.passed
+            else f"uwval check: FAIL - {len(self.violations)} regression(s) "
+            f"among {self.checked} values checked"
+        )
         lines = [head]
         shown = self.violations if limit is None else self.violations[:limit]
         lines += [f"  - {v.describe()}" for v in shown]
         if limit is not None and len(self.violations) > limit:
             lines.append(f"  ... and {len(self.violations) - limit} more")
         if self.skipped:
-            lines.append(f"  ({len(self.skipped)} undefined value(s) skipped, e.g. "
-                         f"{self.skipped[0]})")
+            lines.append(
+                f"  ({len(self.skipped)} undefined value(s) skipped, e.g. {self.skipped[0]})"
+            )
         return "\n".join(lines)
 
     def render(self) -> str:
@@ -187,14 +203,22 @@ class GateResult:
         def clean(v: Any) -> Any:
             return None if isinstance(v, float) and not math.isfinite(v) else v
 
-        return {"passed": self.passed, "checked": self.checked,
-                "violations": [{k: clean(v) for k, v in asdict(x).items()} | {
-                    "message": x.describe()} for x in self.violations],
-                "skipped": list(self.skipped)}
+        return {
+            "passed": self.passed,
+            "checked": self.checked,
+            "violations": [
+                {k: clean(v) for k, v in asdict(x).items()} | {"message": x.describe()}
+                for x in self.violations
+            ],
+            "skipped": list(self.skipped),
+        }
 
     def merge(self, other: GateResult) -> GateResult:
-        return GateResult(self.violations + other.violations, self.checked + other.checked,
-                          self.skipped + other.skipped)
+        return GateResult(
+            self.violations + other.violations,
+            self.checked + other.checked,
+            self.skipped + other.skipped,
+        )
 
 
 def _fmt_level(v: Any) -> str:
@@ -230,8 +254,7 @@ def parse_thresholds(obj: Mapping[str, Any], source: str = "<thresholds>") -> Th
     raw_rules = obj.get("threshold", [])
     if not isinstance(raw_rules, list):
         raise ConfigError(f"{source}: 'threshold' must be an array of tables ([[threshold]])")
-    rules = tuple(_parse_rule(r, f"{source}: threshold #{i + 1}")
-                  for i, r in enumerate(raw_rules))
+    rules = tuple(_parse_rule(r, f"{source}: threshold #{i + 1}") for i, r in enumerate(raw_rules))
     base = obj.get("baseline", {})
     if not isinstance(base, Mapping):
         raise ConfigError(f"{source}: [baseline] must be a table")
@@ -241,8 +264,18 @@ def parse_thresholds(obj: Mapping[str, Any], source: str = "<thresholds>") -> Th
 def _parse_rule(r: Any, where: str) -> ThresholdRule:
     if not isinstance(r, Mapping):
         raise ConfigError(f"{where}: must be a table")
-    allowed = {"name", "metric", "axis", "axes", "topic", "topics", "max", "min", "factors",
-               "undefined"}
+    allowed = {
+        "name",
+        "metric",
+        "axis",
+        "axes",
+        "topic",
+        "topics",
+        "max",
+        "min",
+        "factors",
+        "undefined",
+    }
     extra = sorted(set(r) - allowed)
     if extra:
         raise ConfigError(f"{where}: unknown key(s) {extra} (allowed: {sorted(allowed)})")
@@ -270,10 +303,18 @@ def _parse_rule(r: Any, where: str) -> ThresholdRule:
         raise ConfigError(f"{where}: 'factors' must be a table, e.g. {{ current = 0.2 }}")
     undefined = r.get("undefined", "skip")
     if undefined not in ("skip", "fail"):
-        raise ConfigError(f"{where}: 'undefined' must be \"skip\" or \"fail\"")
+        raise ConfigError(f'{where}: \'undefined\' must be "skip" or "fail"')
     name = r.get("name", "")
-    return ThresholdRule(metric, tuple(axes), tuple(topics), bounds["max"], bounds["min"],
-                         dict(factors), undefined, str(name))
+    return ThresholdRule(
+        metric,
+        tuple(axes),
+        tuple(topics),
+        bounds["max"],
+        bounds["min"],
+        dict(factors),
+        undefined,
+        str(name),
+    )
 
 
 def _str_list(v: Any, where: str) -> list[str]:
@@ -329,50 +370,78 @@ def check_thresholds(table: ResultsTable, thresholds: Thresholds) -> GateResult:
     for rule in thresholds.rules:
         for f in rule.factors:
             if f not in table.factors:
-                raise ConfigError(f"{thresholds.source}: rule [{rule.label()}] filters on factor "
-                                  f"{f!r}, which the results lack (factors: {table.factors})")
+                raise ConfigError(
+                    f"{thresholds.source}: rule [{rule.label()}] filters on factor "
+                    f"{f!r}, which the results lack (factors: {table.factors})"
+                )
         want_topics = [t for t in topics if any(fnmatch.fnmatchcase(t, p) for p in rule.topics)]
-        mask = (df["metric"] == rule.metric) & df["axis"].isin(rule.axes) & df["topic"].isin(
-            want_topics)
+        mask = (
+            (df["metric"] == rule.metric)
+            & df["axis"].isin(rule.axes)
+            & df["topic"].isin(want_topics)
+        )
         for f, level in rule.factors.items():
             mask &= df[f].map(lambda c, lv=level: _level_matches(c, lv))
         rows = df[mask]
         if rows.empty:
-            result.violations.append(Violation(
-                "no-match", rule.metric, ",".join(rule.topics), ",".join(rule.axes), "",
-                dict(rule.factors), math.nan, math.nan, "", rule=rule.label()))
+            result.violations.append(
+                Violation(
+                    "no-match",
+                    rule.metric,
+                    ",".join(rule.topics),
+                    ",".join(rule.axes),
+                    "",
+                    dict(rule.factors),
+                    math.nan,
+                    math.nan,
+                    "",
+                    rule=rule.label(),
+                )
+            )
             continue
         for _, row in rows.iterrows():
             value = float(row["value"])
             unit = str(row["unit"])
             fac = _factor_dict(row, table.factors)
             common: dict[str, Any] = dict(
-                metric=rule.metric, topic=str(row["topic"]), axis=str(row["axis"]),
-                run=str(row["run"]), factors=fac, unit=unit, rule=rule.label())
+                metric=rule.metric,
+                topic=str(row["topic"]),
+                axis=str(row["axis"]),
+                run=str(row["run"]),
+                factors=fac,
+                unit=unit,
+                rule=rule.label(),
+            )
             result.checked += 1
             if math.isnan(value):
                 if rule.undefined == "fail":
                     bound = rule.min if rule.min is not None else rule.max
                     op = ">=" if rule.min is not None else "<="
-                    result.violations.append(Violation("undefined", value=value,
-                                                       bound=float(bound or 0.0), op=op,
-                                                       **common))
+                    result.violations.append(
+                        Violation(
+                            "undefined", value=value, bound=float(bound or 0.0), op=op, **common
+                        )
+                    )
                 else:
                     note = str(row["note"]) or "undefined"
-                    result.skipped.append(f"{rule.metric} {row['run']}/{row['topic']}/"
-                                          f"{row['axis']}: {note}")
+                    result.skipped.append(
+                        f"{rule.metric} {row['run']}/{row['topic']}/{row['axis']}: {note}"
+                    )
                 continue
             if rule.max is not None and value > rule.max:
-                result.violations.append(Violation("threshold", value=value, bound=rule.max,
-                                                   op="<=", **common))
+                result.violations.append(
+                    Violation("threshold", value=value, bound=rule.max, op="<=", **common)
+                )
             if rule.min is not None and value < rule.min:
-                result.violations.append(Violation("threshold", value=value, bound=rule.min,
-                                                   op=">=", **common))
+                result.violations.append(
+                    Violation("threshold", value=value, bound=rule.min, op=">=", **common)
+                )
     return result
 
 
-def check_baseline(table: ResultsTable, baseline: ResultsTable,
-                   tolerance: BaselineTolerance | None = None) -> GateResult:
+def check_baseline(
+    table: ResultsTable, baseline: ResultsTable, tolerance: BaselineTolerance | None = None
+) -> GateResult:
     """Compare ``table`` with a golden ``baseline`` run by run (see the module doc)."""
     tol = tolerance or BaselineTolerance()
     key = ["run", "topic", "axis", "metric"]
@@ -384,21 +453,29 @@ def check_baseline(table: ResultsTable, baseline: ResultsTable,
         b = float(row["value"])
         metric = str(row["metric"])
         unit = str(row["unit"]) or AXIS_UNITS.get(str(row["axis"]), "")
-        common: dict[str, Any] = dict(metric=metric, topic=str(row["topic"]), axis=str(row["axis"]),
-                      run=str(row["run"]), factors=_factor_dict(row, baseline.factors),
-                      unit=unit, rule="baseline")
+        common: dict[str, Any] = dict(
+            metric=metric,
+            topic=str(row["topic"]),
+            axis=str(row["axis"]),
+            run=str(row["run"]),
+            factors=_factor_dict(row, baseline.factors),
+            unit=unit,
+            rule="baseline",
+        )
         if row["_merge"] == "left_only":
-            result.violations.append(Violation("missing", value=math.nan, bound=b, op="",
-                                               **common))
+            result.violations.append(Violation("missing", value=math.nan, bound=b, op="", **common))
             continue
         v = float(row["_current_value"])
         if math.isnan(b):
-            result.skipped.append(f"{metric} {row['run']}/{row['topic']}/{row['axis']}: "
-                                  "undefined in the baseline")
+            result.skipped.append(
+                f"{metric} {row['run']}/{row['topic']}/{row['axis']}: undefined in the baseline"
+            )
             continue
         if metric in LOWER_IS_WORSE and b < tol.r_min:
-            result.skipped.append(f"{metric} {row['run']}/{row['topic']}/{row['axis']}: "
-                                  f"baseline r {b:.3g} < r_min {tol.r_min:g} (noise-level axis)")
+            result.skipped.append(
+                f"{metric} {row['run']}/{row['topic']}/{row['axis']}: "
+                f"baseline r {b:.3g} < r_min {tol.r_min:g} (noise-level axis)"
+            )
             continue
         result.checked += 1
         if metric in LOWER_IS_WORSE:
@@ -417,23 +494,30 @@ def check_baseline(table: ResultsTable, baseline: ResultsTable,
     return result
 
 
-def baseline_from(table: ResultsTable, metrics: Sequence[str] = DEFAULT_BASELINE_METRICS,
-                  meta: Mapping[str, Any] | None = None) -> ResultsTable:
+def baseline_from(
+    table: ResultsTable,
+    metrics: Sequence[str] = DEFAULT_BASELINE_METRICS,
+    meta: Mapping[str, Any] | None = None,
+) -> ResultsTable:
     """The rows a golden baseline needs (the gated metrics, every run/topic/axis)."""
     df = table.df[table.df["metric"].isin(list(metrics))]
     return ResultsTable.from_dataframe(df, table.factors, {**table.meta, **dict(meta or {})})
 
 
-def check(table: ResultsTable, thresholds: Thresholds | str | Path | None = None,
-          baseline: ResultsTable | str | Path | None = None) -> GateResult:
+def check(
+    table: ResultsTable,
+    thresholds: Thresholds | str | Path | None = None,
+    baseline: ResultsTable | str | Path | None = None,
+) -> GateResult:
     """The gate: thresholds and/or baseline (paths are loaded). At least one is required."""
     if thresholds is None and baseline is None:
         raise ConfigError("uwval check needs --thresholds FILE.toml and/or --baseline FILE.json")
     th = load_thresholds(thresholds) if isinstance(thresholds, (str, Path)) else thresholds
     if th is not None and not th.rules and baseline is None:
         # an empty rule list would pass every table: a gate that checks nothing is a mistake
-        raise ConfigError(f"{th.source}: defines no threshold rules and no --baseline was "
-                          "given: nothing to check")
+        raise ConfigError(
+            f"{th.source}: defines no threshold rules and no --baseline was given: nothing to check"
+        )
     result = GateResult()
     if th is not None:
         result = result.merge(check_thresholds(table, th))

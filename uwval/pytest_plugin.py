@@ -47,7 +47,8 @@ def as_results_table(results: ResultsLike) -> ResultsTable:
     if isinstance(results, (str, Path)):
         p = Path(results)
         is_log = (p.is_file() and p.suffix.lower() in _LOG_SUFFIXES) or (
-            p.is_dir() and (p / "metadata.yaml").is_file())
+            p.is_dir() and (p / "metadata.yaml").is_file()
+        )
         if is_log:
             from uwval.comparison import compare_logs
 
@@ -62,14 +63,20 @@ def _as_thresholds(thresholds: ThresholdsLike) -> Thresholds | str | Path | None
     return thresholds
 
 
-def gate(results: ResultsLike, thresholds: ThresholdsLike = None,
-         baseline: ResultsTable | str | Path | None = None) -> GateResult:
+def gate(
+    results: ResultsLike,
+    thresholds: ThresholdsLike = None,
+    baseline: ResultsTable | str | Path | None = None,
+) -> GateResult:
     """Run the gate and return its result (no assertion)."""
     return check(as_results_table(results), _as_thresholds(thresholds), baseline)
 
 
-def assert_pose_correspondence(results: ResultsLike, thresholds: ThresholdsLike = None,
-                               baseline: ResultsTable | str | Path | None = None) -> GateResult:
+def assert_pose_correspondence(
+    results: ResultsLike,
+    thresholds: ThresholdsLike = None,
+    baseline: ResultsTable | str | Path | None = None,
+) -> GateResult:
     """Assert that ``results`` pass the thresholds and/or baseline; the AssertionError
     message lists every regression. Returns the (passing) GateResult."""
     verdict = gate(results, thresholds, baseline)
@@ -80,10 +87,14 @@ def assert_pose_correspondence(results: ResultsLike, thresholds: ThresholdsLike 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
     group = parser.getgroup("uwval", "uwval pose-correspondence gate")
-    group.addoption("--uwval-thresholds", default=None,
-                    help="thresholds TOML used by the uwval_check fixture")
-    group.addoption("--uwval-baseline", default=None,
-                    help="golden baseline (results JSON/CSV) used by the uwval_check fixture")
+    group.addoption(
+        "--uwval-thresholds", default=None, help="thresholds TOML used by the uwval_check fixture"
+    )
+    group.addoption(
+        "--uwval-baseline",
+        default=None,
+        help="golden baseline (results JSON/CSV) used by the uwval_check fixture",
+    )
     parser.addini("uwval_thresholds", "thresholds TOML for the uwval_check fixture", default="")
     parser.addini("uwval_baseline", "golden baseline for the uwval_check fixture", default="")
 
@@ -113,13 +124,18 @@ def uwval_check(request: pytest.FixtureRequest) -> Callable[..., GateResult]:
     """
     config = request.config
 
-    def _check(results: ResultsLike, thresholds: ThresholdsLike = None,
-               baseline: ResultsTable | str | Path | None = None) -> GateResult:
+    def _check(
+        results: ResultsLike,
+        thresholds: ThresholdsLike = None,
+        baseline: ResultsTable | str | Path | None = None,
+    ) -> GateResult:
         th = thresholds if thresholds is not None else _configured(config, "thresholds")
         base = baseline if baseline is not None else _configured(config, "baseline")
         if th is None and base is None:
-            pytest.fail("uwval_check: no thresholds or baseline (pass them, or set "
-                        "--uwval-thresholds / uwval_thresholds in the ini file)")
+            pytest.fail(
+                "uwval_check: no thresholds or baseline (pass them, or set "
+                "--uwval-thresholds / uwval_thresholds in the ini file)"
+            )
         verdict = gate(results, th, base)
         if not verdict.passed:
             pytest.fail(verdict.format(limit=None), pytrace=False)

@@ -15,8 +15,10 @@ def data_dir() -> Path:
     root = files("uwval.data")
     # Wheels install unzipped, so the resources are real files; say so clearly if not.
     if not isinstance(root, Path):
-        raise ConfigError(f"uwval's embedded data is not on the file system ({root}): "
-                          "install uwval from a wheel or a checkout, not from a zip archive")
+        raise ConfigError(
+            f"uwval's embedded data is not on the file system ({root}): "
+            "install uwval from a wheel or a checkout, not from a zip archive"
+        )
     return root
 
 
@@ -24,6 +26,8 @@ def data_path(*parts: str) -> Path:
     """Path of an embedded data file, e.g. ``data_path("experiments", "default.toml")``."""
     p = data_dir().joinpath(*parts)
     if not p.exists():
-        raise ConfigError(f"embedded data file {'/'.join(parts)} is missing from {data_dir()} "
-                          "(a broken installation: reinstall uwval)")
+        raise ConfigError(
+            f"embedded data file {'/'.join(parts)} is missing from {data_dir()} "
+            "(a broken installation: reinstall uwval)"
+        )
     return p

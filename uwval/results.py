@@ -35,8 +35,14 @@ AXES: tuple[str, ...] = ("x", "y", "z", "roll", "pitch", "yaw")
 POSITION_AXES: tuple[str, ...] = ("x", "y", "z")
 ROTATION_AXES: tuple[str, ...] = ("roll", "pitch", "yaw")
 AXIS_UNITS: dict[str, str] = {
-    "x": "m", "y": "m", "z": "m", "roll": "deg", "pitch": "deg", "yaw": "deg",
-    "position_norm": "m", "rotation": "deg",
+    "x": "m",
+    "y": "m",
+    "z": "m",
+    "roll": "deg",
+    "pitch": "deg",
+    "yaw": "deg",
+    "position_norm": "m",
+    "rotation": "deg",
 }
 #: Units of the paper's experiment factors (applied force, torque, water current speed).
 FACTOR_UNITS: dict[str, str] = {"force": "N", "torque": "N m", "current": "m/s"}
@@ -53,8 +59,16 @@ def factor_label(factor: str) -> str:
 
 #: Per-axis metrics of the compare JSON contract (``pearson_ci`` is split into low/high).
 AXIS_METRICS: tuple[str, ...] = (
-    "mae", "rmse", "max", "p95", "bias", "std",
-    "pearson_r", "pearson_p", "pearson_ci_low", "pearson_ci_high",
+    "mae",
+    "rmse",
+    "max",
+    "p95",
+    "bias",
+    "std",
+    "pearson_r",
+    "pearson_p",
+    "pearson_ci_low",
+    "pearson_ci_high",
 )
 #: The paper's validation metrics: absolute error (summarised by its max and p95; the full
 #: series is plotted per run), mean absolute error, and Pearson r. Always present per axis.
@@ -112,8 +126,11 @@ def topic_results(obj: Mapping[str, Any]) -> list[tuple[str, dict[str, Any]]]:
             if out:
                 return out
         if isinstance(sect, list):
-            out = [(_topic_name(r, f"topic{i}"), dict(r)) for i, r in enumerate(sect)
-                   if isinstance(r, Mapping) and "axes" in r]
+            out = [
+                (_topic_name(r, f"topic{i}"), dict(r))
+                for i, r in enumerate(sect)
+                if isinstance(r, Mapping) and "axes" in r
+            ]
             if out:
                 return out
     if "axes" in obj:
@@ -151,8 +168,14 @@ def _unit_for(axis: str, metric: str) -> str:
         return "m^2" if axis == "position_norm" else ""
     if axis in AXIS_UNITS:
         return AXIS_UNITS[axis]
-    for suffix, unit in (("_ns", "ns"), ("_ms", "ms"), ("_s", "s"), ("_m", "m"),
-                         ("_deg", "deg"), ("_hz", "Hz")):
+    for suffix, unit in (
+        ("_ns", "ns"),
+        ("_ms", "ms"),
+        ("_s", "s"),
+        ("_m", "m"),
+        ("_deg", "deg"),
+        ("_hz", "Hz"),
+    ):
         if metric.endswith(suffix):
             return unit
     return ""
@@ -184,11 +207,17 @@ def flatten_result(res: Mapping[str, Any]) -> list[_Row]:
         seen: set[str] = set()
         for metric, v in a.items():
             if metric == "pearson_ci":
-                lo, hi = (v if isinstance(v, (list, tuple)) and len(v) == 2 else (None, None))
+                lo, hi = v if isinstance(v, (list, tuple)) and len(v) == 2 else (None, None)
                 for m, x in (("pearson_ci_low", lo), ("pearson_ci_high", hi)):
                     num = _number(x)
-                    rows.append(_Row(axis, m, math.nan if num is None else num,
-                                     "" if num is not None else reason or "undefined"))
+                    rows.append(
+                        _Row(
+                            axis,
+                            m,
+                            math.nan if num is None else num,
+                            "" if num is not None else reason or "undefined",
+                        )
+                    )
                     seen.add(m)
                 continue
             num = _number(v)
@@ -211,8 +240,18 @@ def flatten_result(res: Mapping[str, Any]) -> list[_Row]:
         if num is not None:
             rows.append(_Row("", key, num))
         elif isinstance(value, Mapping):
-            axis = "rotation" if key in ("rotation", "rotation_error", "rotation_angle",
-                                         "geodesic", "rotation_error_deg") else key
+            axis = (
+                "rotation"
+                if key
+                in (
+                    "rotation",
+                    "rotation_error",
+                    "rotation_angle",
+                    "geodesic",
+                    "rotation_error_deg",
+                )
+                else key
+            )
             rows += _flatten_section(axis, value)
     return rows
 
@@ -226,8 +265,8 @@ def _flatten_section(axis: str, sect: Mapping[str, Any], prefix: str = "") -> li
             rows.append(_Row(axis, name, num))
         elif isinstance(v, Mapping):
             rows += _flatten_section(axis, v, prefix=f"{name}.")
-        elif isinstance(v, (list, tuple)) and len(v) == 2 and all(
-            _number(x) is not None for x in v
+        elif (
+            isinstance(v, (list, tuple)) and len(v) == 2 and all(_number(x) is not None for x in v)
         ):
             rows.append(_Row(axis, f"{name}_low", float(v[0])))
             rows.append(_Row(axis, f"{name}_high", float(v[1])))
@@ -294,8 +333,13 @@ class ResultsTable:
                     raise ConfigError(f"run {run!r}, topic {topic!r}: {exc}") from exc
                 for r in flat:
                     rec: dict[str, Any] = {
-                        "run": run, "topic": topic, "axis": r.axis, "metric": r.metric,
-                        "value": r.value, "unit": _unit_for(r.axis, r.metric), "note": r.note,
+                        "run": run,
+                        "topic": topic,
+                        "axis": r.axis,
+                        "metric": r.metric,
+                        "value": r.value,
+                        "unit": _unit_for(r.axis, r.metric),
+                        "note": r.note,
                     }
                     rec.update(fac)
                     records.append(rec)
@@ -303,12 +347,18 @@ class ResultsTable:
         return cls(_normalise(df, factor_names), factor_names, dict(meta or {}))
 
     @classmethod
-    def from_dataframe(cls, df: pd.DataFrame, factors: Sequence[str] | None = None,
-                       meta: Mapping[str, Any] | None = None) -> ResultsTable:
+    def from_dataframe(
+        cls,
+        df: pd.DataFrame,
+        factors: Sequence[str] | None = None,
+        meta: Mapping[str, Any] | None = None,
+    ) -> ResultsTable:
         """Wrap a long DataFrame; factors default to every non-core column."""
-        names = list(factors) if factors is not None else [
-            c for c in df.columns if c not in CORE_COLUMNS
-        ]
+        names = (
+            list(factors)
+            if factors is not None
+            else [c for c in df.columns if c not in CORE_COLUMNS]
+        )
         return cls(_normalise(df.copy(), names), names, dict(meta or {}))
 
     def to_dataframe(self) -> pd.DataFrame:
@@ -344,10 +394,14 @@ class ResultsTable:
         rf = self.run_factors()
         return [f for f in self.factors if rf[f].nunique(dropna=True) > 1]
 
-    def select(self, *, metric: str | Sequence[str] | None = None,
-               axis: str | Sequence[str] | None = None,
-               topic: str | Sequence[str] | None = None,
-               run: str | Sequence[str] | None = None) -> pd.DataFrame:
+    def select(
+        self,
+        *,
+        metric: str | Sequence[str] | None = None,
+        axis: str | Sequence[str] | None = None,
+        topic: str | Sequence[str] | None = None,
+        run: str | Sequence[str] | None = None,
+    ) -> pd.DataFrame:
         """Rows matching every given filter (each a value or a list of values)."""
         mask = pd.Series(True, index=self.df.index)
         for col, want in (("metric", metric), ("axis", axis), ("topic", topic), ("run", run)):
@@ -361,18 +415,26 @@ class ResultsTable:
         """One cell; raises ConfigError naming the key when it is absent."""
         rows = self.select(run=run, topic=topic, axis=axis, metric=metric)
         if rows.empty:
-            raise ConfigError(f"no result for run={run!r} topic={topic!r} axis={axis!r} "
-                              f"metric={metric!r}")
+            raise ConfigError(
+                f"no result for run={run!r} topic={topic!r} axis={axis!r} metric={metric!r}"
+            )
         return float(rows["value"].iloc[0])
 
-    def wide(self, metrics: Sequence[str] = PAPER_METRICS,
-             axes: Sequence[str] = AXES) -> pd.DataFrame:
+    def wide(
+        self, metrics: Sequence[str] = PAPER_METRICS, axes: Sequence[str] = AXES
+    ) -> pd.DataFrame:
         """Runs x (topic, axis, metric) matrix of values, factors first: the report's table."""
         sub = self.select(metric=list(metrics), axis=list(axes))
         if sub.empty:
             return pd.DataFrame()
-        wide = sub.pivot_table(index="run", columns=["topic", "axis", "metric"],
-                               values="value", aggfunc="first", dropna=False, sort=False)
+        wide = sub.pivot_table(
+            index="run",
+            columns=["topic", "axis", "metric"],
+            values="value",
+            aggfunc="first",
+            dropna=False,
+            sort=False,
+        )
         return wide.reindex(self.runs)
 
     # -------------------------------------------------------------- files
@@ -387,8 +449,10 @@ class ResultsTable:
         suffix = p.suffix.lower()
         if suffix not in (".csv", ".json", ".parquet"):
             if p.exists() and not p.is_dir():
-                raise ConfigError(f"{p}: unknown results format {suffix!r} "
-                                  "(use .csv, .json, .parquet or a directory)")
+                raise ConfigError(
+                    f"{p}: unknown results format {suffix!r} "
+                    "(use .csv, .json, .parquet or a directory)"
+                )
             return self.save_all(p)
         if suffix == ".parquet" and not parquet_available():
             raise ConfigError(f"{p}: writing Parquet needs pyarrow (pip install pyarrow)")
@@ -401,8 +465,9 @@ class ResultsTable:
             else:
                 self.df.to_parquet(p, index=False)
         except OSError as exc:
-            raise ConfigError(f"{p}: cannot write the results table: "
-                              f"{exc.strerror or exc}") from exc
+            raise ConfigError(
+                f"{p}: cannot write the results table: {exc.strerror or exc}"
+            ) from exc
         return [p]
 
     def save_all(self, directory: str | Path, stem: str = "results") -> list[Path]:
@@ -418,8 +483,13 @@ class ResultsTable:
         rows = []
         for rec in self.df.to_dict(orient="records"):
             rows.append({k: _json_cell(v) for k, v in rec.items()})
-        return {"format": "uwval-results", "version": 1, "factors": list(self.factors),
-                "meta": _json_safe(self.meta), "rows": rows}
+        return {
+            "format": "uwval-results",
+            "version": 1,
+            "factors": list(self.factors),
+            "meta": _json_safe(self.meta),
+            "rows": rows,
+        }
 
     @classmethod
     def load(cls, path: str | Path) -> ResultsTable:
@@ -466,7 +536,7 @@ class ResultsTable:
     def from_json_obj(cls, obj: Any) -> ResultsTable:
         """Inverse of :meth:`to_json_obj`."""
         if not isinstance(obj, dict) or obj.get("format") != "uwval-results":
-            raise ConfigError("not a uwval results JSON (expected \"format\": \"uwval-results\")")
+            raise ConfigError('not a uwval results JSON (expected "format": "uwval-results")')
         factors = obj.get("factors") or []
         rows = obj.get("rows")
         if not isinstance(rows, list):
@@ -501,9 +571,11 @@ def _normalise(df: pd.DataFrame, factors: Sequence[str]) -> pd.DataFrame:
         if bad.any():
             i = int(np.flatnonzero(bad.to_numpy())[0])
             row = df.iloc[i]
-            raise ConfigError(f"row {i + 1} ({row.get('run', '?')} {row.get('topic', '?')} "
-                              f"{row.get('axis', '?')} {row.get('metric', '?')}): value "
-                              f"{df['value'].iloc[i]!r} is not a number")
+            raise ConfigError(
+                f"row {i + 1} ({row.get('run', '?')} {row.get('topic', '?')} "
+                f"{row.get('axis', '?')} {row.get('metric', '?')}): value "
+                f"{df['value'].iloc[i]!r} is not a number"
+            )
         df["value"] = value
     for f in factors:
         if f in df.columns:
@@ -542,7 +614,9 @@ def _level_key(v: Any) -> tuple[int, Any]:
 
 
 def summarize_by_level(
-    table: ResultsTable, factor: str, metrics: Sequence[str] = PAPER_METRICS,
+    table: ResultsTable,
+    factor: str,
+    metrics: Sequence[str] = PAPER_METRICS,
     axes: Sequence[str] = AXES,
 ) -> pd.DataFrame:
     """Per level of ``factor``, per topic, axis and metric: n, mean, std, min, median, max.
@@ -554,23 +628,32 @@ def summarize_by_level(
     if sub.empty:
         return pd.DataFrame()
     g = sub.groupby([factor, "topic", "axis", "metric"], sort=True)["value"]
-    out = pd.DataFrame({
-        "n": g.count(), "n_undefined": g.apply(lambda s: int(s.isna().sum())),
-        "mean": g.mean(), "std": g.std(ddof=1), "min": g.min(), "median": g.median(),
-        "max": g.max(),
-    }).reset_index()
+    out = pd.DataFrame(
+        {
+            "n": g.count(),
+            "n_undefined": g.apply(lambda s: int(s.isna().sum())),
+            "mean": g.mean(),
+            "std": g.std(ddof=1),
+            "min": g.min(),
+            "median": g.median(),
+            "max": g.max(),
+        }
+    ).reset_index()
     # levels ascending, then topics in table order (vehicle first), then axes x..yaw
     topic_rank = {t: i for i, t in enumerate(table.topics)}
     axis_rank = {a: i for i, a in enumerate(AXES)}
-    key = (out[factor].map(lambda v: _level_key(v)), out["topic"].map(topic_rank),
-           out["axis"].map(axis_rank))
-    order = sorted(range(len(out)), key=lambda i: (key[0].iloc[i], key[1].iloc[i],
-                                                   key[2].iloc[i]))
+    key = (
+        out[factor].map(lambda v: _level_key(v)),
+        out["topic"].map(topic_rank),
+        out["axis"].map(axis_rank),
+    )
+    order = sorted(range(len(out)), key=lambda i: (key[0].iloc[i], key[1].iloc[i], key[2].iloc[i]))
     return out.iloc[order].reset_index(drop=True)
 
 
-def main_effects(table: ResultsTable, metric: str = "mae",
-                 axes: Sequence[str] = AXES) -> pd.DataFrame:
+def main_effects(
+    table: ResultsTable, metric: str = "mae", axes: Sequence[str] = AXES
+) -> pd.DataFrame:
     """Main effects: mean of ``metric`` per level of every factor, per topic and axis.
 
     Columns: factor, level, topic, axis, mean, n. ``effect`` (per factor/topic/axis) is the
@@ -608,8 +691,9 @@ class AnovaRow:
     note: str = ""
 
 
-def anova_oneway(table: ResultsTable, factor: str, metric: str = "mae",
-                 axes: Sequence[str] = AXES) -> pd.DataFrame:
+def anova_oneway(
+    table: ResultsTable, factor: str, metric: str = "mae", axes: Sequence[str] = AXES
+) -> pd.DataFrame:
     """One-way ANOVA (scipy.stats.f_oneway) of ``metric`` across the levels of ``factor``.
 
     One row per (topic, axis). F and p are NaN with a ``note`` when the test is undefined:
@@ -642,15 +726,22 @@ def anova_oneway(table: ResultsTable, factor: str, metric: str = "mae",
             else:
                 res = stats.f_oneway(*groups)
                 f_stat, p = float(res.statistic), float(res.pvalue)
-        rows.append(AnovaRow(factor, str(topic), str(axis), metric, f_stat, p, dfb, max(dfw, 0),
-                             k, note))
-    df = pd.DataFrame([r.__dict__ for r in rows],
-                      columns=list(AnovaRow.__dataclass_fields__))
+        rows.append(
+            AnovaRow(factor, str(topic), str(axis), metric, f_stat, p, dfb, max(dfw, 0), k, note)
+        )
+    df = pd.DataFrame([r.__dict__ for r in rows], columns=list(AnovaRow.__dataclass_fields__))
     return _order_axes(df)
 
 
-def two_way_table(table: ResultsTable, factor_a: str, factor_b: str, *, metric: str = "mae",
-                  topic: str | None = None, axis: str = "x") -> pd.DataFrame:
+def two_way_table(
+    table: ResultsTable,
+    factor_a: str,
+    factor_b: str,
+    *,
+    metric: str = "mae",
+    topic: str | None = None,
+    axis: str = "x",
+) -> pd.DataFrame:
     """Mean ``metric`` per (level of A) x (level of B) for one topic/axis (first topic if None)."""
     _need_factor(table, factor_a)
     _need_factor(table, factor_b)
@@ -664,7 +755,7 @@ def two_way_table(table: ResultsTable, factor_a: str, factor_b: str, *, metric: 
 def two_way_pairs(table: ResultsTable) -> list[tuple[str, str]]:
     """Pairs of varying factors (for the two-way tables of the report)."""
     vary = table.varying_factors()
-    return [(a, b) for i, a in enumerate(vary) for b in vary[i + 1:]]
+    return [(a, b) for i, a in enumerate(vary) for b in vary[i + 1 :]]
 
 
 def _need_factor(table: ResultsTable, factor: str) -> None:
@@ -677,10 +768,15 @@ def _order_axes(df: pd.DataFrame) -> pd.DataFrame:
         return df
     order = {a: i for i, a in enumerate(AXES)}
     key = df["axis"].map(lambda a: order.get(a, len(order)))
-    return df.assign(_k=key).sort_values(
-        [c for c in ("factor", "_k") if c in df.columns] if "factor" in df.columns else ["_k"],
-        kind="stable",
-    ).drop(columns="_k").reset_index(drop=True)
+    return (
+        df.assign(_k=key)
+        .sort_values(
+            [c for c in ("factor", "_k") if c in df.columns] if "factor" in df.columns else ["_k"],
+            kind="stable",
+        )
+        .drop(columns="_k")
+        .reset_index(drop=True)
+    )
 
 
 # ----------------------------------------------------------------------------- experiments
@@ -695,8 +791,9 @@ class ManifestRun:
     bridge: dict[str, Any]
 
 
-def read_manifest(results_dir: str | Path, name: str = "manifest.json"
-                  ) -> tuple[dict[str, Any], list[ManifestRun]]:
+def read_manifest(
+    results_dir: str | Path, name: str = "manifest.json"
+) -> tuple[dict[str, Any], list[ManifestRun]]:
     """Read ``DIR/manifest.json`` -> (experiment dict, runs); log paths resolved against DIR."""
     d = Path(results_dir)
     path = d / name
@@ -711,11 +808,15 @@ def read_manifest(results_dir: str | Path, name: str = "manifest.json"
         if not isinstance(r, dict) or not isinstance(r.get("name"), str):
             raise ConfigError(f"{path}: runs[{i}] needs a string 'name'")
         log = Path(str(r.get("log", "")))
-        runs.append(ManifestRun(
-            name=r["name"], log=log if log.is_absolute() else d / log,
-            factors=dict(r.get("factors") or {}), seed=r.get("seed"),
-            bridge=dict(r.get("bridge") or {}),
-        ))
+        runs.append(
+            ManifestRun(
+                name=r["name"],
+                log=log if log.is_absolute() else d / log,
+                factors=dict(r.get("factors") or {}),
+                seed=r.get("seed"),
+                bridge=dict(r.get("bridge") or {}),
+            )
+        )
     return dict(obj.get("experiment") or {}), runs
 
 
@@ -751,8 +852,9 @@ class ExperimentResults:
     failed: list[dict[str, Any]] = field(default_factory=list)
 
 
-def compare_pending(exp: ExperimentResults, options: Mapping[str, Any] | None = None
-                    ) -> ExperimentResults:
+def compare_pending(
+    exp: ExperimentResults, options: Mapping[str, Any] | None = None
+) -> ExperimentResults:
     """Compare the logs of runs that have no comparison yet (a manifest without results).
 
     Runs whose log is missing or cannot be compared are added to ``failed`` (with the cause)
@@ -777,7 +879,8 @@ def compare_pending(exp: ExperimentResults, options: Mapping[str, Any] | None = 
             exp.sources.append(run.log)
     exp.table = ResultsTable.from_comparisons(
         [(r.name, r.factors, r.comparison) for r in exp.runs if r.comparison is not None],
-        meta=exp.table.meta)
+        meta=exp.table.meta,
+    )
     return exp
 
 
@@ -790,8 +893,7 @@ def _read_json(path: Path) -> Any:
 
 def _is_comparisons_obj(obj: Any) -> bool:
     runs = obj.get("runs") if isinstance(obj, dict) else None
-    return isinstance(runs, list) and all(isinstance(r, dict) and "comparison" in r
-                                          for r in runs)
+    return isinstance(runs, list) and all(isinstance(r, dict) and "comparison" in r for r in runs)
 
 
 def _is_manifest_obj(obj: Any) -> bool:
@@ -799,8 +901,9 @@ def _is_manifest_obj(obj: Any) -> bool:
     return isinstance(runs, list) and not _is_comparisons_obj(obj)
 
 
-def load_experiment_results(path: str | Path, manifest: str | Path | None = None
-                            ) -> ExperimentResults:
+def load_experiment_results(
+    path: str | Path, manifest: str | Path | None = None
+) -> ExperimentResults:
     """Read results from wherever ``uwval`` wrote them.
 
     ``path`` may be a results table file (``results.csv/.json/.parquet``), a batch
@@ -837,8 +940,9 @@ def load_experiment_results(path: str | Path, manifest: str | Path | None = None
             if comparisons is None and c.is_file():
                 comparisons = _read_json(c)
                 if not _is_comparisons_obj(comparisons):
-                    raise ConfigError(f"{c}: expected {{\"runs\": [{{name, factors, "
-                                      "comparison}, ...]}")
+                    raise ConfigError(
+                        f'{c}: expected {{"runs": [{{name, factors, comparison}}, ...]}}'
+                    )
                 sources.append(c)
             for name in ("results.json", "results.csv", "results.parquet"):
                 f = d / name
@@ -859,8 +963,9 @@ def load_experiment_results(path: str | Path, manifest: str | Path | None = None
         if man_path not in sources:
             sources.append(man_path)
         failed += list((man_obj or {}).get("failed") or [])
-        runs = [RunRecord(r.name, r.log, dict(r.factors), dict(r.bridge), None, r.seed)
-                for r in mruns]
+        runs = [
+            RunRecord(r.name, r.log, dict(r.factors), dict(r.bridge), None, r.seed) for r in mruns
+        ]
     by_name = {r.name: r for r in runs}
     if comparisons is not None:
         failed += list(comparisons.get("failed") or [])
@@ -869,21 +974,28 @@ def load_experiment_results(path: str | Path, manifest: str | Path | None = None
             run = by_name.get(name)
             if run is None:
                 log = rec.get("log")
-                run = RunRecord(name, Path(log) if log else None, dict(rec.get("factors") or {}),
-                                dict(rec.get("bridge") or {}))
+                run = RunRecord(
+                    name,
+                    Path(log) if log else None,
+                    dict(rec.get("factors") or {}),
+                    dict(rec.get("bridge") or {}),
+                )
                 runs.append(run)
                 by_name[name] = run
             run.comparison = _as_json_obj(rec["comparison"])
             if rec.get("bridge") and not run.bridge:
                 run.bridge = dict(rec["bridge"])
         table = ResultsTable.from_comparisons(
-            [(r.name, r.factors, r.comparison) for r in runs if r.comparison is not None])
+            [(r.name, r.factors, r.comparison) for r in runs if r.comparison is not None]
+        )
     if table is None:
         if not runs:
             raise ConfigError(f"{p}: found no results table, comparisons.json or manifest.json")
         table = ResultsTable.from_comparisons([])
     if not runs:  # a bare table: runs from its rows
         rf = table.run_factors()
-        runs = [RunRecord(str(name), None, {str(k): v for k, v in row.items() if pd.notna(v)})
-                for name, row in rf.iterrows()]
+        runs = [
+            RunRecord(str(name), None, {str(k): v for k, v in row.items() if pd.notna(v)})
+            for name, row in rf.iterrows()
+        ]
     return ExperimentResults(table, runs, man_obj, sources, failed)

@@ -46,20 +46,44 @@ def quat_from_matrix(m: F64) -> F64:
     cands = np.empty((4, *q.shape))
     s = np.sqrt(np.maximum(1 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2], 1e-300)) * 2
     cands[0] = np.stack(
-        [0.25 * s, (m[..., 0, 1] + m[..., 1, 0]) / s, (m[..., 0, 2] + m[..., 2, 0]) / s,
-         (m[..., 2, 1] - m[..., 1, 2]) / s], axis=-1)
+        [
+            0.25 * s,
+            (m[..., 0, 1] + m[..., 1, 0]) / s,
+            (m[..., 0, 2] + m[..., 2, 0]) / s,
+            (m[..., 2, 1] - m[..., 1, 2]) / s,
+        ],
+        axis=-1,
+    )
     s = np.sqrt(np.maximum(1 + m[..., 1, 1] - m[..., 0, 0] - m[..., 2, 2], 1e-300)) * 2
     cands[1] = np.stack(
-        [(m[..., 0, 1] + m[..., 1, 0]) / s, 0.25 * s, (m[..., 1, 2] + m[..., 2, 1]) / s,
-         (m[..., 0, 2] - m[..., 2, 0]) / s], axis=-1)
+        [
+            (m[..., 0, 1] + m[..., 1, 0]) / s,
+            0.25 * s,
+            (m[..., 1, 2] + m[..., 2, 1]) / s,
+            (m[..., 0, 2] - m[..., 2, 0]) / s,
+        ],
+        axis=-1,
+    )
     s = np.sqrt(np.maximum(1 + m[..., 2, 2] - m[..., 0, 0] - m[..., 1, 1], 1e-300)) * 2
     cands[2] = np.stack(
-        [(m[..., 0, 2] + m[..., 2, 0]) / s, (m[..., 1, 2] + m[..., 2, 1]) / s, 0.25 * s,
-         (m[..., 1, 0] - m[..., 0, 1]) / s], axis=-1)
+        [
+            (m[..., 0, 2] + m[..., 2, 0]) / s,
+            (m[..., 1, 2] + m[..., 2, 1]) / s,
+            0.25 * s,
+            (m[..., 1, 0] - m[..., 0, 1]) / s,
+        ],
+        axis=-1,
+    )
     s = np.sqrt(np.maximum(1 + tr, 1e-300)) * 2
     cands[3] = np.stack(
-        [(m[..., 2, 1] - m[..., 1, 2]) / s, (m[..., 0, 2] - m[..., 2, 0]) / s,
-         (m[..., 1, 0] - m[..., 0, 1]) / s, 0.25 * s], axis=-1)
+        [
+            (m[..., 2, 1] - m[..., 1, 2]) / s,
+            (m[..., 0, 2] - m[..., 2, 0]) / s,
+            (m[..., 1, 0] - m[..., 0, 1]) / s,
+            0.25 * s,
+        ],
+        axis=-1,
+    )
     q = np.take_along_axis(np.moveaxis(cands, 0, -2), k[..., None, None], axis=-2)[..., 0, :]
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     return np.where(q[..., 3:4] < 0, -q, q)
@@ -119,9 +143,7 @@ def quat_from_rpy(rpy: F64) -> F64:
 def rotation_angle(q: F64) -> F64:
     """Geodesic angle (rad, in [0, pi]) of each rotation q; sign of q does not matter."""
     q = np.asarray(q, dtype=np.float64)
-    return np.asarray(
-        2.0 * np.arctan2(np.linalg.norm(q[..., :3], axis=-1), np.abs(q[..., 3]))
-    )
+    return np.asarray(2.0 * np.arctan2(np.linalg.norm(q[..., :3], axis=-1), np.abs(q[..., 3])))
 
 
 def geodesic_angle(a: F64, b: F64) -> F64:
@@ -177,4 +199,3 @@ def wrap_deg(a: F64) -> F64:
     w[w <= -180.0] += 360.0
     w[w > 180.0] -= 360.0
     return w.reshape(a.shape)
-

@@ -97,8 +97,7 @@ def _print_error(prefix_markup: str, text: str) -> None:
     from rich.console import Console
     from rich.markup import escape
 
-    Console(stderr=True).print(f"{prefix_markup} {escape(text)}", highlight=False,
-                               soft_wrap=True)
+    Console(stderr=True).print(f"{prefix_markup} {escape(text)}", highlight=False, soft_wrap=True)
 
 
 def _exit_now() -> None:

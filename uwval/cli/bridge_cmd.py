@@ -26,8 +26,9 @@ from uwval.errors import BridgeError
 if TYPE_CHECKING:
     from uwval.bridge.protocol import Protocol
 
-bridge_app = typer.Typer(help="ROS-TCP bridge: endpoint server, log replay, Unity-like client.",
-                         no_args_is_help=True)
+bridge_app = typer.Typer(
+    help="ROS-TCP bridge: endpoint server, log replay, Unity-like client.", no_args_is_help=True
+)
 app.add_typer(bridge_app, name="bridge")
 console = Console(stderr=True)
 
@@ -37,8 +38,12 @@ ProtocolOpt = Annotated[str, typer.Option(help="ROS2 (CDR bodies) or ROS1.")]
 
 
 def _logging(verbose: bool) -> None:
-    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(message)s",
-                        handlers=[RichHandler(console=console, show_path=False)], force=True)
+    logging.basicConfig(
+        level=logging.INFO if verbose else logging.WARNING,
+        format="%(message)s",
+        handlers=[RichHandler(console=console, show_path=False)],
+        force=True,
+    )
 
 
 def _check_port(port: int) -> int:
@@ -51,8 +56,10 @@ def _check_seconds(value: float, option: str, *, zero_ok: bool) -> float:
     """A finite number of seconds, > 0 (or >= 0 with ``zero_ok``), else a clean error."""
     ok = value >= 0 if zero_ok else value > 0
     if not (ok and value < float("inf")):
-        raise BridgeError(f"{option} must be a finite number of seconds "
-                          f"{'>= 0' if zero_ok else '> 0'}, got {value}")
+        raise BridgeError(
+            f"{option} must be a finite number of seconds "
+            f"{'>= 0' if zero_ok else '> 0'}, got {value}"
+        )
     return value
 
 
@@ -71,12 +78,15 @@ def serve(
     port: PortOpt = 10000,
     protocol: ProtocolOpt = "ROS2",
     queue_size: Annotated[int, typer.Option(help="Per-client outgoing queue bound.")] = 1024,
-    max_frame: Annotated[int, typer.Option(help="Largest accepted frame payload, bytes.")
-                         ] = 16 * 1024 * 1024,
-    duration: Annotated[float, typer.Option(help="Stop after this many seconds (0: run "
-                                                 "until Ctrl-C).")] = 0.0,
-    verbose: Annotated[bool, typer.Option("--verbose/--quiet",
-                                          help="Log connections and registrations.")] = True,
+    max_frame: Annotated[int, typer.Option(help="Largest accepted frame payload, bytes.")] = 16
+    * 1024
+    * 1024,
+    duration: Annotated[
+        float, typer.Option(help="Stop after this many seconds (0: run until Ctrl-C).")
+    ] = 0.0,
+    verbose: Annotated[
+        bool, typer.Option("--verbose/--quiet", help="Log connections and registrations.")
+    ] = True,
 ) -> None:
     """Run the ROS-TCP endpoint that Unity's ROS-TCP-Connector connects to."""
     from uwval.bridge.server import BridgeServer
@@ -84,10 +94,13 @@ def serve(
     _check_port(port)
     _check_seconds(duration, "--duration", zero_ok=True)
     _logging(verbose)
-    server = BridgeServer(host, port, protocol=_protocol(protocol),
-                          queue_size=queue_size, max_frame=max_frame).start()
-    console.print(f"[green]ROS-TCP endpoint[/] listening on {host}:{server.port} "
-                  f"({server.protocol}); Ctrl-C to stop")
+    server = BridgeServer(
+        host, port, protocol=_protocol(protocol), queue_size=queue_size, max_frame=max_frame
+    ).start()
+    console.print(
+        f"[green]ROS-TCP endpoint[/] listening on {host}:{server.port} "
+        f"({server.protocol}); Ctrl-C to stop"
+    )
     t_end = time.monotonic() + duration if duration > 0 else float("inf")
     try:
         while time.monotonic() < t_end:
@@ -97,8 +110,10 @@ def serve(
     finally:
         server.stop()
     for c in server.closed_clients():
-        console.print(f"client {c.client_id} {c.address}: in {c.frames_in} out {c.frames_out} "
-                      f"dropped {c.dropped} ({c.closed_reason})")
+        console.print(
+            f"client {c.client_id} {c.address}: in {c.frames_in} out {c.frames_out} "
+            f"dropped {c.dropped} ({c.closed_reason})"
+        )
 
 
 @bridge_app.command("replay")
@@ -107,13 +122,15 @@ def replay(
     host: HostOpt = "127.0.0.1",
     port: PortOpt = 10000,
     protocol: ProtocolOpt = "ROS2",
-    speed: Annotated[float, typer.Option(help="Playback speed factor (0: as fast as "
-                                              "possible).")] = 1.0,
+    speed: Annotated[
+        float, typer.Option(help="Playback speed factor (0: as fast as possible).")
+    ] = 1.0,
     loops: Annotated[int, typer.Option(help="Passes over the log (0: until Ctrl-C).")] = 1,
-    wait: Annotated[float, typer.Option(help="Seconds to wait for a subscriber first.")
-                    ] = 60.0,
-    topic: Annotated[list[str] | None, typer.Option(
-        help="Log topic to replay (repeatable; default the two /gazebo topics).")] = None,
+    wait: Annotated[float, typer.Option(help="Seconds to wait for a subscriber first.")] = 60.0,
+    topic: Annotated[
+        list[str] | None,
+        typer.Option(help="Log topic to replay (repeatable; default the two /gazebo topics)."),
+    ] = None,
     verbose: Annotated[bool, typer.Option("--verbose/--quiet")] = False,
 ) -> None:
     """Serve a recorded Gazebo-side log to connecting Unity clients."""
@@ -135,25 +152,40 @@ def replay(
         raise BridgeError(f"{log}: no such file or directory")
     ticks = load_replay_ticks(log, topics)  # bad logs fail before the endpoint opens
     with BridgeServer(host, port, protocol=proto) as server:
-        console.print(f"replaying {log} on {host}:{server.port} ({server.protocol}) at "
-                      f"{speed:g}x; waiting up to {wait:g} s for a Unity client")
-        with Progress(TextColumn("{task.description}"), BarColumn(),
-                      TextColumn("{task.completed}/{task.total} ticks"), TimeElapsedColumn(),
-                      console=console) as progress:
+        console.print(
+            f"replaying {log} on {host}:{server.port} ({server.protocol}) at "
+            f"{speed:g}x; waiting up to {wait:g} s for a Unity client"
+        )
+        with Progress(
+            TextColumn("{task.description}"),
+            BarColumn(),
+            TextColumn("{task.completed}/{task.total} ticks"),
+            TimeElapsedColumn(),
+            console=console,
+        ) as progress:
             task = progress.add_task("replay", total=None)
 
             def on_progress(done: int, total: int) -> None:
                 progress.update(task, completed=done, total=total)
 
             try:
-                stats = replay_log(log, server, topics=topics, speed=speed, loops=loops,
-                                   wait_for_subscriber_s=wait if wait > 0 else None,
-                                   progress=on_progress, ticks=ticks)
+                stats = replay_log(
+                    log,
+                    server,
+                    topics=topics,
+                    speed=speed,
+                    loops=loops,
+                    wait_for_subscriber_s=wait if wait > 0 else None,
+                    progress=on_progress,
+                    ticks=ticks,
+                )
             except KeyboardInterrupt:
                 console.print("[yellow]replay interrupted[/]")
                 return
-    console.print(f"[green]replayed[/] {stats.ticks} ticks, {stats.published} messages "
-                  f"({stats.delivered} deliveries) in {stats.wall_time_s:.2f} s")
+    console.print(
+        f"[green]replayed[/] {stats.ticks} ticks, {stats.published} messages "
+        f"({stats.delivered} deliveries) in {stats.wall_time_s:.2f} s"
+    )
 
 
 @bridge_app.command("unity")
@@ -173,22 +205,33 @@ def unity(
 
     _check_port(port)
     _check_seconds(duration, "--duration", zero_ok=False)
-    client = UnityClient(host, port, unity_map=unity_map, frame_rate=frame_rate,
-                         clock_offset_s=clock_offset,
-                         protocol=_protocol(protocol))
+    client = UnityClient(
+        host,
+        port,
+        unity_map=unity_map,
+        frame_rate=frame_rate,
+        clock_offset_s=clock_offset,
+        protocol=_protocol(protocol),
+    )
     recorder = BridgeRecorder(open_mcap_writer(output), unity_map=unity_map)
     try:
         applied = client.run_realtime(
-            duration, on_frame=lambda tr: recorder.unity_pose(
-                tr.topic, tr.unity_t_ns, tr.position, tr.orientation, tr.applied_stamp_ns))
+            duration,
+            on_frame=lambda tr: recorder.unity_pose(
+                tr.topic, tr.unity_t_ns, tr.position, tr.orientation, tr.applied_stamp_ns
+            ),
+        )
     finally:
         recorder.close()
-    console.print(f"[green]wrote[/] {output}: {len(applied)} transforms, "
-                  f"{client.received} messages received, {client.connection.connects} "
-                  f"connection(s)")
+    console.print(
+        f"[green]wrote[/] {output}: {len(applied)} transforms, "
+        f"{client.received} messages received, {client.connection.connects} "
+        f"connection(s)"
+    )
     if client.connection.connects == 0:
-        raise BridgeError(f"never connected to an endpoint at {host}:{port} "
-                          f"({output} holds no Unity transforms)")
+        raise BridgeError(
+            f"never connected to an endpoint at {host}:{port} ({output} holds no Unity transforms)"
+        )
 
 
 @bridge_app.command("scan")

@@ -23,8 +23,10 @@ from uwval.cli.compare_run import (  # noqa: F401  (fast path re-exported for ca
     run_compare,
 )
 
-FRAME_HELP = ("Convention of the second (Unity) stream: unity-flu, unity-enu, ned, enu or auto "
-              "(default: from the log's frame_id; enu for TUM files)")
+FRAME_HELP = (
+    "Convention of the second (Unity) stream: unity-flu, unity-enu, ned, enu or auto "
+    "(default: from the log's frame_id; enu for TUM files)"
+)
 
 
 @app.command("compare")
@@ -33,46 +35,103 @@ def compare_command(
     log_b: Annotated[Path | None, typer.Argument(help="Second file: the Unity side")] = None,
     gazebo_topic: Annotated[str | None, typer.Option(help="Reference topic")] = None,
     unity_topic: Annotated[str | None, typer.Option(help="Other (Unity) topic")] = None,
-    fmt: Annotated[str | None, typer.Option("--format", help="Input format: tum, or a log "
-                                            "format read by uwval.io (default: by suffix)")] = None,
+    fmt: Annotated[
+        str | None,
+        typer.Option(
+            "--format",
+            help="Input format: tum, or a log format read by uwval.io (default: by suffix)",
+        ),
+    ] = None,
     frame: Annotated[str | None, typer.Option(help=FRAME_HELP)] = None,
-    sync: Annotated[str, typer.Option(help="interp (lerp+slerp at reference stamps) or "
-                                      "nearest (evo's association)")] = "interp",
-    max_gap: Annotated[float | None, typer.Option(help="interp: mask samples in gaps longer "
-                                                  "than this (s; default 5 periods)")] = None,
+    sync: Annotated[
+        str,
+        typer.Option(help="interp (lerp+slerp at reference stamps) or nearest (evo's association)"),
+    ] = "interp",
+    max_gap: Annotated[
+        float | None,
+        typer.Option(help="interp: mask samples in gaps longer than this (s; default 5 periods)"),
+    ] = None,
     max_diff: Annotated[float, typer.Option(help="nearest: max stamp difference (s)")] = 0.01,
-    offset: Annotated[str, typer.Option(help="Clock offset added to the second stream's "
-                                        "stamps (s), or 'auto' to estimate it")] = "0",
+    offset: Annotated[
+        str,
+        typer.Option(
+            help="Clock offset added to the second stream's stamps (s), or 'auto' to estimate it"
+        ),
+    ] = "0",
     max_offset: Annotated[float | None, typer.Option(help="Bound for --offset auto (s)")] = None,
     align: Annotated[str, typer.Option(help="none, se3, sim3 (Umeyama) or origin")] = "none",
     as_json: Annotated[bool, typer.Option("--json", help="Print the JSON result")] = False,
-    output: Annotated[Path | None, typer.Option("-o", "--output",
-                                                help="Also write the JSON result here (with "
-                                                "--batch: the results directory)")] = None,
-    batch: Annotated[bool, typer.Option("--batch", help="LOG_A is an experiment directory or "
-                                        "manifest: compare every log into one results table")
-                     ] = False,
-    executor: Annotated[str, typer.Option(help="--batch: local (process pool), dask or inline")
-                        ] = "local",
+    output: Annotated[
+        Path | None,
+        typer.Option(
+            "-o",
+            "--output",
+            help="Also write the JSON result here (with --batch: the results directory)",
+        ),
+    ] = None,
+    batch: Annotated[
+        bool,
+        typer.Option(
+            "--batch",
+            help="LOG_A is an experiment directory or "
+            "manifest: compare every log into one results table",
+        ),
+    ] = False,
+    executor: Annotated[
+        str, typer.Option(help="--batch: local (process pool), dask or inline")
+    ] = "local",
     workers: Annotated[int | None, typer.Option(help="--batch: worker processes")] = None,
-    scheduler: Annotated[str | None, typer.Option(help="--batch: Dask scheduler address")
-                         ] = None,
+    scheduler: Annotated[str | None, typer.Option(help="--batch: Dask scheduler address")] = None,
 ) -> None:
     """Compare the Gazebo and Unity pose streams: per-axis errors, Pearson r, evo's APE stats."""
     if batch:
-        _batch(log_a, output, executor=executor, workers=workers, scheduler=scheduler,
-               options={"gazebo_topic": gazebo_topic, "unity_topic": unity_topic, "fmt": fmt,
-                        "frame": frame, "sync": sync, "max_gap": max_gap, "max_diff": max_diff,
-                        "offset": _parse_offset(offset), "max_offset": max_offset,
-                        "align": align})
+        _batch(
+            log_a,
+            output,
+            executor=executor,
+            workers=workers,
+            scheduler=scheduler,
+            options={
+                "gazebo_topic": gazebo_topic,
+                "unity_topic": unity_topic,
+                "fmt": fmt,
+                "frame": frame,
+                "sync": sync,
+                "max_gap": max_gap,
+                "max_diff": max_diff,
+                "offset": _parse_offset(offset),
+                "max_offset": max_offset,
+                "align": align,
+            },
+        )
         return
-    run_compare(log_a, log_b, gazebo_topic=gazebo_topic, unity_topic=unity_topic, fmt=fmt,
-                frame=frame, sync=sync, max_gap=max_gap, max_diff=max_diff, offset=offset,
-                max_offset=max_offset, align=align, as_json=as_json, output=output)
+    run_compare(
+        log_a,
+        log_b,
+        gazebo_topic=gazebo_topic,
+        unity_topic=unity_topic,
+        fmt=fmt,
+        frame=frame,
+        sync=sync,
+        max_gap=max_gap,
+        max_diff=max_diff,
+        offset=offset,
+        max_offset=max_offset,
+        align=align,
+        as_json=as_json,
+        output=output,
+    )
 
 
-def _batch(source: Path, output: Path | None, *, executor: str, workers: int | None,
-           scheduler: str | None, options: dict[str, Any]) -> None:
+def _batch(
+    source: Path,
+    output: Path | None,
+    *,
+    executor: str,
+    workers: int | None,
+    scheduler: str | None,
+    options: dict[str, Any],
+) -> None:
     """``compare --batch``: every log of a sweep -> comparisons.json + the results table."""
     from rich.console import Console
 
@@ -80,12 +139,14 @@ def _batch(source: Path, output: Path | None, *, executor: str, workers: int | N
 
     console = Console()
     opts = {k: v for k, v in options.items() if v is not None}
-    result = compare_batch(source, executor=executor, workers=workers, scheduler=scheduler,
-                           options=opts)
+    result = compare_batch(
+        source, executor=executor, workers=workers, scheduler=scheduler, options=opts
+    )
     out = output or (source if source.is_dir() else source.parent) / "results"
     written = result.save(out)
-    console.print(f"[green]compared {len(result.runs)} logs[/] -> "
-                  + ", ".join(str(p) for p in written))
+    console.print(
+        f"[green]compared {len(result.runs)} logs[/] -> " + ", ".join(str(p) for p in written)
+    )
     for f in result.failed:
         console.print(f"[red]{f['name']} failed:[/] {f['error']}", highlight=False)
     if result.failed:
@@ -99,8 +160,9 @@ def doctor_command(
     gazebo_topic: Annotated[str | None, typer.Option(help="Reference topic")] = None,
     unity_topic: Annotated[str | None, typer.Option(help="Other (Unity) topic")] = None,
     fmt: Annotated[str | None, typer.Option("--format", help="Input format (tum, ...)")] = None,
-    frame: Annotated[str | None, typer.Option(help="The configured convention to check "
-                                              "(default: from the log)")] = None,
+    frame: Annotated[
+        str | None, typer.Option(help="The configured convention to check (default: from the log)")
+    ] = None,
     offset: Annotated[str, typer.Option(help="Clock offset (s) or 'auto'")] = "0",
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON")] = False,
 ) -> None:
@@ -111,10 +173,20 @@ def doctor_command(
 
     from uwval.comparison.logs import compare_logs
 
-    result = compare_logs(log_a, log_b, gazebo_topic=gazebo_topic, unity_topic=unity_topic,
-                          fmt=fmt, frame=frame, offset=_parse_offset(offset), check_frame=True)
-    report = {name: (res.diagnosis.to_json() if res.diagnosis else None)
-              for name, res in result.results.items()}
+    result = compare_logs(
+        log_a,
+        log_b,
+        gazebo_topic=gazebo_topic,
+        unity_topic=unity_topic,
+        fmt=fmt,
+        frame=frame,
+        offset=_parse_offset(offset),
+        check_frame=True,
+    )
+    report = {
+        name: (res.diagnosis.to_json() if res.diagnosis else None)
+        for name, res in result.results.items()
+    }
     if as_json:
         sys.stdout.write(json.dumps(report, indent=1, allow_nan=False) + "\n")
         return
@@ -123,22 +195,24 @@ def doctor_command(
         if diag is None:
             console.print(f"{name}: too few overlapping samples to diagnose")
             continue
-        table = Table(title=escape(f"{name}: configured {diag['configured']}"),
-                      title_justify="left")
+        table = Table(
+            title=escape(f"{name}: configured {diag['configured']}"), title_justify="left"
+        )
         for col in ("convention", "position RMS (m)", "rotation RMS (deg)", ""):
             table.add_column(col)
         for conv, sc in diag["scores"].items():
             mark = "best" if conv == diag["best"] else ""
             mark += " configured" if conv == diag["configured"] else ""
-            table.add_row(conv, f"{sc['position_rms_m']:.4g}", f"{sc['rotation_rms_deg']:.4g}",
-                          mark.strip())
+            table.add_row(
+                conv, f"{sc['position_rms_m']:.4g}", f"{sc['rotation_rms_deg']:.4g}", mark.strip()
+            )
         console.print(table)
         console.print(f"fitted world map: {diag['fitted_world_map']}")
         console.print(f"fitted body map:  {diag['fitted_body_map']}")
         if diag["best"]:
-            console.print(f"the Unity stream is in [bold]{diag['best']}[/]: "
-                          f"{escape(diag['best_description'])}")
+            console.print(
+                f"the Unity stream is in [bold]{diag['best']}[/]: "
+                f"{escape(diag['best_description'])}"
+            )
         if diag["warning"]:
             console.print(f"[yellow]warning:[/] {escape(diag['warning'])}", highlight=False)
-
-

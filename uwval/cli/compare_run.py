@@ -47,22 +47,29 @@ def _print_table(doc: dict[str, Any], title: str) -> None:
     from rich.table import Table
 
     console = Console()
-    table = Table(title=escape(title), title_justify="left", box=box.SIMPLE_HEAD,
-                  pad_edge=False)
+    table = Table(title=escape(title), title_justify="left", box=box.SIMPLE_HEAD, pad_edge=False)
     # short on purpose (fits 80 columns): p95, std, p-value and CI are in --json
     for col in ("axis", "MAE", "RMSE", "max", "bias", "Pearson r"):
         table.add_column(col, justify="left" if col == "axis" else "right", no_wrap=True)
     for ax, s in doc["axes"].items():
         r = f"{s['pearson_r']:.6f}" if s.get("pearson_r") is not None else "n/a"
         unit = s.get("unit", "")
-        table.add_row(escape(f"{ax} [{unit}]") if unit else ax, _fmt(s["mae"]), _fmt(s["rmse"]),
-                      _fmt(s["max"]), _fmt(s["bias"]), r)
+        table.add_row(
+            escape(f"{ax} [{unit}]") if unit else ax,
+            _fmt(s["mae"]),
+            _fmt(s["rmse"]),
+            _fmt(s["max"]),
+            _fmt(s["bias"]),
+            r,
+        )
     console.print(table)
     undefined = [ax for ax, s in doc["axes"].items() if s.get("pearson_r") is None]
     if undefined:
         reasons = {doc["axes"][ax].get("pearson_reason") or "undefined" for ax in undefined}
-        console.print(f"Pearson r n/a for {', '.join(undefined)}: {'; '.join(sorted(reasons))}",
-                      highlight=False)
+        console.print(
+            f"Pearson r n/a for {', '.join(undefined)}: {'; '.join(sorted(reasons))}",
+            highlight=False,
+        )
     pn, rot, counts = doc["position_error_norm"], doc["rotation_error_deg"], doc["counts"]
     console.print(
         f"samples {doc['n_samples']} (matched {counts['matched']}, masked {counts['masked']}, "
@@ -110,9 +117,18 @@ def run_compare(
 
     with warnings_as_notes():
         result = compare_logs(
-            log_a, log_b, gazebo_topic=gazebo_topic, unity_topic=unity_topic, fmt=fmt,
-            frame=frame, sync=sync, max_gap=max_gap, max_diff=max_diff,
-            offset=_parse_offset(offset), max_offset=max_offset, align=align,
+            log_a,
+            log_b,
+            gazebo_topic=gazebo_topic,
+            unity_topic=unity_topic,
+            fmt=fmt,
+            frame=frame,
+            sync=sync,
+            max_gap=max_gap,
+            max_diff=max_diff,
+            offset=_parse_offset(offset),
+            max_offset=max_offset,
+            align=align,
         )
     doc = result.to_json()
     text = json.dumps(doc, indent=1, allow_nan=False)
@@ -121,8 +137,9 @@ def run_compare(
             output.parent.mkdir(parents=True, exist_ok=True)
             output.write_text(text + "\n")
         except OSError as exc:
-            raise ConfigError(f"{output}: cannot write the JSON result: "
-                              f"{exc.strerror or exc}") from None
+            raise ConfigError(
+                f"{output}: cannot write the JSON result: {exc.strerror or exc}"
+            ) from None
     if as_json:
         sys.stdout.write(text + "\n")
         return
@@ -132,11 +149,18 @@ def run_compare(
 
 #: Options ``fast_compare`` understands: option -> (parameter of compare_command, kind).
 _FAST_OPTIONS: dict[str, tuple[str, str]] = {
-    "--gazebo-topic": ("gazebo_topic", "str"), "--unity-topic": ("unity_topic", "str"),
-    "--format": ("fmt", "str"), "--frame": ("frame", "str"), "--sync": ("sync", "str"),
-    "--max-gap": ("max_gap", "float"), "--max-diff": ("max_diff", "float"),
-    "--offset": ("offset", "str"), "--max-offset": ("max_offset", "float"),
-    "--align": ("align", "str"), "--output": ("output", "path"), "-o": ("output", "path"),
+    "--gazebo-topic": ("gazebo_topic", "str"),
+    "--unity-topic": ("unity_topic", "str"),
+    "--format": ("fmt", "str"),
+    "--frame": ("frame", "str"),
+    "--sync": ("sync", "str"),
+    "--max-gap": ("max_gap", "float"),
+    "--max-diff": ("max_diff", "float"),
+    "--offset": ("offset", "str"),
+    "--max-offset": ("max_offset", "float"),
+    "--align": ("align", "str"),
+    "--output": ("output", "path"),
+    "-o": ("output", "path"),
 }
 _PLAIN_FLOAT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
 
@@ -174,6 +198,7 @@ def fast_compare(argv: list[str]) -> bool:
             positional.append(arg)
     if len(positional) not in (1, 2):
         return False
-    run_compare(Path(positional[0]), Path(positional[1]) if len(positional) == 2 else None,
-                **kwargs)
+    run_compare(
+        Path(positional[0]), Path(positional[1]) if len(positional) == 2 else None, **kwargs
+    )
     return True

@@ -25,12 +25,15 @@ console = Console()
 
 @app.command()
 def demo(
-    output: Annotated[Path, typer.Option("-o", "--output", help="Output directory.")
-                      ] = Path("uwval-demo"),
-    experiment: Annotated[Path | None, typer.Option(help="Experiment TOML (default: embedded).")
-                          ] = None,
-    workers: Annotated[int | None, typer.Option(help="Worker processes (default: all cores).")
-                       ] = None,
+    output: Annotated[Path, typer.Option("-o", "--output", help="Output directory.")] = Path(
+        "uwval-demo"
+    ),
+    experiment: Annotated[
+        Path | None, typer.Option(help="Experiment TOML (default: embedded).")
+    ] = None,
+    workers: Annotated[
+        int | None, typer.Option(help="Worker processes (default: all cores).")
+    ] = None,
     pdf: Annotated[bool, typer.Option(help="Also write report.pdf.")] = True,
 ) -> None:
     """Run the embedded default experiment end to end: logs, results, report, verdict."""
@@ -40,8 +43,10 @@ def demo(
     t0 = time.perf_counter()
     console.rule(f"[bold]uwval demo[/]: {exp.name} -> {output}/")
     manifest = run_experiment(exp, output, SessionOptions(), workers=workers)
-    console.print(f"[green]simulated[/] {len(manifest['runs'])} runs "
-                  f"({manifest['wall_time_s']:.1f} s): logs in {output / 'runs'}")
+    console.print(
+        f"[green]simulated[/] {len(manifest['runs'])} runs "
+        f"({manifest['wall_time_s']:.1f} s): logs in {output / 'runs'}"
+    )
     for f in manifest["failed"]:
         console.print(f"[red]run {f['name']} failed:[/] {f['error']}")
     batch = compare_batch(output, workers=workers)
@@ -60,8 +65,9 @@ def demo(
 
     from uwval.gate import check_results, load_thresholds
 
-    verdict = check_results(batch.table, thresholds=load_thresholds(
-        data_path("thresholds", "default.toml")))
+    verdict = check_results(
+        batch.table, thresholds=load_thresholds(data_path("thresholds", "default.toml"))
+    )
     console.print(verdict.render())
     console.print(f"demo finished in {time.perf_counter() - t0:.1f} s")
     if manifest["failed"] or batch.failed or not verdict.passed:
@@ -72,8 +78,9 @@ def _print_summary(runs: list[dict[str, Any]]) -> None:
     """Per run: factor levels, vehicle position/yaw MAE, Pearson r and max position error."""
     from rich import box
 
-    table = Table(title="vehicle pose, Unity vs Gazebo (per run)", box=box.SIMPLE_HEAD,
-                  pad_edge=False)
+    table = Table(
+        title="vehicle pose, Unity vs Gazebo (per run)", box=box.SIMPLE_HEAD, pad_edge=False
+    )
     factor_names = sorted({k for r in runs for k in r["factors"]})
     table.add_column("run", no_wrap=True)
     units = {"force": "N", "torque": "N m", "current": "m/s"}
@@ -86,8 +93,10 @@ def _print_summary(runs: list[dict[str, Any]]) -> None:
         axes = c["axes"]
         rx = axes["x"]["pearson_r"]
         table.add_row(
-            f"{i:02d}", *[f"{r['factors'].get(k, '')}" for k in factor_names],
-            f"{axes['x']['mae']:.2e}", f"{axes['yaw']['mae']:.2e}",
+            f"{i:02d}",
+            *[f"{r['factors'].get(k, '')}" for k in factor_names],
+            f"{axes['x']['mae']:.2e}",
+            f"{axes['yaw']['mae']:.2e}",
             "n/a" if rx is None else f"{rx:.5f}",
             f"{c['position_error_norm']['max']:.2e}",
         )

@@ -88,8 +88,9 @@ def _topic(name: str, typ: str, t: np.ndarray, n_gaps: int) -> TopicSummary:
 
 @app.command("inspect")
 def inspect_cmd(
-    log: Annotated[Path, typer.Argument(help="Log file (.mcap, .bag, .db3, .csv, .txt) or rosbag2 "
-                                              "directory")],
+    log: Annotated[
+        Path, typer.Argument(help="Log file (.mcap, .bag, .db3, .csv, .txt) or rosbag2 directory")
+    ],
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table")] = False,
     gaps: Annotated[int, typer.Option(help="Largest gaps to list per topic", min=0)] = 3,
 ) -> None:
@@ -103,13 +104,26 @@ def inspect_cmd(
         console = Console(width=160)
     table = Table(title=f"{summary.path}  span {summary.duration:.3f} s")
     for col in ("topic", "type", "count", "rate [Hz]", "start [s]", "end [s]", "largest gap [s]"):
-        table.add_column(col, justify="right" if col not in ("topic", "type") else "left",
-                         no_wrap=col in ("topic", "type"))
+        table.add_column(
+            col,
+            justify="right" if col not in ("topic", "type") else "left",
+            no_wrap=col in ("topic", "type"),
+        )
     for t in summary.topics:
-        gap = f"{t.largest_gaps[0]['gap']:.4f} @ {t.largest_gaps[0]['at']:.3f}" \
-            if t.largest_gaps else "-"
-        table.add_row(t.name, t.type, str(t.count), _fmt(t.rate_hz, ".2f"),
-                      _fmt(t.start, ".3f"), _fmt(t.end, ".3f"), gap)
+        gap = (
+            f"{t.largest_gaps[0]['gap']:.4f} @ {t.largest_gaps[0]['at']:.3f}"
+            if t.largest_gaps
+            else "-"
+        )
+        table.add_row(
+            t.name,
+            t.type,
+            str(t.count),
+            _fmt(t.rate_hz, ".2f"),
+            _fmt(t.start, ".3f"),
+            _fmt(t.end, ".3f"),
+            gap,
+        )
     console.print(table)
     for note in summary.warnings:
         console.print(f"[yellow]warning:[/] {note}", highlight=False)

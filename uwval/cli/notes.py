@@ -24,5 +24,6 @@ def warnings_as_notes() -> Iterator[None]:
                     from rich.console import Console
                     from rich.markup import escape
 
-                    Console(stderr=True).print(f"[yellow]warning:[/] {escape(text)}",
-                                               highlight=False, soft_wrap=True)
+                    Console(stderr=True).print(
+                        f"[yellow]warning:[/] {escape(text)}", highlight=False, soft_wrap=True
+                    )

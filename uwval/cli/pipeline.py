@@ -39,12 +39,18 @@ class SessionOptions:
         from uwval.bridge.unity_client import FaultModel, RenderLoop
 
         if self.log_format not in FORMAT_SUFFIX:
-            raise ConfigError(f"--format {self.log_format!r}: choose one of "
-                              f"{', '.join(FORMAT_SUFFIX)}")
+            raise ConfigError(
+                f"--format {self.log_format!r}: choose one of {', '.join(FORMAT_SUFFIX)}"
+            )
         wire.check_protocol(self.protocol)
         FaultModel(latency_s=self.latency_s, drop_prob=self.drop_prob)
-        RenderLoop([], unity_map=self.unity_map, frame_rate=self.frame_rate,
-                   frame_jitter_s=self.jitter_s, clock_offset_s=self.unity_clock_offset_s)
+        RenderLoop(
+            [],
+            unity_map=self.unity_map,
+            frame_rate=self.frame_rate,
+            frame_jitter_s=self.jitter_s,
+            clock_offset_s=self.unity_clock_offset_s,
+        )
 
 
 @dataclass(frozen=True)
@@ -69,8 +75,11 @@ def batch_physics(specs: list[Any], progress: bool = True) -> list[Any]:
     groups: dict[tuple[Any, ...], list[int]] = {}
     for i, s in enumerate(specs):
         kw = s.simulate_kwargs()
-        key = (s.duration_s, s.inputs.wrench_frame,
-               *sorted((k, v) for k, v in kw.items() if k != "seed"))
+        key = (
+            s.duration_s,
+            s.inputs.wrench_frame,
+            *sorted((k, v) for k, v in kw.items() if k != "seed"),
+        )
         groups.setdefault(key, []).append(i)
     out: list[Any] = [None] * len(specs)
     bar: Any = None
@@ -84,8 +93,12 @@ def batch_physics(specs: list[Any], progress: bool = True) -> list[Any]:
         for idx in groups.values():
             first = specs[idx[0]]
             kw = {k: v for k, v in first.simulate_kwargs().items() if k != "seed"}
-            results = simulate_batch([specs[i].vehicle for i in idx],
-                                     [specs[i].inputs for i in idx], first.duration_s, **kw)
+            results = simulate_batch(
+                [specs[i].vehicle for i in idx],
+                [specs[i].inputs for i in idx],
+                first.duration_s,
+                **kw,
+            )
             for i, r in zip(idx, results, strict=True):
                 out[i] = r
             if bar is not None:
@@ -110,8 +123,9 @@ def ensure_parent_dir(path: Path) -> None:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise ConfigError(f"{path}: cannot create its directory {path.parent}: "
-                          f"{exc.strerror or exc}") from None
+        raise ConfigError(
+            f"{path}: cannot create its directory {path.parent}: {exc.strerror or exc}"
+        ) from None
 
 
 def run_one(job: RunJob) -> dict[str, Any]:
@@ -125,8 +139,11 @@ def run_one(job: RunJob) -> dict[str, Any]:
 
     spec = job.spec
     opts = job.session
-    sim = job.sim if job.sim is not None else simulate(
-        spec.vehicle, spec.inputs, spec.duration_s, **spec.simulate_kwargs())
+    sim = (
+        job.sim
+        if job.sim is not None
+        else simulate(spec.vehicle, spec.inputs, spec.duration_s, **spec.simulate_kwargs())
+    )
     path = Path(job.log_path)
     ensure_parent_dir(path)
     metadata = {

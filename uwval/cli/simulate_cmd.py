@@ -61,9 +61,11 @@ def check_output_suffix(output: Path, log_format: str) -> None:
     known = {".mcap": "mcap", ".bag": "rosbag1"}
     said = known.get(output.suffix.lower())
     if said is not None and FORMAT_SUFFIX[log_format] != output.suffix.lower():
-        raise ConfigError(f"-o {output}: the suffix {output.suffix} means {said}, but --format "
-                          f"is {log_format}; name the log {output.with_suffix('')}"
-                          f"{FORMAT_SUFFIX[log_format]} or change --format")
+        raise ConfigError(
+            f"-o {output}: the suffix {output.suffix} means {said}, but --format "
+            f"is {log_format}; name the log {output.with_suffix('')}"
+            f"{FORMAT_SUFFIX[log_format]} or change --format"
+        )
 
 
 def run_experiment(
@@ -89,25 +91,34 @@ def run_experiment(
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise ConfigError(f"{out_dir}: cannot create the output directory: "
-                          f"{exc.strerror or exc}") from None
+        raise ConfigError(
+            f"{out_dir}: cannot create the output directory: {exc.strerror or exc}"
+        ) from None
     sims = batch_physics(specs, progress) if batched else [None] * len(specs)
     jobs = [
         RunJob(spec, str(log_path_for(out_dir, spec.name, session.log_format)), session, sim)
         for spec, sim in zip(specs, sims, strict=True)
     ]
     t0 = time.perf_counter()
-    outcomes = run_tasks(run_one, jobs, [s.name for s in specs], executor=executor,
-                         workers=workers, scheduler=scheduler, progress=progress,
-                         description=f"simulate {len(specs)} runs")
+    outcomes = run_tasks(
+        run_one,
+        jobs,
+        [s.name for s in specs],
+        executor=executor,
+        workers=workers,
+        scheduler=scheduler,
+        progress=progress,
+        description=f"simulate {len(specs)} runs",
+    )
     runs = []
     for o in outcomes:
         if o.ok and o.value is not None:
             rec = dict(o.value)
             rec["log"] = str(Path(rec["log"]).relative_to(out_dir))
             runs.append(rec)
-    failed = [{"name": o.key, "error": o.error, "attempts": o.attempts}
-              for o in outcomes if not o.ok]
+    failed = [
+        {"name": o.key, "error": o.error, "attempts": o.attempts} for o in outcomes if not o.ok
+    ]
     manifest = {
         "uwval_manifest": 1,
         "experiment": {"path": str(experiment), **_describe_experiment(exp)},
@@ -131,54 +142,82 @@ def simulate(
     experiment: Annotated[
         Path | None, typer.Argument(help="Experiment TOML (factors x levels); omit for one run.")
     ] = None,
-    output: Annotated[Path, typer.Option("-o", "--output",
-                                         help="Log file (one run) or directory (experiment).")
-                      ] = Path("run.mcap"),
+    output: Annotated[
+        Path, typer.Option("-o", "--output", help="Log file (one run) or directory (experiment).")
+    ] = Path("run.mcap"),
     force: Annotated[str, typer.Option(help="Body force FX,FY,FZ in N.")] = "0,0,0",
     torque: Annotated[str, typer.Option(help="Body torque TX,TY,TZ in N m.")] = "0,0,0",
-    current: Annotated[str, typer.Option(help="Water current CX,CY,CZ in m/s (world ENU).")
-                       ] = "0,0,0",
+    current: Annotated[
+        str, typer.Option(help="Water current CX,CY,CZ in m/s (world ENU).")
+    ] = "0,0,0",
     duration: Annotated[float, typer.Option(help="Run length in seconds of sim time.")] = 20.0,
-    vehicle: Annotated[str, typer.Option(help="Preset name, MODEL.sdf or VEHICLE.toml.")
-                       ] = "tethys",
-    log_format: Annotated[str, typer.Option("--format",
-                                            help="mcap, rosbag2, rosbag2-sqlite3 or rosbag1.")
-                          ] = "mcap",
+    vehicle: Annotated[
+        str, typer.Option(help="Preset name, MODEL.sdf or VEHICLE.toml.")
+    ] = "tethys",
+    log_format: Annotated[
+        str, typer.Option("--format", help="mcap, rosbag2, rosbag2-sqlite3 or rosbag1.")
+    ] = "mcap",
     publish_rate: Annotated[float, typer.Option(help="Gazebo pose publish rate, Hz.")] = 50.0,
     frame_rate: Annotated[float, typer.Option(help="Unity render loop rate, Hz.")] = 60.0,
-    unity_map: Annotated[str, typer.Option(help="ROS-TCP-Connector map: unity-flu or unity-enu.")
-                         ] = "unity-flu",
+    unity_map: Annotated[
+        str, typer.Option(help="ROS-TCP-Connector map: unity-flu or unity-enu.")
+    ] = "unity-flu",
     latency: Annotated[float, typer.Option(help="Injected one-way latency, s.")] = 0.0,
     jitter: Annotated[float, typer.Option(help="Render-frame jitter (std), s.")] = 0.0,
     drop: Annotated[float, typer.Option(help="Probability of dropping a pose message.")] = 0.0,
-    unity_clock_offset: Annotated[float, typer.Option(help="Unity clock minus sim clock, s.")
-                                  ] = 0.0,
+    unity_clock_offset: Annotated[
+        float, typer.Option(help="Unity clock minus sim clock, s.")
+    ] = 0.0,
     seed: Annotated[int, typer.Option(help="Seed for jitter/drops (and the experiment).")] = 0,
-    as_json: Annotated[bool, typer.Option("--json", help="One run: print its record (bridge "
-                                          "statistics, sim info, options) as JSON.")] = False,
-    realtime: Annotated[bool, typer.Option(help="Pace the virtual clock to the wall clock.")
-                        ] = False,
-    executor: Annotated[str, typer.Option(help="local (process pool), dask or inline.")
-                        ] = "local",
-    workers: Annotated[int | None, typer.Option(help="Worker processes (default: all cores).")
-                       ] = None,
-    scheduler: Annotated[str | None, typer.Option(help="Dask scheduler address (tcp://...).")
-                         ] = None,
-    batch_physics_: Annotated[bool, typer.Option(
-        "--batch-physics", help="Experiment: step all runs' physics together in one "
-        "vectorised state first (large sweeps of short runs).")] = False,
+    as_json: Annotated[
+        bool,
+        typer.Option(
+            "--json",
+            help="One run: print its record (bridge statistics, sim info, options) as JSON.",
+        ),
+    ] = False,
+    realtime: Annotated[
+        bool, typer.Option(help="Pace the virtual clock to the wall clock.")
+    ] = False,
+    executor: Annotated[str, typer.Option(help="local (process pool), dask or inline.")] = "local",
+    workers: Annotated[
+        int | None, typer.Option(help="Worker processes (default: all cores).")
+    ] = None,
+    scheduler: Annotated[
+        str | None, typer.Option(help="Dask scheduler address (tcp://...).")
+    ] = None,
+    batch_physics_: Annotated[
+        bool,
+        typer.Option(
+            "--batch-physics",
+            help="Experiment: step all runs' physics together in one "
+            "vectorised state first (large sweeps of short runs).",
+        ),
+    ] = False,
 ) -> None:
     """Simulate, bridge over TCP and record paired Gazebo/Unity pose logs."""
     session = SessionOptions(
-        unity_map=unity_map, frame_rate=frame_rate, latency_s=latency, jitter_s=jitter,
-        drop_prob=drop, unity_clock_offset_s=unity_clock_offset, realtime=realtime,
+        unity_map=unity_map,
+        frame_rate=frame_rate,
+        latency_s=latency,
+        jitter_s=jitter,
+        drop_prob=drop,
+        unity_clock_offset_s=unity_clock_offset,
+        realtime=realtime,
         log_format=log_format,
     )
     if experiment is not None:
         if output.suffix in (".mcap", ".bag", ".db3"):
             output = output.with_suffix("")
-        manifest = run_experiment(experiment, output, session, executor=executor,
-                                  workers=workers, scheduler=scheduler, batched=batch_physics_)
+        manifest = run_experiment(
+            experiment,
+            output,
+            session,
+            executor=executor,
+            workers=workers,
+            scheduler=scheduler,
+            batched=batch_physics_,
+        )
         console.print(
             f"[green]{len(manifest['runs'])} runs[/] written to {output}/runs, manifest "
             f"{output / 'manifest.json'} ({manifest['wall_time_s']:.1f} s)"
@@ -193,14 +232,19 @@ def simulate(
     if not 0 < duration < float("inf"):
         raise ConfigError(f"--duration must be a positive number of seconds, got {duration}")
     check_output_suffix(output, log_format)
-    f, tq, c = (parse_vector(force, "force"), parse_vector(torque, "torque"),
-                parse_vector(current, "current"))
+    f, tq, c = (
+        parse_vector(force, "force"),
+        parse_vector(torque, "torque"),
+        parse_vector(current, "current"),
+    )
     spec = RunSpec(
         name=output.stem,
-        factors={"force": factor_level(f), "torque": factor_level(tq),
-                 "current": factor_level(c)},
-        vehicle=load_vehicle(vehicle), inputs=constant_inputs(f, tq, c),
-        duration_s=duration, seed=seed, publish_rate=publish_rate,
+        factors={"force": factor_level(f), "torque": factor_level(tq), "current": factor_level(c)},
+        vehicle=load_vehicle(vehicle),
+        inputs=constant_inputs(f, tq, c),
+        duration_s=duration,
+        seed=seed,
+        publish_rate=publish_rate,
     )
     t0 = time.perf_counter()
     with console.status(f"simulating {duration:g} s and bridging over TCP..."):
@@ -214,6 +258,9 @@ def simulate(
         f"{b.get('sent', 0)} poses sent, {b.get('received', 0)} received, "
         f"{b.get('applied', 0)} applied in {b.get('frames', 0)} Unity frames, "
         f"{b.get('dropped', 0) + b.get('server_dropped', 0)} dropped; render lag "
-        + (f"{1e3 * b['render_lag_mean_s']:.1f} ms mean" if b.get("render_lag_mean_s")
-           is not None else "n/a (nothing rendered)")
+        + (
+            f"{1e3 * b['render_lag_mean_s']:.1f} ms mean"
+            if b.get("render_lag_mean_s") is not None
+            else "n/a (nothing rendered)"
+        )
     )

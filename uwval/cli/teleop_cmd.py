@@ -98,24 +98,27 @@ class HeldKeys:
 
 @app.command()
 def teleop(
-    vehicle: Annotated[str, typer.Option(help="Preset name, MODEL.sdf or VEHICLE.toml.")
-                       ] = "tethys",
+    vehicle: Annotated[
+        str, typer.Option(help="Preset name, MODEL.sdf or VEHICLE.toml.")
+    ] = "tethys",
     host: Annotated[str, typer.Option(help="Address the endpoint binds.")] = "127.0.0.1",
     port: Annotated[int, typer.Option(help="Endpoint port (0: a free port).")] = 10000,
-    keys: Annotated[str | None, typer.Option(help="Scripted keys, e.g. 'i@0:5;j@2:3'.")
-                    ] = None,
+    keys: Annotated[str | None, typer.Option(help="Scripted keys, e.g. 'i@0:5;j@2:3'.")] = None,
     duration: Annotated[float, typer.Option(help="Stop after S seconds (0: until q).")] = 0.0,
-    current: Annotated[str, typer.Option(help="Initial current CX,CY,CZ, m/s (ENU).")
-                       ] = "0,0,0",
+    current: Annotated[str, typer.Option(help="Initial current CX,CY,CZ, m/s (ENU).")] = "0,0,0",
     force_step: Annotated[float, typer.Option(help="Force per held key, N.")] = 10.0,
     torque_step: Annotated[float, typer.Option(help="Torque per held key, N m.")] = 1.0,
-    hold: Annotated[float, typer.Option(help="A key counts as held this long after it "
-                                              "was last seen, s.")] = 0.6,
+    hold: Annotated[
+        float, typer.Option(help="A key counts as held this long after it was last seen, s.")
+    ] = 0.6,
     publish_rate: Annotated[float, typer.Option(help="Pose publish rate, Hz.")] = 50.0,
-    speed: Annotated[float, typer.Option(help="Sim time per wall second (0: as fast as "
-                                               "possible, scripted runs only).")] = 1.0,
-    record: Annotated[Path | None, typer.Option(help="Also record the Gazebo side here "
-                                                       "(MCAP).")] = None,
+    speed: Annotated[
+        float,
+        typer.Option(help="Sim time per wall second (0: as fast as possible, scripted runs only)."),
+    ] = 1.0,
+    record: Annotated[
+        Path | None, typer.Option(help="Also record the Gazebo side here (MCAP).")
+    ] = None,
 ) -> None:
     """Drive the simulated vehicle live from the keyboard through the TCP bridge."""
     from uwval.bridge.gazebo import GazeboPublisher
@@ -137,8 +140,11 @@ def teleop(
     if speed <= 0 and interactive:
         raise ConfigError("--speed 0 (as fast as possible) works only with --keys")
     cur = np.array(parse_vector(current, "current"))
-    inputs = (InputProfile.from_keys(keys, cur, force_step, torque_step) if keys is not None
-              else constant_inputs((0, 0, 0), (0, 0, 0), cur))
+    inputs = (
+        InputProfile.from_keys(keys, cur, force_step, torque_step)
+        if keys is not None
+        else constant_inputs((0, 0, 0), (0, 0, 0), cur)
+    )
     sim = Simulator(load_vehicle(vehicle), inputs, publish_rate=publish_rate)
     held = HeldKeys(force_step, torque_step, hold)
     writer: Any = None
@@ -173,8 +179,9 @@ def teleop(
                             held.press(ch, now)
                     sim.set_wrench(*held.wrench(now))
                 for tick_t, vp, vq, cp, cq in sim.advance_to(t_ns):
-                    publisher.publish_tick((tick_t, {"model_rov_pose": (vp, vq),
-                                                     "gui_camera_pose": (cp, cq)}))
+                    publisher.publish_tick(
+                        (tick_t, {"model_rov_pose": (vp, vq), "gui_camera_pose": (cp, cq)})
+                    )
                     sent += 1
                     if writer is not None:
                         writer.write_pose("/gazebo/model_rov_pose", tick_t, vp, vq, "world")
@@ -197,5 +204,7 @@ def teleop(
         server.stop()
         if writer is not None:
             writer.close()
-    console.print(f"published {sent} ticks ({sent * 2} poses)"
-                  + (f"; Gazebo side recorded to {record}" if record else ""))
+    console.print(
+        f"published {sent} ticks ({sent * 2} poses)"
+        + (f"; Gazebo side recorded to {record}" if record else "")
+    )

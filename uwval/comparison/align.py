@@ -40,8 +40,12 @@ class Alignment:
         r = self.rotation * self.scale
         pos = np.empty_like(position)
         for i in range(3):
-            pos[:, i] = (r[i, 0] * position[:, 0] + r[i, 1] * position[:, 1]
-                         + r[i, 2] * position[:, 2] + self.translation[i])
+            pos[:, i] = (
+                r[i, 0] * position[:, 0]
+                + r[i, 1] * position[:, 1]
+                + r[i, 2] * position[:, 2]
+                + self.translation[i]
+            )
         q_a = quat_from_matrix(self.rotation[None])[0]
         quat = quat_multiply(np.broadcast_to(q_a, orientation.shape), orientation)
         return pos, quat
@@ -92,8 +96,9 @@ def umeyama(x: F64, y: F64, with_scale: bool = False) -> tuple[F64, F64, float]:
     return r, t, c
 
 
-def estimate_alignment(mode: str, ref_pos: F64, ref_quat: F64, oth_pos: F64,
-                       oth_quat: F64) -> Alignment:
+def estimate_alignment(
+    mode: str, ref_pos: F64, ref_quat: F64, oth_pos: F64, oth_quat: F64
+) -> Alignment:
     """The alignment ``mode`` that maps the (associated) other poses onto the reference."""
     if mode not in ALIGN_MODES:
         raise AlignmentError(f"unknown alignment {mode!r}; choose one of {', '.join(ALIGN_MODES)}")

@@ -105,8 +105,9 @@ def _nearest_perm(m: F64, det_sign: float) -> F64:
     return cands[int(np.argmax(scores))]
 
 
-def diagnose(ref_pos: F64, ref_quat: F64, oth_pos: F64, oth_quat: F64,
-             configured: str = "enu") -> FrameDiagnosis:
+def diagnose(
+    ref_pos: F64, ref_quat: F64, oth_pos: F64, oth_quat: F64, configured: str = "enu"
+) -> FrameDiagnosis:
     """Find the convention of the other stream from time-aligned samples of both streams.
 
     ``ref_*`` are canonical ENU/FLU poses; ``oth_*`` the other stream's raw poses (in its own
@@ -129,8 +130,10 @@ def diagnose(ref_pos: F64, ref_quat: F64, oth_pos: F64, oth_quat: F64,
         d -= d.mean(axis=0)
         pos_rms = float(np.sqrt(np.einsum("ij,ij->", d, d) / max(1, d.shape[0])))
         ang = np.degrees(geodesic_angle(quat, rq))
-        scores[name] = {"position_rms_m": pos_rms,
-                        "rotation_rms_deg": float(np.sqrt(np.mean(ang ** 2)))}
+        scores[name] = {
+            "position_rms_m": pos_rms,
+            "rotation_rms_deg": float(np.sqrt(np.mean(ang**2))),
+        }
 
     best = None
     for name, conv in CONVENTIONS.items():

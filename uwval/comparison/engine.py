@@ -77,8 +77,12 @@ class ComparisonResult:
         """Signed per-axis error series (computed from the aligned streams on first use, so a
         large comparison does not hold eight extra series unless someone asks for them)."""
         if self._errors is None:
-            self._errors = _error_series(self.reference.position, self.reference.orientation,
-                                         self.other.position, self.other.orientation)
+            self._errors = _error_series(
+                self.reference.position,
+                self.reference.orientation,
+                self.other.position,
+                self.other.orientation,
+            )
         return self._errors
 
     def to_json(self) -> dict[str, Any]:
@@ -117,9 +121,15 @@ def _json_clean(obj: Any) -> Any:
 
 
 def _stream_info(s: PoseStream) -> dict[str, Any]:
-    return {"topic": s.topic, "source": s.source, "frame": s.frame, "n": len(s),
-            "start_s": float(s.t[0]) * 1e-9 if len(s) else None,
-            "duration_s": s.duration, "repairs": dict(s.repairs)}
+    return {
+        "topic": s.topic,
+        "source": s.source,
+        "frame": s.frame,
+        "n": len(s),
+        "start_s": float(s.t[0]) * 1e-9 if len(s) else None,
+        "duration_s": s.duration,
+        "repairs": dict(s.repairs),
+    }
 
 
 def _to_canonical(stream: PoseStream) -> PoseStream:
@@ -192,8 +202,12 @@ def compare(
         if frame == "auto":
             # the frame is unknown yet: estimate under every known convention, keep the
             # one whose velocities agree best (the doctor then confirms the frame)
-            trials = [estimate_offset(ref_c, _to_canonical(other.with_(frame=name)),
-                                      max_offset=max_offset) for name in CONVENTIONS]
+            trials = [
+                estimate_offset(
+                    ref_c, _to_canonical(other.with_(frame=name)), max_offset=max_offset
+                )
+                for name in CONVENTIONS
+            ]
             estimate = max(trials, key=lambda e: e.correlation)
         else:
             estimate = estimate_offset(ref_c, _to_canonical(raw_other), max_offset=max_offset)
@@ -212,8 +226,9 @@ def compare(
                 configured = diagnosis.best
                 raw_other = other.with_(frame=configured)
                 if estimate is not None:
-                    estimate = estimate_offset(ref_c, _to_canonical(raw_other),
-                                               max_offset=max_offset)
+                    estimate = estimate_offset(
+                        ref_c, _to_canonical(raw_other), max_offset=max_offset
+                    )
                     offset_s = estimate.offset
             elif diagnosis.warning:
                 warnings.append(diagnosis.warning)
@@ -223,8 +238,9 @@ def compare(
     sync_info: dict[str, Any] = {"method": sync, "n_reference": len(ref_c), "n_other": len(oth_c)}
     if sync == "interp":
         max_gap_ns = None if max_gap is None else round(max_gap * 1e9)
-        interp = interpolate_at(oth_c, ref_c.t, max_gap_ns=max_gap_ns,
-                                offset_ns=-_offset_ns(offset_s))
+        interp = interpolate_at(
+            oth_c, ref_c.t, max_gap_ns=max_gap_ns, offset_ns=-_offset_ns(offset_s)
+        )
         valid = interp.valid
         n_valid = int(valid.sum())
         # valid samples are usually one run (invalid ones only outside the other's span):
@@ -233,12 +249,18 @@ def compare(
         t = ref_c.t[rows]
         ref_pos, ref_quat = ref_c.position[rows], ref_c.orientation[rows]
         oth_pos, oth_quat = interp.position[rows], interp.orientation[rows]
-        sync_info.update(matched=n_valid, masked=interp.in_gap, dropped=interp.outside,
-                         max_gap_s=interp.max_gap_ns * 1e-9,
-                         other_nominal_period_s=nominal_period_ns(oth_c.t) * 1e-9)
+        sync_info.update(
+            matched=n_valid,
+            masked=interp.in_gap,
+            dropped=interp.outside,
+            max_gap_s=interp.max_gap_ns * 1e-9,
+            other_nominal_period_s=nominal_period_ns(oth_c.t) * 1e-9,
+        )
         if interp.in_gap:
-            warnings.append(f"{interp.in_gap} reference samples fall in gaps of the other stream "
-                            f"longer than {interp.max_gap_ns * 1e-9:.6g} s and were masked")
+            warnings.append(
+                f"{interp.in_gap} reference samples fall in gaps of the other stream "
+                f"longer than {interp.max_gap_ns * 1e-9:.6g} s and were masked"
+            )
     else:
         match = associate_nearest(ref_c, oth_c, max_diff=max_diff, offset=offset_s)
         ref_sel, oth_sel = index_or_slice(match.ref_idx), index_or_slice(match.other_idx)
@@ -251,11 +273,15 @@ def compare(
         ref_pos, ref_quat = ref_c.position[ref_sel], ref_c.orientation[ref_sel]
         oth_pos, oth_quat = oth_c.position[oth_sel], oth_c.orientation[oth_sel]
         matched = int(match.ref_idx.size)
-        sync_info.update(matched=matched, masked=0, dropped=match.n_candidates - matched,
-                         max_diff_s=max_diff,
-                         driving_stream="reference" if match.reference_drives else "other",
-                         reused_reference=_repeats(match.ref_idx),
-                         reused_other=_repeats(match.other_idx))
+        sync_info.update(
+            matched=matched,
+            masked=0,
+            dropped=match.n_candidates - matched,
+            max_diff_s=max_diff,
+            driving_stream="reference" if match.reference_drives else "other",
+            reused_reference=_repeats(match.ref_idx),
+            reused_other=_repeats(match.other_idx),
+        )
         del match  # its index arrays are not needed any more (rows are taken above)
     n = int(t.shape[0])
     if n < max(1, min_samples):
@@ -270,32 +296,57 @@ def compare(
     oth_pos, oth_quat = alignment.apply(oth_pos, oth_quat)
 
     # ---- errors: statistics axis by axis; the series themselves are recomputed on demand
-    axes, position_norm_stats, rotation_stats = _axis_statistics(ref_pos, ref_quat, oth_pos,
-                                                                 oth_quat)
+    axes, position_norm_stats, rotation_stats = _axis_statistics(
+        ref_pos, ref_quat, oth_pos, oth_quat
+    )
 
-    aligned_ref = PoseStream(t=t, position=ref_pos, orientation=ref_quat, frame="enu",
-                             topic=reference.topic, source=reference.source)
-    aligned_oth = PoseStream(t=t, position=oth_pos, orientation=oth_quat, frame="enu",
-                             topic=other.topic, source=other.source)
+    aligned_ref = PoseStream(
+        t=t,
+        position=ref_pos,
+        orientation=ref_quat,
+        frame="enu",
+        topic=reference.topic,
+        source=reference.source,
+    )
+    aligned_oth = PoseStream(
+        t=t,
+        position=oth_pos,
+        orientation=oth_quat,
+        frame="enu",
+        topic=other.topic,
+        source=other.source,
+    )
     latency = latency_stats(other, offset_s)
     if latency is not None and estimate is not None:
         # the motion cannot tell a clock offset from a delay: the estimate absorbs both
-        latency["note"] = ("the offset was estimated from the motion and absorbs the mean "
-                           "latency; give --offset S (the known clock offset) for absolute "
-                           "latency")
+        latency["note"] = (
+            "the offset was estimated from the motion and absorbs the mean "
+            "latency; give --offset S (the known clock offset) for absolute "
+            "latency"
+        )
     stats: dict[str, Any] = {
         "schema": JSON_SCHEMA_VERSION,
         "n_samples": n,
         "reference": _stream_info(reference),
         "other": _stream_info(other),
-        "frame": {"configured": configured, "source": frame_source,
-                  "reference": get_convention(reference.frame).name, "compared_in": "enu"},
+        "frame": {
+            "configured": configured,
+            "source": frame_source,
+            "reference": get_convention(reference.frame).name,
+            "compared_in": "enu",
+        },
         "frame_doctor": diagnosis.to_json() if diagnosis else None,
         "sync": sync_info,
-        "counts": {"matched": sync_info["matched"], "masked": sync_info["masked"],
-                   "dropped": sync_info["dropped"]},
-        "offset": {"applied_s": offset_s, "source": "auto" if estimate else "argument",
-                   "estimate": estimate.to_json() if estimate else None},
+        "counts": {
+            "matched": sync_info["matched"],
+            "masked": sync_info["masked"],
+            "dropped": sync_info["dropped"],
+        },
+        "offset": {
+            "applied_s": offset_s,
+            "source": "auto" if estimate else "argument",
+            "estimate": estimate.to_json() if estimate else None,
+        },
         "latency": latency,
         "alignment": alignment.to_json(),
         "axes": axes,
@@ -303,9 +354,17 @@ def compare(
         "rotation_error_deg": rotation_stats,
         "warnings": warnings,
     }
-    return ComparisonResult(t=t, reference=aligned_ref, other=aligned_oth, stats=stats,
-                            alignment=alignment, offset_s=offset_s, offset_estimate=estimate,
-                            diagnosis=diagnosis, warnings=warnings)
+    return ComparisonResult(
+        t=t,
+        reference=aligned_ref,
+        other=aligned_oth,
+        stats=stats,
+        alignment=alignment,
+        offset_s=offset_s,
+        offset_estimate=estimate,
+        diagnosis=diagnosis,
+        warnings=warnings,
+    )
 
 
 def _repeats(idx: I64) -> int:
@@ -338,11 +397,11 @@ def _position_norm(ref_pos: F64, oth_pos: F64) -> F64:
     """|other - reference| per sample (m)."""
     out = np.empty(ref_pos.shape[0])
     for s in range(0, ref_pos.shape[0], ROW_CHUNK):
-        r, o = ref_pos[s:s + ROW_CHUNK], oth_pos[s:s + ROW_CHUNK]
+        r, o = ref_pos[s : s + ROW_CHUNK], oth_pos[s : s + ROW_CHUNK]
         d2 = np.square(o[:, 0] - r[:, 0])
         for j in (1, 2):
             d2 += np.square(o[:, j] - r[:, j])
-        np.sqrt(d2, out=out[s:s + ROW_CHUNK])
+        np.sqrt(d2, out=out[s : s + ROW_CHUNK])
     return out
 
 
@@ -379,8 +438,9 @@ def _error_series(ref_pos: F64, ref_quat: F64, oth_pos: F64, oth_quat: F64) -> d
     return errors
 
 
-def _axis_statistics(ref_pos: F64, ref_quat: F64, oth_pos: F64,
-                     oth_quat: F64) -> tuple[dict[str, Any], dict[str, float], dict[str, float]]:
+def _axis_statistics(
+    ref_pos: F64, ref_quat: F64, oth_pos: F64, oth_quat: F64
+) -> tuple[dict[str, Any], dict[str, float], dict[str, float]]:
     """Per-axis statistics, position-norm and rotation-angle statistics, one series at a time
     (bounded memory on large streams)."""
     axes: dict[str, Any] = {}
@@ -394,8 +454,9 @@ def _axis_statistics(ref_pos: F64, ref_quat: F64, oth_pos: F64,
         # so a 179 -> -179 deg crossing is not a 358 deg jump in either series
         ref_series = _unwrap_deg(ref_angle)
         del ref_angle
-        axes[ax] = axis_stats(err, ref_series, ref_series + err,
-                              overwrite_other=True) | {"unit": "deg"}
+        axes[ax] = axis_stats(err, ref_series, ref_series + err, overwrite_other=True) | {
+            "unit": "deg"
+        }
         del ref_series, err
     position = norm_stats(_position_norm(ref_pos, oth_pos))
     rotation = norm_stats(_rotation_error_deg(ref_quat, oth_quat))
@@ -413,8 +474,9 @@ def _unwrap_deg(a: F64) -> F64:
     return out
 
 
-def _diagnose(ref_c: PoseStream, raw_other: PoseStream, offset_s: float,
-              configured: str) -> FrameDiagnosis | None:
+def _diagnose(
+    ref_c: PoseStream, raw_other: PoseStream, offset_s: float, configured: str
+) -> FrameDiagnosis | None:
     """Run the frame doctor on up to ~20k reference stamps with the other stream interpolated."""
     step = max(1, len(ref_c) // 20_000)
     sub = ref_c.slice(slice(None, None, step))
@@ -422,5 +484,10 @@ def _diagnose(ref_c: PoseStream, raw_other: PoseStream, offset_s: float,
     ok = interp.valid
     if int(ok.sum()) < 3:
         return None
-    return diagnose(sub.position[ok], sub.orientation[ok], interp.position[ok],
-                    interp.orientation[ok], configured)
+    return diagnose(
+        sub.position[ok],
+        sub.orientation[ok],
+        interp.position[ok],
+        interp.orientation[ok],
+        configured,
+    )

@@ -50,16 +50,19 @@ def is_tum(path: str | Path, fmt: str | None = None) -> bool:
     """TUM text when ``fmt == 'tum'`` or, with no format given, by suffix .tum/.txt."""
     if fmt is not None:
         if fmt.lower() not in INPUT_FORMATS:
-            raise ConfigError(f"--format {fmt!r}: choose one of {', '.join(INPUT_FORMATS)} "
-                              "(default: by the file's suffix)")
+            raise ConfigError(
+                f"--format {fmt!r}: choose one of {', '.join(INPUT_FORMATS)} "
+                "(default: by the file's suffix)"
+            )
         return fmt.lower() == "tum"
     from uwval.io.tum import TUM_SUFFIXES
 
     return Path(path).suffix.lower() in TUM_SUFFIXES
 
 
-def read_pose_stream(path: str | Path, topic: str | None = None, *, fmt: str | None = None,
-                     frame: str | None = None) -> PoseStream:
+def read_pose_stream(
+    path: str | Path, topic: str | None = None, *, fmt: str | None = None, frame: str | None = None
+) -> PoseStream:
     """One stream from a file: TUM text, or ``topic`` of a log via :func:`uwval.io.read_stream`.
 
     With no topic, a log holding exactly one pose topic gives that one.
@@ -74,8 +77,10 @@ def read_pose_stream(path: str | Path, topic: str | None = None, *, fmt: str | N
         topics = [t.name for t in list_topics(path)]
         candidates = [t for t in topics if not t.endswith("/applied_stamp")]
         if len(candidates) != 1:
-            raise LogReadError(f"{path}: name the topic to compare (--gazebo-topic / "
-                               f"--unity-topic); topics: {', '.join(sorted(topics))}")
+            raise LogReadError(
+                f"{path}: name the topic to compare (--gazebo-topic / "
+                f"--unity-topic); topics: {', '.join(sorted(topics))}"
+            )
         topic = candidates[0]
     return read_stream(path, topic, frame=frame)
 
@@ -116,8 +121,11 @@ def compare_logs(
             pairs = [(g.strip("/").split("/")[-1], g, u)]
         else:
             present = _topics_of(path_a)
-            pairs = [(name, GAZEBO_PREFIX + name, UNITY_PREFIX + name) for name in (VEHICLE, CAMERA)
-                     if GAZEBO_PREFIX + name in present and UNITY_PREFIX + name in present]
+            pairs = [
+                (name, GAZEBO_PREFIX + name, UNITY_PREFIX + name)
+                for name in (VEHICLE, CAMERA)
+                if GAZEBO_PREFIX + name in present and UNITY_PREFIX + name in present
+            ]
             if not pairs:
                 raise LogReadError(
                     f"{path_a}: no Gazebo/Unity topic pair ({DEFAULT_GAZEBO_TOPIC} and "
@@ -135,8 +143,9 @@ def compare_logs(
             results[name] = compare(ref, oth, frame=frame, **options)
         return LogComparison(results, pairs[0][0], [str(path_a)])
 
-    ref, oth = _read_pair(path_a, path_b, gazebo_topic, unity_topic, fmt,
-                          None if frame == "auto" else frame)
+    ref, oth = _read_pair(
+        path_a, path_b, gazebo_topic, unity_topic, fmt, None if frame == "auto" else frame
+    )
     name = (gazebo_topic or unity_topic or VEHICLE).strip("/").split("/")[-1]
     if is_tum(path_a, fmt) and not gazebo_topic:
         name = "trajectory"
@@ -144,20 +153,32 @@ def compare_logs(
     return LogComparison(results, name, [str(path_a), str(path_b)])
 
 
-def _read_pair(path_a: str | Path, path_b: str | Path, gazebo_topic: str | None,
-               unity_topic: str | None, fmt: str | None,
-               frame: str | None) -> tuple[PoseStream, PoseStream]:
+def _read_pair(
+    path_a: str | Path,
+    path_b: str | Path,
+    gazebo_topic: str | None,
+    unity_topic: str | None,
+    fmt: str | None,
+    frame: str | None,
+) -> tuple[PoseStream, PoseStream]:
     """Read the two files; two TUM files are parsed concurrently when that pays off."""
     if is_tum(path_a, fmt) and is_tum(path_b, fmt):
         from uwval.io.tum import read_tum_pair
 
-        return read_tum_pair(path_a, path_b, frame_b=frame or "enu",
-                             topic_a=gazebo_topic or "", topic_b=unity_topic or "")
+        return read_tum_pair(
+            path_a,
+            path_b,
+            frame_b=frame or "enu",
+            topic_a=gazebo_topic or "",
+            topic_b=unity_topic or "",
+        )
     ga = gazebo_topic
     ub = unity_topic
     if ga is None and not is_tum(path_a, fmt) and DEFAULT_GAZEBO_TOPIC in _topics_of(path_a):
         ga = DEFAULT_GAZEBO_TOPIC
     if ub is None and not is_tum(path_b, fmt) and DEFAULT_UNITY_TOPIC in _topics_of(path_b):
         ub = DEFAULT_UNITY_TOPIC
-    return (read_pose_stream(path_a, ga, fmt=fmt),
-            read_pose_stream(path_b, ub, fmt=fmt, frame=frame))
+    return (
+        read_pose_stream(path_a, ga, fmt=fmt),
+        read_pose_stream(path_b, ub, fmt=fmt, frame=frame),
+    )

@@ -58,8 +58,7 @@ def _rel_seconds(t: NDArray[np.int64], t0: int) -> F64:
     return np.asarray((t - np.int64(t0)).astype(np.float64) * 1e-9)
 
 
-def _speed_on_grid(stream: PoseStream, t0: int, dt: float, n: int, angular: bool,
-                   span: int) -> F64:
+def _speed_on_grid(stream: PoseStream, t0: int, dt: float, n: int, angular: bool, span: int) -> F64:
     """Speed (m/s or rad/s) of ``stream`` on the grid t0 + k dt (k < n).
 
     Poses are resampled on the grid first and differenced over ``span`` grid steps, so a
@@ -95,8 +94,13 @@ def _grid(stream: PoseStream, dt: float) -> int:
     return max(2, math.floor(stream.duration / dt) + 1)
 
 
-def estimate_offset(reference: PoseStream, other: PoseStream, *,
-                    max_offset: float | None = None, same_frame: bool = True) -> OffsetEstimate:
+def estimate_offset(
+    reference: PoseStream,
+    other: PoseStream,
+    *,
+    max_offset: float | None = None,
+    same_frame: bool = True,
+) -> OffsetEstimate:
     """Estimate the clock offset of ``other`` relative to ``reference`` from their motion.
 
     With ``same_frame`` (both streams in one convention) the coarse stage matches velocity
@@ -216,7 +220,7 @@ def _best_lag(a: F64, b: F64, max_lag: int | None, base: float) -> tuple[int, fl
     cc = np.fft.irfft(fa * np.conj(fb), size)
     # circular index j holds lag L = j for j < na and L = j - size for negative lags
     lags = np.concatenate([np.arange(0, na), np.arange(-(nb - 1), 0)])
-    vals = np.concatenate([cc[:na], cc[size - (nb - 1):]])
+    vals = np.concatenate([cc[:na], cc[size - (nb - 1) :]])
     # overlap of a[L:] and b[:]: number of k with 0 <= k < nb and 0 <= k + L < na
     overlap = np.minimum(na, lags + nb) - np.maximum(0, lags)
     min_overlap = max(3, int(0.3 * min(na, nb)))
@@ -243,8 +247,9 @@ def _position_cost(ref_t: F64, ref_p: F64, oth_t: F64, oth_p: F64, offset: float
     return float(np.einsum("ij,ij->", e, e)) / ok.sum()
 
 
-def _refine(reference: PoseStream, other: PoseStream, coarse: float,
-            window: float) -> tuple[float, float]:
+def _refine(
+    reference: PoseStream, other: PoseStream, coarse: float, window: float
+) -> tuple[float, float]:
     """Scan of the position cost on [coarse - window, coarse + window], then golden section."""
     t0 = int(reference.t[0])
     step = max(1, len(reference) // _MAX_REFINE)

@@ -20,8 +20,7 @@ F64 = NDArray[np.float64]
 Z_975 = 1.959963984540054
 
 
-def order_statistics(values: F64, ranks: set[int], *,
-                     overwrite: bool = False) -> dict[int, float]:
+def order_statistics(values: F64, ranks: set[int], *, overwrite: bool = False) -> dict[int, float]:
     """The values at 0-based ``ranks`` of ``values`` sorted ascending (no NaN in ``values``).
 
     Ranks are taken from the highest down, each by an in-place single-rank partition of the
@@ -30,8 +29,7 @@ def order_statistics(values: F64, ranks: set[int], *,
     one is the maximum of what is left, swapped into place. ``values`` is left as it was,
     unless ``overwrite`` (a scratch float64 array: reordered in place, no copy).
     """
-    part = np.asarray(values, dtype=np.float64) if overwrite else \
-        np.array(values, dtype=np.float64)
+    part = np.asarray(values, dtype=np.float64) if overwrite else np.array(values, dtype=np.float64)
     out: dict[int, float] = {}
     hi = int(part.size)
     for r in sorted(ranks, reverse=True):
@@ -146,8 +144,9 @@ def betainc_regularized(a: float, b: float, x: float) -> float:
         return 0.0
     if x >= 1.0:
         return 1.0
-    log_front = (math.lgamma(a + b) - math.lgamma(a) - math.lgamma(b)
-                 + a * math.log(x) + b * math.log1p(-x))
+    log_front = (
+        math.lgamma(a + b) - math.lgamma(a) - math.lgamma(b) + a * math.log(x) + b * math.log1p(-x)
+    )
     # the continued fraction is O(1) (>= 1e-3 here), so below exp(-800) the result underflows:
     # skip its ~sqrt(a) iterations (hundreds for the n = 360,000 series of a benchmark)
     if x < (a + 1.0) / (a + b + 2.0):
@@ -172,8 +171,13 @@ def pearson(a: F64, b: F64, *, overwrite_b: bool = False) -> dict[str, Any]:
     x = np.asarray(a, dtype=np.float64)
     y = np.asarray(b, dtype=np.float64)
     n = int(x.size)
-    out: dict[str, Any] = {"pearson_r": None, "pearson_p": None, "pearson_ci": None,
-                           "pearson_n": n, "pearson_reason": None}
+    out: dict[str, Any] = {
+        "pearson_r": None,
+        "pearson_p": None,
+        "pearson_ci": None,
+        "pearson_n": n,
+        "pearson_reason": None,
+    }
     if n < 3:
         out["pearson_reason"] = f"undefined: need at least 3 samples, got {n}"
         return out
@@ -190,8 +194,11 @@ def pearson(a: F64, b: F64, *, overwrite_b: bool = False) -> dict[str, Any]:
         ym = y - y.mean()
     sxx = float(np.einsum("i,i->", xm, xm))
     syy = float(np.einsum("i,i->", ym, ym))
-    const = [name for name, s2, sc in (("reference", sxx, scale_x), ("other", syy, scale_y))
-             if math.sqrt(s2) <= max(1e-12 * sc, CONSTANT_FLOOR) * math.sqrt(n)]
+    const = [
+        name
+        for name, s2, sc in (("reference", sxx, scale_x), ("other", syy, scale_y))
+        if math.sqrt(s2) <= max(1e-12 * sc, CONSTANT_FLOOR) * math.sqrt(n)
+    ]
     if const:
         out["pearson_reason"] = f"undefined: {' and '.join(const)} series is constant"
         return out
@@ -211,8 +218,9 @@ def pearson(a: F64, b: F64, *, overwrite_b: bool = False) -> dict[str, Any]:
     return out
 
 
-def axis_stats(signed_err: F64, reference: F64, other: F64, *,
-               overwrite_other: bool = False) -> dict[str, Any]:
+def axis_stats(
+    signed_err: F64, reference: F64, other: F64, *, overwrite_other: bool = False
+) -> dict[str, Any]:
     """Metrics of one axis: MAE, RMSE, max, p95 of |e|, bias (mean e), std of e, Pearson.
 
     ``signed_err`` is other - reference (angles already wrapped); ``reference`` and ``other``
@@ -222,8 +230,9 @@ def axis_stats(signed_err: F64, reference: F64, other: F64, *,
     """
     e = np.asarray(signed_err, dtype=np.float64)
     if e.size == 0:
-        stats: dict[str, Any] = {k: None for k in ("mae", "rmse", "max", "p95", "bias", "std",
-                                                     "median")}
+        stats: dict[str, Any] = {
+            k: None for k in ("mae", "rmse", "max", "p95", "bias", "std", "median")
+        }
         stats.update(pearson(e, e))
         return stats
     ae = np.abs(e)

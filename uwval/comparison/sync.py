@@ -44,8 +44,9 @@ class NearestMatch:
 MATCH_CHUNK = 1 << 15
 
 
-def match_time_indices(stamps_1: F64, stamps_2: F64, max_diff: float,
-                       offset_2: float = 0.0) -> tuple[I64, I64]:
+def match_time_indices(
+    stamps_1: F64, stamps_2: F64, max_diff: float, offset_2: float = 0.0
+) -> tuple[I64, I64]:
     """Vectorised ``evo.core.sync.matching_time_indices`` for sorted ``stamps_2`` (seconds).
 
     Returns index arrays (into stamps_1, into stamps_2) of the accepted matches, in the order
@@ -66,7 +67,7 @@ def match_time_indices(stamps_1: F64, stamps_2: F64, max_diff: float,
     out_2 = np.empty(n1, dtype=np.int64)
     k = 0
     for start in range(0, n1, MATCH_CHUNK):
-        c = s1[start:start + MATCH_CHUNK]
+        c = s1[start : start + MATCH_CHUNK]
         idx = np.searchsorted(s2, c, side="right")
         np.minimum(idx, n2 - 1, out=idx)
         diff_ub = s2[idx] - c
@@ -77,14 +78,15 @@ def match_time_indices(stamps_1: F64, stamps_2: F64, max_diff: float,
         ok = (c >= first) & (c <= last) & (take_ub | take_lb)
         sel = np.flatnonzero(ok)
         m = sel.size
-        out_1[k:k + m] = sel + start
-        out_2[k:k + m] = np.where(take_ub[sel], idx[sel], idx[sel] - 1)
+        out_1[k : k + m] = sel + start
+        out_2[k : k + m] = np.where(take_ub[sel], idx[sel], idx[sel] - 1)
         k += m
     return out_1[:k], out_2[:k]
 
 
-def associate_nearest(reference: PoseStream, other: PoseStream, *, max_diff: float = 0.01,
-                      offset: float = 0.0) -> NearestMatch:
+def associate_nearest(
+    reference: PoseStream, other: PoseStream, *, max_diff: float = 0.01, offset: float = 0.0
+) -> NearestMatch:
     """evo's ``associate_trajectories(ref, est, nearest_time, max_diff, offset_2)``.
 
     ``offset`` (seconds) is added to the other stream's stamps for matching only, as evo's
@@ -114,8 +116,7 @@ def associate_nearest(reference: PoseStream, other: PoseStream, *, max_diff: flo
 def index_or_slice(idx: I64) -> I64 | slice:
     """A slice when matched indices are a contiguous run (rows taken as views, no copy of the
     gathered arrays: the common case of two streams at one rate), else the indices."""
-    if idx.size and int(idx[-1]) - int(idx[0]) + 1 == idx.size and \
-            bool(np.all(np.diff(idx) == 1)):
+    if idx.size and int(idx[-1]) - int(idx[0]) + 1 == idx.size and bool(np.all(np.diff(idx) == 1)):
         return slice(int(idx[0]), int(idx[-1]) + 1)
     return idx
 
@@ -143,8 +144,9 @@ class Interpolated:
     max_gap_ns: int
 
 
-def interpolate_at(stream: PoseStream, t_query: I64, *, max_gap_ns: int | None = None,
-                   offset_ns: int = 0) -> Interpolated:
+def interpolate_at(
+    stream: PoseStream, t_query: I64, *, max_gap_ns: int | None = None, offset_ns: int = 0
+) -> Interpolated:
     """Evaluate ``stream`` (stamps shifted by ``-offset_ns``) at ``t_query`` (ns).
 
     Lerp for position, slerp for orientation between the two bracketing samples; stamps
@@ -165,7 +167,7 @@ def interpolate_at(stream: PoseStream, t_query: I64, *, max_gap_ns: int | None =
     n_outside = n_gap = 0
     # in steps of MATCH_CHUNK query stamps: slerp's (k, 4) temporaries stay small and cached
     for s in range(0, m, MATCH_CHUNK):
-        qc = q[s:s + MATCH_CHUNK]
+        qc = q[s : s + MATCH_CHUNK]
         hi = np.searchsorted(t, qc, side="left")  # t[hi-1] < q <= t[hi]
         outside_mask = (qc < t[0]) | (qc > t[-1])
         hi = np.clip(hi, 1, n - 1)
@@ -175,13 +177,13 @@ def interpolate_at(stream: PoseStream, t_query: I64, *, max_gap_ns: int | None =
         # exact hits on a sample are always valid, even next to a long gap
         exact = (t[hi] == qc) | (t[lo] == qc)
         gap_mask &= ~exact
-        valid[s:s + MATCH_CHUNK] = ~outside_mask & ~gap_mask
+        valid[s : s + MATCH_CHUNK] = ~outside_mask & ~gap_mask
         n_outside += int(outside_mask.sum())
         n_gap += int(gap_mask.sum())
         # fraction from int64 differences: no precision lost on epoch-scale stamps
         frac = (qc - t[lo]).astype(np.float64) / span.astype(np.float64)
         np.clip(frac, 0.0, 1.0, out=frac)
         p0 = stream.position[lo]
-        pos[s:s + MATCH_CHUNK] = p0 + frac[:, None] * (stream.position[hi] - p0)
-        quat[s:s + MATCH_CHUNK] = slerp(stream.orientation[lo], stream.orientation[hi], frac)
+        pos[s : s + MATCH_CHUNK] = p0 + frac[:, None] * (stream.position[hi] - p0)
+        quat[s : s + MATCH_CHUNK] = slerp(stream.orientation[lo], stream.orientation[hi], frac)
     return Interpolated(pos, quat, valid, n_outside, n_gap, int(max_gap_ns))

@@ -26,7 +26,13 @@ from uwval.io.ros import normalize_type_name
 
 MAGIC = b"#ROSBAG V2.0\n"
 OP_MSG_DATA, OP_BAG_HEADER, OP_INDEX_DATA, OP_CHUNK, OP_CHUNK_INFO, OP_CONNECTION = (
-    0x02, 0x03, 0x04, 0x05, 0x06, 0x07)
+    0x02,
+    0x03,
+    0x04,
+    0x05,
+    0x06,
+    0x07,
+)
 
 _U32 = struct.Struct("<I")
 I64 = NDArray[np.int64]
@@ -72,8 +78,9 @@ def _record(b: bytes | mmap.mmap, pos: int, size: int) -> tuple[dict[str, bytes]
     return hdr, ds, dl, ds + dl
 
 
-def _records(b: bytes | mmap.mmap, start: int, end: int
-             ) -> Iterator[tuple[dict[str, bytes], int, int, int]]:
+def _records(
+    b: bytes | mmap.mmap, start: int, end: int
+) -> Iterator[tuple[dict[str, bytes], int, int, int]]:
     """(header fields, op code, data start, data length) of each record in [start, end)."""
     pos = start
     while pos < end:
@@ -85,8 +92,12 @@ def _connection(b: bytes | mmap.mmap, hdr: dict[str, bytes], ds: int, dl: int) -
     """A connection record: id and topic from its header, type and definition from its data."""
     d = _fields(b, ds, ds + dl)
     cid = _u32(hdr["conn"])
-    return _Conn(cid, hdr["topic"].decode(), d["type"].decode(),
-                 d.get("message_definition", b"").decode(errors="replace"))
+    return _Conn(
+        cid,
+        hdr["topic"].decode(),
+        d["type"].decode(),
+        d.get("message_definition", b"").decode(errors="replace"),
+    )
 
 
 def _u32(v: bytes) -> int:
@@ -115,8 +126,9 @@ def scan_bag1(path: Path, topics: Iterable[str] | None, *, times_only: bool = Fa
         mm.close()
 
 
-def _scan(path: Path, mm: mmap.mmap, size: int, topics: Iterable[str] | None,
-          times_only: bool) -> RawLog:
+def _scan(
+    path: Path, mm: mmap.mmap, size: int, topics: Iterable[str] | None, times_only: bool
+) -> RawLog:
     if mm[: len(MAGIC)] != MAGIC:
         raise BagFormatError("not a ROS bag v2.0")
     hdr, _ds, _dl, _nxt = _record(mm, len(MAGIC), size)
@@ -192,8 +204,9 @@ def _scan(path: Path, mm: mmap.mmap, size: int, topics: Iterable[str] | None,
             lo.append(old.start_ns)
             hi.append(old.end_ns)
         cnt = int(t.size) + (old.count if old else 0)
-        infos[name] = TopicInfo(name, normalize_type_name(c.msgtype), cnt,
-                                min(lo) if lo else 0, max(hi) if hi else 0)
+        infos[name] = TopicInfo(
+            name, normalize_type_name(c.msgtype), cnt, min(lo) if lo else 0, max(hi) if hi else 0
+        )
     raw: dict[str, RawTopic] = {}
     merged: dict[str, TopicBuilder] = {}
     for b in builders.values():
@@ -208,8 +221,9 @@ def _scan(path: Path, mm: mmap.mmap, size: int, topics: Iterable[str] | None,
     return log
 
 
-def _walk_unindexed(path: Path, mm: mmap.mmap, size: int, pos: int,
-                    topics: Iterable[str] | None) -> RawLog:
+def _walk_unindexed(
+    path: Path, mm: mmap.mmap, size: int, pos: int, topics: Iterable[str] | None
+) -> RawLog:
     """Linear walk over the records of a bag without a usable index (slow path).
 
     Complete chunks are decoded record by record; the walk stops at the first record that
@@ -255,14 +269,20 @@ def _walk_unindexed(path: Path, mm: mmap.mmap, size: int, pos: int,
         if old is not None and old.count:
             lo.append(old.start_ns)
             hi.append(old.end_ns)
-        infos[name] = TopicInfo(name, normalize_type_name(c.msgtype),
-                                len(t) + (old.count if old else 0),
-                                min(lo) if lo else 0, max(hi) if hi else 0)
+        infos[name] = TopicInfo(
+            name,
+            normalize_type_name(c.msgtype),
+            len(t) + (old.count if old else 0),
+            min(lo) if lo else 0,
+            max(hi) if hi else 0,
+        )
         if want is None or name in want:
-            b = builders.setdefault(name, TopicBuilder(name, normalize_type_name(c.msgtype),
-                                                       "ros1", c.msgdef))
+            b = builders.setdefault(
+                name, TopicBuilder(name, normalize_type_name(c.msgtype), "ros1", c.msgdef)
+            )
             b.add_payloads(payloads.get(cid, []), t)
-    log = RawLog(path, list(infos.values()), {n: b.build() for n, b in builders.items()},
-                 lost_bytes=lost)
+    log = RawLog(
+        path, list(infos.values()), {n: b.build() for n, b in builders.items()}, lost_bytes=lost
+    )
     log.notes.append("bag has no index (not closed): recovered by a linear walk")
     return log

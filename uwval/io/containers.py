@@ -30,14 +30,19 @@ def log_kind(path: Path) -> str:
     if not path.exists():
         raise LogReadError(f"{path}: no such file or directory")
     if path.is_dir():
-        if (path / "metadata.yaml").exists() or any(path.glob("*.mcap")) or any(
-            path.glob("*.db3")
-        ):
+        if (path / "metadata.yaml").exists() or any(path.glob("*.mcap")) or any(path.glob("*.db3")):
             return "rosbag2"
         raise LogReadError(f"{path}: directory holds no metadata.yaml, .mcap or .db3 files")
     suffix = path.suffix.lower()
-    kinds = {".mcap": "mcap", ".bag": "bag", ".db3": "db3", ".csv": "csv", ".tum": "tum",
-             ".txt": "tum", ".yaml": "rosbag2"}
+    kinds = {
+        ".mcap": "mcap",
+        ".bag": "bag",
+        ".db3": "db3",
+        ".csv": "csv",
+        ".tum": "tum",
+        ".txt": "tum",
+        ".yaml": "rosbag2",
+    }
     if suffix in kinds:
         if kinds[suffix] == "rosbag2":
             return "rosbag2" if path.name == "metadata.yaml" else "unknown"
@@ -68,7 +73,8 @@ def scan_log(path: Path, topics: Iterable[str] | None, *, times_only: bool = Fal
     except (struct.error, ValueError, IndexError, KeyError, OSError, EOFError) as exc:
         # Damaged bytes that the format checks above did not anticipate: still no traceback.
         raise LogReadError(
-            f"{path}: damaged {kind} log: {type(exc).__name__}: {one_line(exc)}") from exc
+            f"{path}: damaged {kind} log: {type(exc).__name__}: {one_line(exc)}"
+        ) from exc
 
 
 def _scan_kind(path: Path, kind: str, topics: Iterable[str] | None, times_only: bool) -> RawLog:
@@ -122,8 +128,9 @@ def _scan_bag1_rosbags(path: Path, topics: Iterable[str] | None, times_only: boo
             if want is None or name in want:
                 conns.append(conn)
                 if name not in builders:
-                    builders[name] = TopicBuilder(name, normalize_type_name(conn.msgtype),
-                                                  "ros1", conn.msgdef.data)
+                    builders[name] = TopicBuilder(
+                        name, normalize_type_name(conn.msgtype), "ros1", conn.msgdef.data
+                    )
         if conns and not times_only:
             payloads: dict[str, list[bytes]] = {n: [] for n in builders}
             stamps: dict[str, list[int]] = {n: [] for n in builders}
@@ -198,8 +205,9 @@ def _scan_rosbag2(bagdir: Path, topics: Iterable[str] | None, times_only: bool) 
             if is_mcap:
                 log = scan_mcap(src, topic_list, times_only=times_only)
             else:
-                log = _scan_db3(f, src, topic_list,
-                                compression=comp_fmt if comp_mode == "MESSAGE" else "")
+                log = _scan_db3(
+                    f, src, topic_list, compression=comp_fmt if comp_mode == "MESSAGE" else ""
+                )
             logs.append(log)
     return _merge_logs(bagdir, logs)
 
@@ -216,8 +224,7 @@ def _unzstd(src: Path, tmp: Path) -> Path:
     return out
 
 
-def _scan_db3(name: Path, path: Path, topics: Iterable[str] | None,
-              compression: str) -> RawLog:
+def _scan_db3(name: Path, path: Path, topics: Iterable[str] | None, compression: str) -> RawLog:
     """A rosbag2 sqlite3 storage file, opened read-only and immutable (no -wal replay)."""
     want = None if topics is None else {norm_topic(t) for t in topics}
     wal = path.with_name(path.name + "-wal")
@@ -301,8 +308,13 @@ def _merge_logs(path: Path, logs: list[RawLog]) -> RawLog:
                 continue
             starts = [x.start_ns for x in (o, i) if x.count]
             ends = [x.end_ns for x in (o, i) if x.count]
-            infos[i.name] = TopicInfo(i.name, o.type or i.type, o.count + i.count,
-                                      min(starts) if starts else 0, max(ends) if ends else 0)
+            infos[i.name] = TopicInfo(
+                i.name,
+                o.type or i.type,
+                o.count + i.count,
+                min(starts) if starts else 0,
+                max(ends) if ends else 0,
+            )
     raw = {}
     names = {n for lg in logs for n in lg.raw}
     for n in names:
@@ -311,5 +323,10 @@ def _merge_logs(path: Path, logs: list[RawLog]) -> RawLog:
         for p in parts:
             b.add(p.buf, p.offset, p.length, p.log_time)
         raw[n] = b.build()
-    return RawLog(path, list(infos.values()), raw, sum(lg.lost_bytes for lg in logs),
-                  [x for lg in logs for x in lg.notes])
+    return RawLog(
+        path,
+        list(infos.values()),
+        raw,
+        sum(lg.lost_bytes for lg in logs),
+        [x for lg in logs for x in lg.notes],
+    )

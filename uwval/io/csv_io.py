@@ -31,14 +31,25 @@ from uwval.io.raw import load_yaml, one_line
 from uwval.posestream import PoseStream
 
 TIME_NAMES = ("t", "time", "timestamp", "stamp", "time_s", "unity_time", "frame_time", "sec")
-POS_NAMES = (("x", "y", "z"), ("pos_x", "pos_y", "pos_z"), ("px", "py", "pz"),
-             ("position_x", "position_y", "position_z"), ("position.x", "position.y",
-                                                          "position.z"))
-QUAT_NAMES = (("qx", "qy", "qz", "qw"), ("rot_x", "rot_y", "rot_z", "rot_w"),
-              ("rotation_x", "rotation_y", "rotation_z", "rotation_w"),
-              ("rotation.x", "rotation.y", "rotation.z", "rotation.w"))
-EULER_NAMES = (("ex", "ey", "ez"), ("euler_x", "euler_y", "euler_z"), ("rx", "ry", "rz"),
-               ("eulerangles.x", "eulerangles.y", "eulerangles.z"))
+POS_NAMES = (
+    ("x", "y", "z"),
+    ("pos_x", "pos_y", "pos_z"),
+    ("px", "py", "pz"),
+    ("position_x", "position_y", "position_z"),
+    ("position.x", "position.y", "position.z"),
+)
+QUAT_NAMES = (
+    ("qx", "qy", "qz", "qw"),
+    ("rot_x", "rot_y", "rot_z", "rot_w"),
+    ("rotation_x", "rotation_y", "rotation_z", "rotation_w"),
+    ("rotation.x", "rotation.y", "rotation.z", "rotation.w"),
+)
+EULER_NAMES = (
+    ("ex", "ey", "ez"),
+    ("euler_x", "euler_y", "euler_z"),
+    ("rx", "ry", "rz"),
+    ("eulerangles.x", "eulerangles.y", "eulerangles.z"),
+)
 TIME_UNITS = {"s": 1e9, "ms": 1e6, "us": 1e3, "ns": 1.0}
 LENGTH_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 
@@ -53,8 +64,17 @@ def load_mapping(path: str | Path) -> dict[str, Any]:
         raise LogReadError(f"{p}: cannot read CSV mapping file: {one_line(exc)}") from exc
     if not isinstance(doc, dict):
         raise LogReadError(f"{p}: CSV mapping must be a mapping of option: value")
-    known = {"time", "time_unit", "position", "quaternion", "euler", "length_unit", "frame",
-             "delimiter", "topic"}
+    known = {
+        "time",
+        "time_unit",
+        "position",
+        "quaternion",
+        "euler",
+        "length_unit",
+        "frame",
+        "delimiter",
+        "topic",
+    }
     unknown = set(doc) - known
     if unknown:
         raise LogReadError(f"{p}: unknown mapping keys {sorted(unknown)}; known: {sorted(known)}")
@@ -92,11 +112,20 @@ def _sniff(path: Path) -> tuple[str, str]:
     return ",", "."
 
 
-def read_csv(path: str | Path, *, time: str | None = None, time_unit: str = "s",
-             position: list[str] | None = None, quaternion: list[str] | None = None,
-             euler: list[str] | None = None, length_unit: str = "m",
-             frame: str | None = None, mapping: str | Path | None = None,
-             delimiter: str | None = None, topic: str = "") -> PoseStream:
+def read_csv(
+    path: str | Path,
+    *,
+    time: str | None = None,
+    time_unit: str = "s",
+    position: list[str] | None = None,
+    quaternion: list[str] | None = None,
+    euler: list[str] | None = None,
+    length_unit: str = "m",
+    frame: str | None = None,
+    mapping: str | Path | None = None,
+    delimiter: str | None = None,
+    topic: str = "",
+) -> PoseStream:
     """Read a Unity CSV export into a PoseStream in convention ``frame`` (default unity-flu).
 
     Options given here win over the mapping file's. Raises :class:`LogReadError` naming the
@@ -104,8 +133,14 @@ def read_csv(path: str | Path, *, time: str | None = None, time_unit: str = "s",
     """
     p = Path(path)
     opts: dict[str, Any] = load_mapping(mapping) if mapping is not None else {}
-    given = {"time": time, "position": position, "quaternion": quaternion, "euler": euler,
-             "frame": frame, "delimiter": delimiter}
+    given = {
+        "time": time,
+        "position": position,
+        "quaternion": quaternion,
+        "euler": euler,
+        "frame": frame,
+        "delimiter": delimiter,
+    }
     opts.update({k: v for k, v in given.items() if v is not None})
     if time_unit != "s" or "time_unit" not in opts:
         opts["time_unit"] = time_unit
@@ -124,8 +159,9 @@ def read_csv(path: str | Path, *, time: str | None = None, time_unit: str = "s",
 
     sep, decimal = (str(opts["delimiter"]), ".") if "delimiter" in opts else _sniff(p)
     try:
-        df = pd.read_csv(p, sep=sep, decimal=decimal, comment="#", skipinitialspace=True,
-                         encoding="utf-8-sig")  # Windows exports start with a BOM
+        df = pd.read_csv(
+            p, sep=sep, decimal=decimal, comment="#", skipinitialspace=True, encoding="utf-8-sig"
+        )  # Windows exports start with a BOM
     except Exception as exc:
         raise LogReadError(f"{p}: cannot parse CSV: {one_line(exc)}") from exc
     cols = [str(c) for c in df.columns]
@@ -149,8 +185,15 @@ def read_csv(path: str | Path, *, time: str | None = None, time_unit: str = "s",
     qcols = pick("quaternion", QUAT_NAMES, 4) if "euler" not in opts else None
     ecols = pick("euler", EULER_NAMES, 3) if qcols is None else None
     if tcol is None or pcols is None or (qcols is None and ecols is None):
-        what = [w for w, c in (("time", tcol), ("position", pcols),
-                               ("rotation (quaternion or euler)", qcols or ecols)) if c is None]
+        what = [
+            w
+            for w, c in (
+                ("time", tcol),
+                ("position", pcols),
+                ("rotation (quaternion or euler)", qcols or ecols),
+            )
+            if c is None
+        ]
         raise LogReadError(
             f"{p}: cannot find {', '.join(what)} column(s) among {cols}; map them with "
             "time=, position=, quaternion= / euler= or a mapping file"
@@ -163,8 +206,7 @@ def read_csv(path: str | Path, *, time: str | None = None, time_unit: str = "s",
             r, c = np.argwhere(bad)[0]
             cell = df[names[int(c)]].iloc[int(r)]
             # empty fields (and pandas' NA spellings such as "nan") arrive as NaN
-            what = ("missing value" if pd.isna(cell)
-                    else f"not a finite number ({str(cell)!r})")
+            what = "missing value" if pd.isna(cell) else f"not a finite number ({str(cell)!r})"
             # +2: one header line, 1-based line numbers (comment lines are not counted).
             raise LogReadError(f"{p}: line {int(r) + 2}, column {names[int(c)]!r}: {what}")
         return block
@@ -178,8 +220,13 @@ def read_csv(path: str | Path, *, time: str | None = None, time_unit: str = "s",
         quat = quat_from_unity_euler(numbers(ecols))
     t_ns = np.round(t * TIME_UNITS[tu]).astype(np.int64)
     try:
-        return PoseStream.from_arrays(t_ns, pos, quat, frame=frame_name,
-                                      topic=topic or str(opts.get("topic", p.stem)),
-                                      source=str(p))
+        return PoseStream.from_arrays(
+            t_ns,
+            pos,
+            quat,
+            frame=frame_name,
+            topic=topic or str(opts.get("topic", p.stem)),
+            source=str(p),
+        )
     except Exception as exc:
         raise LogReadError(f"{p}: {one_line(exc)}") from exc

@@ -56,8 +56,7 @@ def _pose7(p: Any) -> tuple[float, ...]:
     return (a.x, a.y, a.z, b.x, b.y, b.z, b.w)
 
 
-def _fields(msgtype: str, msg: Any) -> tuple[int, tuple[float, ...] | None, str | None,
-                                               str | None]:
+def _fields(msgtype: str, msg: Any) -> tuple[int, tuple[float, ...] | None, str | None, str | None]:
     """(stamp ns or -1, pose, frame_id, child_frame_id) of one decoded message."""
     short = msgtype.rsplit("/", 1)[-1]
     if short == "Header":
@@ -88,8 +87,11 @@ def decode_poses(raw: RawTopic, *, fast: bool = True) -> Decoded:
             "supported: " + ", ".join(sorted(LAYOUTS)) + ", " + ", ".join(TF_TYPES)
         )
     n = len(raw)
-    dec = (fast_decode(raw.msgtype, raw.encoding, raw.buf, raw.offset, raw.length)
-           if fast else Decoded.empty(n))
+    dec = (
+        fast_decode(raw.msgtype, raw.encoding, raw.buf, raw.offset, raw.length)
+        if fast
+        else Decoded.empty(n)
+    )
     rest = np.flatnonzero(~dec.handled)
     for i in rest:
         try:

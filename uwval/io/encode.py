@@ -51,8 +51,9 @@ def _header(encoding: str, n: int, frame_id: str, tail: int) -> tuple[U8, int, i
     return rows, 4, 16 + slen
 
 
-def encode_pose_stamped(t_ns: ArrayLike, position: ArrayLike, quat: ArrayLike,
-                        frame_id: str, encoding: str = "cdr") -> U8:
+def encode_pose_stamped(
+    t_ns: ArrayLike, position: ArrayLike, quat: ArrayLike, frame_id: str, encoding: str = "cdr"
+) -> U8:
     """(N, L) payload rows of geometry_msgs/PoseStamped, one message per row.
 
     ``position`` (N, 3) metres and ``quat`` (N, 4) x y z w are written as they are (the

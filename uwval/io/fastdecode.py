@@ -107,7 +107,9 @@ def gather(buf: U8, starts: I64, width: int) -> U8:
                 stride = int(d[a]) if a < n - 1 else 0
                 if stride > 0:
                     view = np.lib.stride_tricks.as_strided(
-                        buf[int(starts[a]) :], shape=(b - a, width), strides=(stride, 1),
+                        buf[int(starts[a]) :],
+                        shape=(b - a, width),
+                        strides=(stride, 1),
                         writeable=False,
                     )
                     out[a:b] = view
@@ -231,8 +233,9 @@ def fast_decode(msgtype: str, encoding: str, buf: U8, offset: I64, length: I64) 
         rows = rows[(head[:, 0] == 0) & (head[:, 1] == 1)]
     leaves: list[_Leaf] = []
     if rows.size:
-        _walk(fields, 0, rows, 0, _Leaf(rows, -1, -1, 0, -1, 0, -1), buf, offset, length,
-              cdr, leaves)
+        _walk(
+            fields, 0, rows, 0, _Leaf(rows, -1, -1, 0, -1, 0, -1), buf, offset, length, cdr, leaves
+        )
     for lf in leaves:
         starts = offset[lf.rows]
         if lf.stamp_at >= 0:

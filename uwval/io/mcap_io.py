@@ -26,8 +26,13 @@ class McapPoseWriter:
     Chunks are flushed as they fill, so a killed process leaves all closed chunks readable.
     """
 
-    def __init__(self, path: str | Path, *, metadata: dict[str, str] | None = None,
-                 chunk_size: int = 256 * 1024) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        metadata: dict[str, str] | None = None,
+        chunk_size: int = 256 * 1024,
+    ) -> None:
         from mcap.writer import CompressionType, Writer
 
         self.path = Path(path)
@@ -35,8 +40,7 @@ class McapPoseWriter:
             self._fh: IO[bytes] = open(self.path, "wb")  # noqa: SIM115 - closed in close()
         except OSError as exc:
             raise LogWriteError(f"{self.path}: cannot open for writing: {exc}") from exc
-        self._writer = Writer(self._fh, chunk_size=chunk_size,
-                              compression=CompressionType.ZSTD)
+        self._writer = Writer(self._fh, chunk_size=chunk_size, compression=CompressionType.ZSTD)
         self._writer.start(profile="ros2", library="uwval")
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
@@ -54,26 +58,38 @@ class McapPoseWriter:
                 name=msgtype, encoding="ros2msg", data=text.encode()
             )
         cid = self._writer.register_channel(
-            topic=topic, message_encoding="cdr", schema_id=self._schemas[msgtype],
+            topic=topic,
+            message_encoding="cdr",
+            schema_id=self._schemas[msgtype],
             metadata={"offered_qos_profiles": ""},
         )
         self._channels[topic] = cid
         self._seq[cid] = 0
         return cid
 
-    def write_raw(self, topic: str, msgtype: str, data: bytes, log_time: int,
-                  publish_time: int | None = None) -> None:
+    def write_raw(
+        self, topic: str, msgtype: str, data: bytes, log_time: int, publish_time: int | None = None
+    ) -> None:
         """Write one already CDR-encoded message."""
         cid = self._channel(topic, msgtype)
         self._writer.add_message(
-            channel_id=cid, log_time=int(log_time),
+            channel_id=cid,
+            log_time=int(log_time),
             publish_time=int(log_time if publish_time is None else publish_time),
-            data=data, sequence=self._seq[cid],
+            data=data,
+            sequence=self._seq[cid],
         )
         self._seq[cid] += 1
 
-    def write_pose(self, topic: str, t_ns: int, position: F64, quat: F64, frame_id: str,
-                   log_time: int | None = None) -> None:
+    def write_pose(
+        self,
+        topic: str,
+        t_ns: int,
+        position: F64,
+        quat: F64,
+        frame_id: str,
+        log_time: int | None = None,
+    ) -> None:
         """Write one PoseStamped stamped ``t_ns`` (header) and logged at ``log_time``."""
         msg = pose_stamped(t_ns, position, quat, frame_id)
         data = self._ts.serialize_cdr(msg, POSE_STAMPED)
@@ -84,8 +100,15 @@ class McapPoseWriter:
         data = self._ts.serialize_cdr(header_msg(stamp_ns, frame_id), HEADER)
         self.write_raw(topic, HEADER, bytes(data), log_time)
 
-    def write_poses(self, topic: str, t: I64, position: F64, orientation: F64, frame_id: str,
-                    log_time: Iterable[int] | None = None) -> None:
+    def write_poses(
+        self,
+        topic: str,
+        t: I64,
+        position: F64,
+        orientation: F64,
+        frame_id: str,
+        log_time: Iterable[int] | None = None,
+    ) -> None:
         """Write a whole array of poses (vectorised encode, see :mod:`uwval.io.encode`)."""
         from uwval.io.encode import encode_pose_stamped
 
@@ -119,6 +142,10 @@ class McapPoseWriter:
     def __enter__(self) -> McapPoseWriter:
         return self
 
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
         self.close()

@@ -145,8 +145,9 @@ def scan_mcap(path: Path, topics: Iterable[str] | None, *, times_only: bool = Fa
             mm.close()
 
 
-def _scan(path: Path, mm: mmap.mmap, size: int, topics: Iterable[str] | None,
-          times_only: bool) -> RawLog:
+def _scan(
+    path: Path, mm: mmap.mmap, size: int, topics: Iterable[str] | None, times_only: bool
+) -> RawLog:
     if mm[:8] != MAGIC:
         raise LogReadError(f"{path}: not an MCAP file (bad magic bytes at offset 0)")
     want = None if topics is None else {norm_topic(t) for t in topics}
@@ -180,8 +181,9 @@ def _scan(path: Path, mm: mmap.mmap, size: int, topics: Iterable[str] | None,
                 lost = size - pos
                 break
             if op != OP_MESSAGE_INDEX and pending is not None:
-                lost += _chunk(path, mv, pending, indexes, tables, builder, summary is not None,
-                               times_only)
+                lost += _chunk(
+                    path, mv, pending, indexes, tables, builder, summary is not None, times_only
+                )
                 pending, indexes = None, {}
             if op == OP_CHUNK:
                 pending = (c, ln)
@@ -203,8 +205,9 @@ def _scan(path: Path, mm: mmap.mmap, size: int, topics: Iterable[str] | None,
                 break
             pos = c + ln
         if pending is not None:
-            lost += _chunk(path, mv, pending, indexes, tables, builder, summary is not None,
-                           times_only)
+            lost += _chunk(
+                path, mv, pending, indexes, tables, builder, summary is not None, times_only
+            )
     finally:
         with contextlib.suppress(BufferError):
             mv.release()
@@ -232,8 +235,11 @@ def _merge_infos(infos: list[TopicInfo]) -> list[TopicInfo]:
             o = out[i.name]
             starts = [x.start_ns for x in (o, i) if x.count]
             out[i.name] = TopicInfo(
-                i.name, o.type or i.type, o.count + i.count,
-                min(starts) if starts else 0, max(o.end_ns, i.end_ns),
+                i.name,
+                o.type or i.type,
+                o.count + i.count,
+                min(starts) if starts else 0,
+                max(o.end_ns, i.end_ns),
             )
         else:
             out[i.name] = i
@@ -252,9 +258,16 @@ def _index_fits(mv: memoryview, wanted: dict[int, tuple[int, int]], size: int) -
     return True
 
 
-def _chunk(path: Path, mv: memoryview, chunk: tuple[int, int],
-           indexes: dict[int, tuple[int, int]], tables: _Tables, builder: object,
-           trusted_index: bool, times_only: bool) -> int:
+def _chunk(
+    path: Path,
+    mv: memoryview,
+    chunk: tuple[int, int],
+    indexes: dict[int, tuple[int, int]],
+    tables: _Tables,
+    builder: object,
+    trusted_index: bool,
+    times_only: bool,
+) -> int:
     """Decode one chunk into the builders; returns bytes lost (0, or the chunk if corrupt)."""
     c, ln = chunk
     _start, _end, usize, _crc = _CHUNK.unpack_from(mv, c)
@@ -282,8 +295,12 @@ def _chunk(path: Path, mv: memoryview, chunk: tuple[int, int],
             rec = ent[:, 1].astype(np.int64)
             log_time = ent[:, 0].astype(np.int64)
             if times_only:
-                get(cid).add(buf[:0], np.zeros(len(rec), np.int64),  # type: ignore[operator]
-                             np.zeros(len(rec), np.int64), log_time)
+                get(cid).add(
+                    buf[:0],
+                    np.zeros(len(rec), np.int64),  # type: ignore[operator]
+                    np.zeros(len(rec), np.int64),
+                    log_time,
+                )
                 continue
             rlen_all = np.empty(len(rec), dtype=np.int64)
             from uwval.io.fastdecode import gather
@@ -321,6 +338,7 @@ def _chunk(path: Path, mv: memoryview, chunk: tuple[int, int],
             tables.seen(cid, lt_arr)
         bld = get(cid)  # type: ignore[operator]
         if bld is not None:
-            bld.add(buf, np.asarray(o, dtype=np.int64), np.asarray(lens[cid], dtype=np.int64),
-                    lt_arr)
+            bld.add(
+                buf, np.asarray(o, dtype=np.int64), np.asarray(lens[cid], dtype=np.int64), lt_arr
+            )
     return 0

@@ -73,8 +73,11 @@ class RawTopic:
     def info(self) -> TopicInfo:
         n = len(self)
         return TopicInfo(
-            self.name, self.msgtype, n,
-            int(self.log_time.min()) if n else 0, int(self.log_time.max()) if n else 0,
+            self.name,
+            self.msgtype,
+            n,
+            int(self.log_time.min()) if n else 0,
+            int(self.log_time.max()) if n else 0,
         )
 
 
@@ -90,9 +93,14 @@ class TopicBuilder:
 
     def add(self, buf: U8, offset: I64, length: I64, log_time: I64) -> None:
         """Add messages ``buf[offset[i] : offset[i] + length[i]]`` (bounds are checked)."""
-        if offset.size and length.any() and (
-            int(offset.min()) < 0 or int(length.min()) < 0
-            or int((offset + length).max()) > buf.shape[0]
+        if (
+            offset.size
+            and length.any()
+            and (
+                int(offset.min()) < 0
+                or int(length.min()) < 0
+                or int((offset + length).max()) > buf.shape[0]
+            )
         ):
             raise ValueError(f"topic {self.name}: a message reaches outside its chunk")
         if offset.size:
@@ -114,8 +122,12 @@ class TopicBuilder:
         lens = np.fromiter((len(p) for p in payloads), dtype=np.int64, count=len(payloads))
         offs = np.zeros_like(lens)
         np.cumsum(lens[:-1], out=offs[1:])
-        self.add(np.frombuffer(b"".join(payloads), dtype=np.uint8), offs, lens,
-                 np.asarray(log_time, dtype=np.int64))
+        self.add(
+            np.frombuffer(b"".join(payloads), dtype=np.uint8),
+            offs,
+            lens,
+            np.asarray(log_time, dtype=np.int64),
+        )
 
     def build(self) -> RawTopic:
         topic = RawTopic(self.name, self.msgtype, self.encoding, self.msgdef)

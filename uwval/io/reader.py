@@ -49,8 +49,9 @@ def list_topics(path: str | Path) -> list[TopicInfo]:
     _check_path(p)
     if log_kind(p) in _TEXT_KINDS:
         s = read_stream(p, "")
-        return [TopicInfo(s.topic or p.stem, "text/" + log_kind(p), len(s), int(s.t[0]),
-                          int(s.t[-1]))]
+        return [
+            TopicInfo(s.topic or p.stem, "text/" + log_kind(p), len(s), int(s.t[0]), int(s.t[-1]))
+        ]
     log = scan_log(p, [], times_only=True)
     log.warn_lost()
     return sorted(log.topics, key=lambda i: i.name)
@@ -67,9 +68,15 @@ def topic_times(path: str | Path) -> tuple[list[TopicInfo], dict[str, I64]]:
     }
 
 
-def read_stream(path: str | Path, topic: str, *, frame: str | None = None,
-                child_frame: str | None = None, parent_frame: str | None = None,
-                **opts: Any) -> PoseStream:
+def read_stream(
+    path: str | Path,
+    topic: str,
+    *,
+    frame: str | None = None,
+    child_frame: str | None = None,
+    parent_frame: str | None = None,
+    **opts: Any,
+) -> PoseStream:
     """Read one pose topic of a log into a PoseStream.
 
     Args:
@@ -98,13 +105,20 @@ def read_stream(path: str | Path, topic: str, *, frame: str | None = None,
         from uwval.io.tum import read_tum
 
         return read_tum(p, frame=frame or "enu", topic=topic)
-    return read_streams(p, [topic], frame=frame, child_frame=child_frame,
-                        parent_frame=parent_frame, **opts)[topic]
+    return read_streams(
+        p, [topic], frame=frame, child_frame=child_frame, parent_frame=parent_frame, **opts
+    )[topic]
 
 
-def read_streams(path: str | Path, topics: Sequence[str], *, frame: str | None = None,
-                 child_frame: str | None = None, parent_frame: str | None = None,
-                 **opts: Any) -> dict[str, PoseStream]:
+def read_streams(
+    path: str | Path,
+    topics: Sequence[str],
+    *,
+    frame: str | None = None,
+    child_frame: str | None = None,
+    parent_frame: str | None = None,
+    **opts: Any,
+) -> dict[str, PoseStream]:
     """Read several topics in one pass over the log; keys are the names as given."""
     p = Path(path)
     _check_path(p)
@@ -130,27 +144,49 @@ def read_streams(path: str | Path, topics: Sequence[str], *, frame: str | None =
         if len(raw) == 0:
             raise LogReadError(f"{p}: topic {name!r} ({raw.msgtype}) has no messages")
         try:
-            out[t] = _to_stream(p, raw, log, frame=frame, child=child_frame,
-                                parent=parent_frame, time_src=time_src, tf_static=tf_static,
-                                fast=fast)
+            out[t] = _to_stream(
+                p,
+                raw,
+                log,
+                frame=frame,
+                child=child_frame,
+                parent=parent_frame,
+                time_src=time_src,
+                tf_static=tf_static,
+                fast=fast,
+            )
         except PoseStreamError as exc:
             raise LogReadError(f"{p}: topic {name!r}: {exc}") from exc
     return out
 
 
 def _missing(p: Path, topic: str, log: RawLog) -> str:
-    names = ", ".join(f"{i.name} ({i.type}, {i.count})" for i in sorted(
-        log.topics, key=lambda i: i.name))
+    names = ", ".join(
+        f"{i.name} ({i.type}, {i.count})" for i in sorted(log.topics, key=lambda i: i.name)
+    )
     # a cut-off log may have lost the topic with the bytes: say so in the error itself
-    cut = (f" (the log is truncated: {log.lost_bytes} bytes at the end were lost)"
-           if log.lost_bytes else "")
+    cut = (
+        f" (the log is truncated: {log.lost_bytes} bytes at the end were lost)"
+        if log.lost_bytes
+        else ""
+    )
     if not log.topics:
         return f"{p}: no topic {topic!r}: the log has no topics (no messages){cut}"
     return f"{p}: no topic {topic!r}; topics in this log: {names}{cut}"
 
 
-def _to_stream(p: Path, raw: RawTopic, log: RawLog, *, frame: str | None, child: str | None,
-               parent: str | None, time_src: str, tf_static: bool, fast: bool) -> PoseStream:
+def _to_stream(
+    p: Path,
+    raw: RawTopic,
+    log: RawLog,
+    *,
+    frame: str | None,
+    child: str | None,
+    parent: str | None,
+    time_src: str,
+    tf_static: bool,
+    fast: bool,
+) -> PoseStream:
     if raw.msgtype in TF_TYPES:
         stamps, pose, frame_id = _tf_pose(p, raw, log, child, parent, tf_static)
         log_time = None
@@ -164,8 +200,9 @@ def _to_stream(p: Path, raw: RawTopic, log: RawLog, *, frame: str | None, child:
         if parent is not None and (dec.frame_code >= 0).any():
             keep &= _code_is(dec, dec.frame_code, parent)
         if not keep.any():
-            raise LogReadError(_no_pair(p, raw.name, dec, dec.frame_code, dec.child_code,
-                                        parent, child))
+            raise LogReadError(
+                _no_pair(p, raw.name, dec, dec.frame_code, dec.child_code, parent, child)
+            )
         stamps = dec.stamp[keep]
         log_time = raw.log_time[keep]
         if time_src == "log" or (stamps < 0).all():
@@ -182,7 +219,12 @@ def _to_stream(p: Path, raw: RawTopic, log: RawLog, *, frame: str | None, child:
     if comp is not None and len(comp) and log_time is not None:
         applied = _applied(comp, log_time)
     return PoseStream.from_arrays(
-        stamps, pose[:, :3], pose[:, 3:], frame=frame, topic=raw.name, source=str(p),
+        stamps,
+        pose[:, :3],
+        pose[:, 3:],
+        frame=frame,
+        topic=raw.name,
+        source=str(p),
         applied_stamp=applied,
     )
 
@@ -207,19 +249,36 @@ def _code_is(dec: Decoded, codes: I64, name: str) -> NDArray[np.bool_]:
     return np.isin(codes, want)
 
 
-def _no_pair(p: Path, topic: str, dec: Decoded, parents: I64, children: I64,
-             parent: str | None, child: str | None) -> str:
-    pairs = sorted({(dec.names[int(a)] if a >= 0 else "", dec.names[int(b)] if b >= 0 else "")
-                    for a, b in zip(parents, children, strict=True)})
+def _no_pair(
+    p: Path,
+    topic: str,
+    dec: Decoded,
+    parents: I64,
+    children: I64,
+    parent: str | None,
+    child: str | None,
+) -> str:
+    pairs = sorted(
+        {
+            (dec.names[int(a)] if a >= 0 else "", dec.names[int(b)] if b >= 0 else "")
+            for a, b in zip(parents, children, strict=True)
+        }
+    )
     listed = ", ".join(f"{a}->{b}" for a, b in pairs[:30])
-    return (f"{p}: topic {topic!r} has no transform {parent or '*'}->{child or '*'}; "
-            f"parent->child pairs present: {listed}")
+    return (
+        f"{p}: topic {topic!r} has no transform {parent or '*'}->{child or '*'}; "
+        f"parent->child pairs present: {listed}"
+    )
 
 
 # ---------------------------------------------------------------- tf
 def _edges(dec: Decoded) -> list[tuple[str, str]]:
-    return sorted({(dec.names[int(a)], dec.names[int(b)])
-                   for a, b in zip(dec.frame_code, dec.child_code, strict=True)})
+    return sorted(
+        {
+            (dec.names[int(a)], dec.names[int(b)])
+            for a, b in zip(dec.frame_code, dec.child_code, strict=True)
+        }
+    )
 
 
 def _compose(a_pose: F64, b_pose: F64) -> F64:
@@ -234,8 +293,9 @@ def _compose(a_pose: F64, b_pose: F64) -> F64:
     return np.concatenate([t, q], axis=1)
 
 
-def _tf_pose(p: Path, raw: RawTopic, log: RawLog, child: str | None, parent: str | None,
-             tf_static: bool) -> tuple[I64, F64, list[str]]:
+def _tf_pose(
+    p: Path, raw: RawTopic, log: RawLog, child: str | None, parent: str | None, tf_static: bool
+) -> tuple[I64, F64, list[str]]:
     """Pose of ``child`` in ``parent`` from a TFMessage topic (+ /tf_static when asked)."""
     dec = decode_tf(raw)
     if len(dec.stamp) == 0:
@@ -271,10 +331,14 @@ def _tf_pose(p: Path, raw: RawTopic, log: RawLog, child: str | None, parent: str
     if parent_n is not None and not tf_static:
         cands = [(a, b) for a, b in cands if a == parent_n]
     if not cands:
-        hint = "" if tf_static or parent_n is None else (
-            " (pass tf_static=True to chain static transforms from /tf_static)")
-        raise LogReadError(_no_pair(p, raw.name, dec, dec.frame_code, dec.child_code,
-                                    parent, child) + hint)
+        hint = (
+            ""
+            if tf_static or parent_n is None
+            else (" (pass tf_static=True to chain static transforms from /tf_static)")
+        )
+        raise LogReadError(
+            _no_pair(p, raw.name, dec, dec.frame_code, dec.child_code, parent, child) + hint
+        )
     dyn_parent, dyn_child = cands[0]
     codes_p = [i for i, n in enumerate(dec.names) if n == dyn_parent]
     codes_c = [i for i, n in enumerate(dec.names) if n == dyn_child]
@@ -292,8 +356,11 @@ def _tf_pose(p: Path, raw: RawTopic, log: RawLog, child: str | None, parent: str
             raise LogReadError(
                 f"{p}: no chain from {parent_n!r} to {child_n!r}: {raw.name} has "
                 f"{dyn_parent}->{dyn_child}"
-                + (f", static chain reaches {top!r}" if tf_static else
-                   "; pass tf_static=True to chain /tf_static transforms")
+                + (
+                    f", static chain reaches {top!r}"
+                    if tf_static
+                    else "; pass tf_static=True to chain /tf_static transforms"
+                )
             )
     if child_n != dyn_child or top != dyn_parent:
         pose = _compose(_compose(prefix, pose), suffix)

@@ -37,8 +37,13 @@ def split_ns(t_ns: int) -> tuple[int, int]:
     return sec, nsec
 
 
-def pose_stamped(t_ns: int, position: NDArray[np.float64], quat: NDArray[np.float64],
-                 frame_id: str, ros_version: int = 2) -> Any:
+def pose_stamped(
+    t_ns: int,
+    position: NDArray[np.float64],
+    quat: NDArray[np.float64],
+    frame_id: str,
+    ros_version: int = 2,
+) -> Any:
     """A rosbags PoseStamped message object."""
     ts = typestore(ros_version)
     Header = ts.types[HEADER if ros_version == 2 else "std_msgs/msg/Header"]

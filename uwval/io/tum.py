@@ -183,8 +183,8 @@ def _read_columns(path: Path, out: tuple[I64, F64] | None = None) -> tuple[I64, 
                         raise LogReadError(f"{path}: the file grew while being read")
                     t = np.concatenate([t[:rows], np.empty(rows + 2 * k, dtype=np.int64)])
                     pose = np.concatenate([pose[:rows], np.empty((rows + 2 * k, 7))])
-                t[rows:rows + k] = _stamps_ns(block[:, 0], path, rows)
-                pose[rows:rows + k] = block[:, 1:]
+                t[rows : rows + k] = _stamps_ns(block[:, 0], path, rows)
+                pose[rows : rows + k] = block[:, 1:]
                 rows += k
         except _WholeTextNeededError:
             fh.seek(0)
@@ -201,8 +201,9 @@ def _read_columns(path: Path, out: tuple[I64, F64] | None = None) -> tuple[I64, 
     return t[:rows], pose[:rows]
 
 
-def _fill_accelerated(fh: io.BufferedReader, carry: bytes, path: Path, t: I64, pose: F64,
-                      fixed: bool) -> tuple[I64, F64]:
+def _fill_accelerated(
+    fh: io.BufferedReader, carry: bytes, path: Path, t: I64, pose: F64, fixed: bool
+) -> tuple[I64, F64]:
     """The C parser's loop of :func:`_read_columns`: blocks of text straight into ``t``/``pose``.
 
     The text is read into one reused buffer (a new 256 KiB object per block would be fresh
@@ -214,7 +215,7 @@ def _fill_accelerated(fh: io.BufferedReader, carry: bytes, path: Path, t: I64, p
     """
     assert _tumparse is not None
     buf = bytearray(max(_CHUNK, 2 * len(carry)))
-    buf[:len(carry)] = carry
+    buf[: len(carry)] = carry
     rows, filled, eof, read = 0, len(carry), False, True
     while True:
         if read and not eof:
@@ -234,10 +235,10 @@ def _fill_accelerated(fh: io.BufferedReader, carry: bytes, path: Path, t: I64, p
                 raise
             raise _WholeTextNeededError from None
         if k:
-            t[rows:rows + k] = _stamps_ns(stamps[:k], path, rows)
+            t[rows : rows + k] = _stamps_ns(stamps[:k], path, rows)
             rows += k
         if used:  # keep the unparsed tail (part of a line) at the front
-            buf[:filled - used] = buf[used:filled]
+            buf[: filled - used] = buf[used:filled]
             filled -= used
         if rows == t.shape[0] and buf[:filled].strip():  # full, and there is more to parse
             if fixed:
@@ -262,8 +263,10 @@ def _stamps_ns(seconds: F64, path: Path, first_row: int) -> I64:
     ok = np.abs(seconds) < _MAX_STAMP_S  # False for NaN too
     if not bool(ok.all()):
         k = int(np.flatnonzero(~ok)[0])
-        raise LogReadError(f"{path}: pose line {first_row + k + 1}: timestamp {seconds[k]!r} "
-                           "is not a finite time in seconds (|t| < 9.2e9)")
+        raise LogReadError(
+            f"{path}: pose line {first_row + k + 1}: timestamp {seconds[k]!r} "
+            "is not a finite time in seconds (|t| < 9.2e9)"
+        )
     return ns_from_seconds(seconds)
 
 
@@ -294,8 +297,14 @@ def _parse_block(text: bytes) -> NDArray[np.float64] | None:
     whole-text path, which names the bad line.
     """
     try:
-        values = np.loadtxt(io.BytesIO(text), dtype=np.float64, comments=None, ndmin=2,
-                            encoding="latin-1", quotechar=None)
+        values = np.loadtxt(
+            io.BytesIO(text),
+            dtype=np.float64,
+            comments=None,
+            ndmin=2,
+            encoding="latin-1",
+            quotechar=None,
+        )
     except ValueError:
         return None
     if values.shape[1] != 8:
@@ -337,9 +346,16 @@ def read_tum(path: str | Path, *, frame: str = "enu", topic: str = "") -> PoseSt
 PARALLEL_MIN_BYTES = 4 << 20
 
 
-def read_tum_pair(path_a: str | Path, path_b: str | Path, *, frame_a: str = "enu",
-                  frame_b: str = "enu", topic_a: str = "", topic_b: str = "",
-                  parallel: bool | None = None) -> tuple[PoseStream, PoseStream]:
+def read_tum_pair(
+    path_a: str | Path,
+    path_b: str | Path,
+    *,
+    frame_a: str = "enu",
+    frame_b: str = "enu",
+    topic_a: str = "",
+    topic_b: str = "",
+    parallel: bool | None = None,
+) -> tuple[PoseStream, PoseStream]:
     """Read two TUM files, as ``(read_tum(path_a, ...), read_tum(path_b, ...))``.
 
     For large files (``parallel=None``: both >= :data:`PARALLEL_MIN_BYTES`) the second file
@@ -355,10 +371,13 @@ def read_tum_pair(path_a: str | Path, path_b: str | Path, *, frame_a: str = "enu
         # a logging handler) that the child would then wait for forever
         can_fork = hasattr(os, "fork") and threading.active_count() == 1
         parallel = (USE_ACCELERATOR or can_fork) and all(
-            p.is_file() and p.stat().st_size >= PARALLEL_MIN_BYTES for p in (pa, pb))
+            p.is_file() and p.stat().st_size >= PARALLEL_MIN_BYTES for p in (pa, pb)
+        )
     if not parallel:
-        return (read_tum(pa, frame=frame_a, topic=topic_a),
-                read_tum(pb, frame=frame_b, topic=topic_b))
+        return (
+            read_tum(pa, frame=frame_a, topic=topic_a),
+            read_tum(pb, frame=frame_b, topic=topic_b),
+        )
     second: tuple[I64, F64] | Exception
     if USE_ACCELERATOR:  # the C parser releases the GIL: a thread is enough
         first, second = _threaded_pair(pa, pb)
@@ -420,8 +439,9 @@ class _ForkedParse:
         cap = size // _MIN_LINE + 2
         self.shared = mmap.mmap(-1, cap * 8 * 8)
         self.t = np.frombuffer(self.shared, dtype=np.int64, count=cap)
-        self.pose = np.frombuffer(self.shared, dtype=np.float64, count=cap * 7,
-                                  offset=cap * 8).reshape(cap, 7)
+        self.pose = np.frombuffer(
+            self.shared, dtype=np.float64, count=cap * 7, offset=cap * 8
+        ).reshape(cap, 7)
 
     def __enter__(self) -> _ForkedParse:
         read_fd, write_fd = os.pipe()
@@ -482,8 +502,9 @@ def _stream(p: Path, t: I64, pose: F64, frame: str, topic: str) -> PoseStream:
     pos, quat = pose[:, 0:3], pose[:, 3:7]
     name = topic or "tum"
     if _clean(t, pose, quat):
-        return PoseStream(t=t, position=pos, orientation=quat, frame=frame, topic=name,
-                          source=str(p))
+        return PoseStream(
+            t=t, position=pos, orientation=quat, frame=frame, topic=name, source=str(p)
+        )
     # something needs repair: first make sure it is not a misparse (a line of 7 numbers next
     # to one of 9 keeps the token count a multiple of 8 but scrambles columns)
     bad = _first_bad_line(p.read_bytes(), strict=True)

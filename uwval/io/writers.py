@@ -32,14 +32,23 @@ class PoseLogWriter(Protocol):
 
     encoding: str
 
-    def write_pose(self, topic: str, t_ns: int, position: F64, quat: F64, frame_id: str,
-                   log_time: int | None = None) -> None: ...
+    def write_pose(
+        self,
+        topic: str,
+        t_ns: int,
+        position: F64,
+        quat: F64,
+        frame_id: str,
+        log_time: int | None = None,
+    ) -> None: ...
 
-    def write_header(self, topic: str, stamp_ns: int, log_time: int,
-                     frame_id: str = "") -> None: ...
+    def write_header(
+        self, topic: str, stamp_ns: int, log_time: int, frame_id: str = ""
+    ) -> None: ...
 
-    def write_raw(self, topic: str, msgtype: str, data: bytes, log_time: int,
-                  publish_time: int | None = None) -> None: ...
+    def write_raw(
+        self, topic: str, msgtype: str, data: bytes, log_time: int, publish_time: int | None = None
+    ) -> None: ...
 
     def flush(self) -> None: ...
 
@@ -47,8 +56,12 @@ class PoseLogWriter(Protocol):
 
     def __enter__(self) -> Any: ...
 
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None: ...
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None: ...
 
 
 class _RosbagsWriter:
@@ -65,8 +78,9 @@ class _RosbagsWriter:
     def _add_connection(self, topic: str, msgtype: str) -> Any:
         raise NotImplementedError
 
-    def write_raw(self, topic: str, msgtype: str, data: bytes, log_time: int,
-                  publish_time: int | None = None) -> None:
+    def write_raw(
+        self, topic: str, msgtype: str, data: bytes, log_time: int, publish_time: int | None = None
+    ) -> None:
         """Write one message already serialized in this writer's ``encoding``."""
         conn = self._conns.get(topic)
         if conn is None:
@@ -79,14 +93,24 @@ class _RosbagsWriter:
     def _ros(self) -> int:
         return 1 if self.encoding == "ros1" else 2
 
-    def write_pose(self, topic: str, t_ns: int, position: F64, quat: F64, frame_id: str,
-                   log_time: int | None = None) -> None:
+    def write_pose(
+        self,
+        topic: str,
+        t_ns: int,
+        position: F64,
+        quat: F64,
+        frame_id: str,
+        log_time: int | None = None,
+    ) -> None:
         """Write one PoseStamped stamped ``t_ns`` (header) and logged at ``log_time``."""
         ros = self._ros()
         msg = pose_stamped(t_ns, position, quat, frame_id, ros_version=ros)
         ts = typestore(ros)
-        data = ts.serialize_ros1(msg, POSE_STAMPED) if ros == 1 else ts.serialize_cdr(
-            msg, POSE_STAMPED)
+        data = (
+            ts.serialize_ros1(msg, POSE_STAMPED)
+            if ros == 1
+            else ts.serialize_cdr(msg, POSE_STAMPED)
+        )
         self.write_raw(topic, POSE_STAMPED, bytes(data), t_ns if log_time is None else log_time)
 
     def write_header(self, topic: str, stamp_ns: int, log_time: int, frame_id: str = "") -> None:
@@ -112,16 +136,21 @@ class _RosbagsWriter:
     def __enter__(self) -> Any:
         return self
 
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
         self.close()
 
 
 class Rosbag2PoseWriter(_RosbagsWriter):
     """A rosbag2 directory (metadata.yaml + one storage file), sqlite3 or MCAP storage."""
 
-    def __init__(self, path: str | Path, *, storage: str = "sqlite3",
-                 metadata: dict[str, str] | None = None) -> None:
+    def __init__(
+        self, path: str | Path, *, storage: str = "sqlite3", metadata: dict[str, str] | None = None
+    ) -> None:
         from rosbags.rosbag2 import Writer
         from rosbags.rosbag2.enums import StoragePlugin
 
@@ -173,15 +202,20 @@ class Rosbag1PoseWriter(_RosbagsWriter):
         if metadata:
             ts = typestore(1)
             msg = ts.types["std_msgs/msg/String"](data=json.dumps(metadata))
-            self.write_raw("/uwval/metadata", "std_msgs/msg/String",
-                           bytes(ts.serialize_ros1(msg, "std_msgs/msg/String")), 0)
+            self.write_raw(
+                "/uwval/metadata",
+                "std_msgs/msg/String",
+                bytes(ts.serialize_ros1(msg, "std_msgs/msg/String")),
+                0,
+            )
 
     def _add_connection(self, topic: str, msgtype: str) -> Any:
         return self._writer.add_connection(topic, msgtype, typestore=typestore(1))
 
 
-def open_writer(path: str | Path, format: str = "mcap",
-                metadata: dict[str, str] | None = None) -> PoseLogWriter:
+def open_writer(
+    path: str | Path, format: str = "mcap", metadata: dict[str, str] | None = None
+) -> PoseLogWriter:
     """A pose log writer for ``format``: ``mcap`` (default), ``rosbag2`` / ``rosbag2-sqlite3``
     (directory, sqlite3 storage), ``rosbag2-mcap`` (directory, MCAP storage) or ``rosbag1``.
 
@@ -201,8 +235,14 @@ def open_writer(path: str | Path, format: str = "mcap",
     raise LogWriteError(f"{p}: unknown log format {format!r}; choose one of {', '.join(FORMATS)}")
 
 
-def write_stream(writer: PoseLogWriter, topic: str, stream: PoseStream, frame_id: str, *,
-                 log_time: NDArray[np.int64] | None = None) -> int:
+def write_stream(
+    writer: PoseLogWriter,
+    topic: str,
+    stream: PoseStream,
+    frame_id: str,
+    *,
+    log_time: NDArray[np.int64] | None = None,
+) -> int:
     """Write a whole PoseStream as PoseStamped on ``topic`` (vectorised encode).
 
     Positions and orientations are written as stored (in ``stream.frame``'s axes); the
@@ -234,8 +274,9 @@ def _clear_old_log(p: Path) -> None:
         p.unlink()
     elif p.is_dir():
         names = [c.name for c in p.iterdir()]
-        own = all(n == "metadata.yaml" or n.endswith((".db3", ".mcap", ".db3-wal",
-                                                         ".db3-shm", ".zstd")) for n in names)
+        own = all(
+            n == "metadata.yaml" or n.endswith((".db3", ".mcap", ".db3-wal", ".db3-shm", ".zstd"))
+            for n in names
+        )
         if names and own and "metadata.yaml" in names:
             shutil.rmtree(p)
-
