@@ -37,6 +37,11 @@ class PoseStream:
             showed, when the Unity side logged them; otherwise ``None``.
         repairs: counts of repairs made while validating (``sorted``, ``duplicates_dropped``,
             ``renormalized``), so that no repair is silent.
+        dropped: counts, by cause (e.g. ``decode_error``, ``truncated``), of messages on the
+            topic that the reader found but could not turn into samples; filled by the log
+            readers, so that no lost message is silent.
+        warnings: what the reader wants the user to know about the source (e.g. a log that was
+            not closed cleanly, bytes that could not be recovered); travels into results.
     """
 
     t: I64
@@ -47,6 +52,8 @@ class PoseStream:
     source: str = ""
     applied_stamp: I64 | None = None
     repairs: dict[str, int] = field(default_factory=dict)
+    dropped: dict[str, int] = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         n = self.t.shape[0] if self.t.ndim == 1 else -1

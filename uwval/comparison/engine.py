@@ -129,6 +129,8 @@ def _stream_info(s: PoseStream) -> dict[str, Any]:
         "start_s": float(s.t[0]) * 1e-9 if len(s) else None,
         "duration_s": s.duration,
         "repairs": dict(s.repairs),
+        "dropped": dict(s.dropped),
+        "warnings": list(s.warnings),
     }
 
 
@@ -183,7 +185,14 @@ def compare(
         raise AlignmentError(f"max_diff must be a non-negative number of seconds, got {max_diff}")
     if isinstance(offset, int | float) and not math.isfinite(offset):
         raise AlignmentError(f"offset must be a finite number of seconds, got {offset}")
-    warnings: list[str] = []
+    # What the readers found wrong with either source travels with the result (never silent).
+    warnings: list[str] = [w for s in (reference, other) for w in s.warnings]
+    for s in (reference, other):
+        if s.dropped:
+            causes = ", ".join(f"{n} {cause}" for cause, n in sorted(s.dropped.items()))
+            warnings.append(
+                f"{s.describe()}: {sum(s.dropped.values())} message(s) not used ({causes})"
+            )
     frame_source = "argument" if frame not in (None, "auto") else ("auto" if frame else "stream")
     configured = other.frame if frame in (None, "auto") else get_convention(frame).name
     ref_c = _to_canonical(reference)
