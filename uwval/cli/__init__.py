@@ -50,8 +50,28 @@ COMMAND_HOME = {
 _app: typer.Typer | None = None
 
 
-def _root() -> None:
-    """uwval: simulate, bridge, record, compare, report and gate Gazebo/Unity pose logs."""
+def _root_callback(typer: Any) -> Any:
+    """The app's root callback, with ``--version`` (built here: typer is imported lazily)."""
+
+    def show_version(value: bool) -> None:
+        if value:
+            from uwval import __version__
+
+            print(f"uwval {__version__}")
+            raise typer.Exit()
+
+    def root(
+        version: bool = typer.Option(
+            False,
+            "--version",
+            help="Print uwval's version and exit.",
+            callback=show_version,
+            is_eager=True,
+        ),
+    ) -> None:
+        """uwval: simulate, bridge, record, compare, report and gate Gazebo/Unity pose logs."""
+
+    return root
 
 
 def get_app() -> typer.Typer:
@@ -66,8 +86,9 @@ def get_app() -> typer.Typer:
             no_args_is_help=True,
             add_completion=False,
             pretty_exceptions_enable=False,
+            context_settings={"help_option_names": ["-h", "--help"]},
         )
-        _app.callback()(_root)
+        _app.callback()(_root_callback(typer))
     return _app
 
 

@@ -15,7 +15,13 @@ from typing import Any
 from uwval.errors import ConfigError
 
 #: Log file suffix for each --format.
-FORMAT_SUFFIX = {"mcap": ".mcap", "rosbag2": "", "rosbag2-sqlite3": "", "rosbag1": ".bag"}
+FORMAT_SUFFIX = {
+    "mcap": ".mcap",
+    "rosbag2": "",
+    "rosbag2-sqlite3": "",
+    "rosbag2-mcap": "",
+    "rosbag1": ".bag",
+}
 
 
 @dataclass(frozen=True)

@@ -155,7 +155,7 @@ def simulate(
         str, typer.Option(help="Preset name, MODEL.sdf or VEHICLE.toml.")
     ] = "tethys",
     log_format: Annotated[
-        str, typer.Option("--format", help="mcap, rosbag2, rosbag2-sqlite3 or rosbag1.")
+        str, typer.Option("--format", help="mcap, rosbag2 (sqlite3), rosbag2-mcap or rosbag1.")
     ] = "mcap",
     publish_rate: Annotated[float, typer.Option(help="Gazebo pose publish rate, Hz.")] = 50.0,
     frame_rate: Annotated[float, typer.Option(help="Unity render loop rate, Hz.")] = 60.0,
