@@ -5,7 +5,7 @@ from __future__ import annotations
 import typer.main
 
 from uwval.cli import app
-from uwval.cli.compare_run import _FAST_OPTIONS, fast_compare
+from uwval.cli.compare_run import _FAST_OPTIONS, COMPARE_OPTIONS, fast_compare
 
 
 def _compare_params() -> dict[str, str]:
@@ -27,9 +27,27 @@ def test_every_fast_option_is_a_typer_option_with_the_same_destination() -> None
         assert params.get(opt) == dest, opt
 
 
+def test_the_typer_command_and_the_fast_parser_come_from_one_option_table() -> None:
+    # one source of truth: every flag typer knows (but --help) is a row of COMPARE_OPTIONS,
+    # with its destination and default, and the fast parser knows exactly the fast rows
+    import inspect
+
+    from uwval.cli.compare_cmd import compare_command
+
+    params = _compare_params()
+    table = {f: o for o in COMPARE_OPTIONS for f in o.flags}
+    assert set(params) - {"--help"} == set(table)
+    for flag, o in table.items():
+        assert params[flag] == o.dest
+    sig = inspect.signature(compare_command).parameters
+    assert all(sig[o.dest].default == o.default for o in COMPARE_OPTIONS)
+    assert set(_FAST_OPTIONS) == {f for o in COMPARE_OPTIONS if o.fast for f in o.flags}
+
+
 def test_every_value_option_of_compare_is_known_to_the_fast_path_or_declined() -> None:
     params = _compare_params()
-    declined = {"--batch", "--help", "--executor", "--workers", "--scheduler"}
+    declined = {"--help"} | {f for o in COMPARE_OPTIONS if not o.fast for f in o.flags}
+    assert declined >= {"--batch", "--executor", "--workers", "--scheduler"}
     for opt in params:
         if opt == "--json":
             continue
