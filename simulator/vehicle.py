@@ -20,15 +20,20 @@ from __future__ import annotations
 
 import math
 import re
+import sys
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import tomllib
 from numpy.typing import NDArray
 
 from uwval.errors import ConfigError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
 
 F64 = NDArray[np.float64]
 
@@ -386,39 +391,3 @@ def _parse_inertia(val: Any, where: str) -> F64:
             m[i, j] = m[j, i] = _number(val.get(k, 0.0), f"inertia.{k}", where)
         return m
     raise ConfigError(f"{where}: inertia must be a list or a table, got {val!r}")
-
-
-# ---------------------------------------------------------------------- presets / dispatch
-def vehicles_dir() -> Path:
-    """The folder of vehicle presets (``data/vehicles``, package data ``uwval.data``)."""
-    from uwval.resources import data_path
-
-    return data_path("vehicles")
-
-
-def preset_names() -> list[str]:
-    """Names of the vehicle presets shipped in ``data/vehicles``."""
-    return sorted(p.stem for p in vehicles_dir().glob("*.toml"))
-
-
-def load_vehicle(name_or_path: str | Path = "tethys") -> Vehicle:
-    """A vehicle from a preset name (``tethys``, ``bluerov2_heavy``, ``bluerov2_heavy_stable``),
-    a Gazebo model SDF (``model.sdf`` / ``*.sdf`` or a model folder holding ``model.sdf``),
-    or a vehicle TOML file."""
-    s = str(name_or_path)
-    p = Path(s)
-    if p.is_dir() and (p / "model.sdf").exists():
-        p = p / "model.sdf"
-    if p.suffix.lower() in (".sdf", ".world", ".xml"):
-        from uwval.simulator.sdf import load_vehicle_sdf
-
-        return load_vehicle_sdf(p)
-    if p.suffix.lower() == ".toml":
-        return load_vehicle_toml(p)
-    preset = vehicles_dir() / f"{s}.toml"
-    if preset.exists():
-        return load_vehicle_toml(preset)
-    raise ConfigError(
-        f"unknown vehicle {s!r}: not a preset ({', '.join(preset_names())}), "
-        "nor an existing .sdf or .toml file"
-    )
