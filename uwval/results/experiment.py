@@ -11,7 +11,7 @@ from typing import Any
 import pandas as pd
 
 from uwval.errors import ConfigError
-from uwval.results.schema import as_json_obj
+from uwval.results.schema import SOURCES, as_json_obj, comparison_warnings
 from uwval.results.table import ResultsTable, read_json
 
 
@@ -85,6 +85,29 @@ class ExperimentResults:
     manifest: dict[str, Any] | None = None
     sources: list[Path] = field(default_factory=list)
     failed: list[dict[str, Any]] = field(default_factory=list)
+
+    def run_warnings(self) -> dict[str, list[str]]:
+        """Per run, the warnings of its comparison (all of them when the compare JSON is at
+        hand; otherwise the log readers' warnings kept in the table). Runs without: absent."""
+        out: dict[str, list[str]] = {}
+        with_json = set()
+        for run in self.runs:
+            if run.comparison is not None:
+                with_json.add(run.name)
+                ws = comparison_warnings(run.comparison)
+                if ws:
+                    out[run.name] = ws
+        df = self.table.df
+        rows = df[
+            df["axis"].isin(SOURCES)
+            & (df["metric"] == "n_warnings")
+            & (df["value"] > 0)
+            & ~df["run"].isin(with_json)
+        ]
+        for run, note in zip(rows["run"], rows["note"], strict=True):
+            texts = [t for t in str(note).split(" | ") if t]
+            out[str(run)] = list(dict.fromkeys([*out.get(str(run), []), *texts]))
+        return out
 
 
 def compare_pending(

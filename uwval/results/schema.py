@@ -270,3 +270,18 @@ def _flatten_section(axis: str, sect: Mapping[str, Any], prefix: str = "") -> li
             rows.append(Row(axis, f"{name}_low", float(v[0])))
             rows.append(Row(axis, f"{name}_high", float(v[1])))
     return rows
+
+
+def comparison_warnings(obj: Mapping[str, Any]) -> list[str]:
+    """Every warning of one compare JSON (its top level and each topic's), each once, in order.
+
+    These include what the log readers reported (a log not closed cleanly, messages not used),
+    which the engine copies into each result's ``warnings``.
+    """
+    found: list[str] = []
+    sections = [obj, *(v for v in (obj.get("topics") or {}).values() if isinstance(v, Mapping))]
+    for sect in sections:
+        ws = sect.get("warnings")
+        if isinstance(ws, list):
+            found += [str(w) for w in ws]
+    return list(dict.fromkeys(found))
