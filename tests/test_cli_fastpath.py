@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
+import pytest
 import typer.main
 
 from uwval.cli import app
@@ -171,3 +174,68 @@ def test_compare_with_stdout_closed_writes_its_file_and_exits_0(tmp_path: object
     )
     assert res.returncode == 0, res.stderr
     assert '"n_samples": 200' in (d / "out.json").read_text()
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full")
+@pytest.mark.parametrize(
+    "extra",
+    [
+        [],  # the fast path, table output (rich)
+        ["--json"],  # the fast path, buffered JSON: fails only at the final flush
+        ["--sync", "nearest", "--align", "se3", "--json"],
+        ["--sync=nearest", "--batch"],  # declined by the fast path: typer's usage error
+    ],
+)
+def test_output_to_a_full_device_is_a_one_line_error(tmp_path: Path, extra: list[str]) -> None:
+    import subprocess
+    import sys
+
+    a, b = _tum_pair(tmp_path)
+    with open("/dev/full", "w") as full:
+        res = subprocess.run(
+            [sys.executable, "-m", "uwval", "compare", str(a), str(b), *extra],
+            stdout=full,
+            stderr=subprocess.PIPE,
+            text=True,
+            timeout=120,
+            stdin=subprocess.DEVNULL,
+        )
+    assert "Traceback" not in res.stderr
+    assert "Exception ignored" not in res.stderr
+    if "--batch" in extra:  # a usage error goes to stderr: exit 2 from typer, one message
+        assert res.returncode == 2
+        return
+    assert res.returncode == 2, res.stderr
+    assert res.stderr.strip().splitlines() == [
+        "error: cannot write the output: No space left on device"
+    ]
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full")
+@pytest.mark.parametrize("args", [["--help"], ["inspect", "A"], ["compare", "--help"]])
+def test_typer_commands_on_a_full_device_give_one_line(tmp_path: Path, args: list[str]) -> None:
+    import subprocess
+    import sys
+
+    a, _ = _tum_pair(tmp_path)
+    with open("/dev/full", "w") as full:
+        res = subprocess.run(
+            [sys.executable, "-m", "uwval", *[str(a) if x == "A" else x for x in args]],
+            stdout=full,
+            stderr=subprocess.PIPE,
+            text=True,
+            timeout=120,
+            stdin=subprocess.DEVNULL,
+        )
+    assert res.returncode == 2, res.stderr
+    assert res.stderr.strip().splitlines() == [
+        "error: cannot write the output: No space left on device"
+    ]
+
+
+def _tum_pair(d: Path) -> tuple[Path, Path]:
+    lines = [f"{i * 0.02:.6f} {i * 0.01} {0.1 * (i % 7)} 0 0 0 0 1" for i in range(100)]
+    a, b = d / "a.tum", d / "b.tum"
+    a.write_text("\n".join(lines) + "\n")
+    b.write_text("\n".join(lines) + "\n")
+    return a, b
