@@ -22,6 +22,7 @@ import math
 import re
 import sys
 from dataclasses import dataclass, field, replace
+from enum import Enum
 from pathlib import Path
 from typing import Any
 
@@ -53,14 +54,26 @@ DEFAULT_WATER_DENSITY = 1000.0  # kg/m^3, as DESIGN.md section 5 (gz Buoyancy's 
 DEFAULT_GRAVITY = 9.8  # m/s^2, gz-sim's default world gravity magnitude
 
 
-def classify_hydro_name(name: str) -> tuple[str, tuple[int, ...]]:
+class HydroKind(str, Enum):
+    """The kinds of gz-sim Hydrodynamics parameters (by the shape of their names)."""
+
+    ADDED_MASS = "added_mass"  # xDotU: added mass
+    LINEAR = "linear"  # xU: linear damping
+    QUADRATIC_ABS = "quadratic_abs"  # xUabsU: quadratic damping with |.|
+    QUADRATIC = "quadratic"  # xUU: quadratic damping
+
+    def __str__(self) -> str:
+        return self.value
+
+
+def classify_hydro_name(name: str) -> tuple[HydroKind, tuple[int, ...]]:
     """Kind (``added_mass``, ``linear``, ``quadratic_abs``, ``quadratic``) and indices of a
     gz-sim Hydrodynamics parameter name; raises :class:`ConfigError` for an unknown name."""
     for kind, rx in (
-        ("added_mass", _ADDED_MASS_RE),
-        ("quadratic_abs", _QUAD_ABS_RE),
-        ("linear", _LINEAR_RE),
-        ("quadratic", _QUAD_RE),
+        (HydroKind.ADDED_MASS, _ADDED_MASS_RE),
+        (HydroKind.QUADRATIC_ABS, _QUAD_ABS_RE),
+        (HydroKind.LINEAR, _LINEAR_RE),
+        (HydroKind.QUADRATIC, _QUAD_RE),
     ):
         mt = rx.match(name)
         if mt:
@@ -169,7 +182,7 @@ class Vehicle:
         ma = np.zeros((6, 6))
         for k, val in self.hydro.items():
             kind, idx = classify_hydro_name(k)
-            if kind == "added_mass":
+            if kind is HydroKind.ADDED_MASS:
                 ma[idx] = val
         return ma
 
@@ -180,11 +193,11 @@ class Vehicle:
         quad = np.zeros((6, 6, 6))
         for k, val in self.hydro.items():
             kind, idx = classify_hydro_name(k)
-            if kind == "linear":
+            if kind is HydroKind.LINEAR:
                 lin[idx] = val
-            elif kind == "quadratic_abs":
+            elif kind is HydroKind.QUADRATIC_ABS:
                 qabs[idx] = val
-            elif kind == "quadratic":
+            elif kind is HydroKind.QUADRATIC:
                 quad[idx] = val
         return lin, qabs, quad
 
