@@ -646,3 +646,26 @@ def test_a_log_warning_reaches_the_command_line_gate_and_the_report(
     out = build_report(tmp_path / "comparisons.json", tmp_path / "r.html", thresholds=th)
     assert not out.gate.passed  # type: ignore[union-attr]
     assert text in (tmp_path / "r.html").read_text()
+
+
+def test_check_on_a_manifest_with_one_bad_log_checks_the_rest(tmp_path: Path) -> None:
+    from uwval.cli.pipeline import SessionOptions
+    from uwval.cli.simulate_cmd import run_experiment
+    from uwval.resources import data_path
+
+    m = run_experiment(
+        data_path("experiments", "default.toml"),
+        tmp_path / "exp",
+        SessionOptions(),
+        executor="inline",
+        progress=False,
+    )
+    bad = m["runs"][2]
+    (tmp_path / "exp" / bad["log"]).write_bytes(b"garbage")
+    res = _uwval(
+        "check", str(tmp_path / "exp"), "--thresholds", str(data_path("thresholds", "default.toml"))
+    )
+    assert res.returncode == 1, res.stdout + res.stderr
+    assert "1 run(s) failed" in res.stderr
+    assert bad["name"] in res.stderr
+    assert "values checked" in res.stdout + res.stderr  # the other runs were gated
