@@ -113,3 +113,23 @@ def test_the_error_classes_live_with_their_parts() -> None:
     assert issubclass(BridgeError, uwval.errors.UwvalError)
     assert not hasattr(uwval.errors, "SimulationError")
     assert not hasattr(uwval.errors, "BridgeError")
+
+
+def test_mypy_checks_every_part_under_its_installed_name() -> None:
+    # pyproject's [tool.mypy] files reach simulator/, bridge/, reports/ through .mypy-layout
+    import sys
+
+    if sys.version_info >= (3, 11):
+        import tomllib
+    else:  # pragma: no cover - Python 3.10
+        import tomli as tomllib
+
+    cfg = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["mypy"]
+    assert cfg["mypy_path"] == ".mypy-layout"
+    for pkg, folder in PARTS.items():
+        if pkg == "uwval":
+            assert "uwval" in cfg["files"]
+            continue
+        link = ROOT / ".mypy-layout" / Path(*pkg.split("."))
+        assert link.resolve() == folder.resolve(), pkg
+        assert str(link.relative_to(ROOT)) in cfg["files"], pkg
