@@ -239,3 +239,31 @@ def _tum_pair(d: Path) -> tuple[Path, Path]:
     a.write_text("\n".join(lines) + "\n")
     b.write_text("\n".join(lines) + "\n")
     return a, b
+
+
+def test_the_fast_exit_still_runs_the_atexit_handlers(tmp_path: Path) -> None:
+    # the fast path ends with os._exit (no teardown); what registered for the exit (coverage
+    # saving its data, a user's hook) must still run, without special cases
+    import subprocess
+    import sys
+
+    a, b = _tum_pair(tmp_path)
+    mark = tmp_path / "ran"
+    probe = (
+        "import atexit, sys\n"
+        f"atexit.register(lambda: open({str(mark)!r}, 'w').write('x'))\n"
+        f"sys.argv = ['uwval', 'compare', {str(a)!r}, {str(b)!r}, '--json']\n"
+        "from uwval.cli import main\n"
+        "main()\n"
+        "raise SystemExit(7)  # not reached: main ends the process\n"
+    )
+    res = subprocess.run(
+        [sys.executable, "-c", probe],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        stdin=subprocess.DEVNULL,
+    )
+    assert res.returncode == 0, res.stderr
+    assert '"n_samples": 100' in res.stdout
+    assert mark.read_text() == "x"
