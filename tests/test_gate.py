@@ -13,6 +13,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 from cli_runner import run_uwval as _uwval
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from uwval.errors import ConfigError
 from uwval.gate import (
@@ -669,3 +671,79 @@ def test_check_on_a_manifest_with_one_bad_log_checks_the_rest(tmp_path: Path) ->
     assert "1 run(s) failed" in res.stderr
     assert bad["name"] in res.stderr
     assert "values checked" in res.stdout + res.stderr  # the other runs were gated
+
+
+# ------------------------------------------------ looking for the next ones: a gate fuzzer
+_AXES = ("x", "y", "z", "roll", "pitch", "yaw")
+_FUZZ_KINDS = ("nan", "missing", "negative", "drop_run", "warning", "r_out", "inf")
+_FUZZ_RULES = {
+    "threshold": [
+        {"metric": "mae", "max": 1e3},
+        {"metric": "max", "max": 1e3},
+        {"metric": "pearson_r", "axes": ["x"], "min": -1.0},
+    ]
+}
+
+
+def _damage(table: ResultsTable, kind: str, pick: int) -> ResultsTable:
+    """``table`` with one damage of ``kind`` at a place chosen by ``pick``."""
+    df = table.df.copy()
+    gated = df.index[df["metric"].isin(["mae", "max"]) & df["axis"].isin(list(_AXES))]
+    row = gated[pick % len(gated)]
+    run = table.runs[pick % len(table.runs)]
+    if kind == "nan":
+        df.loc[row, ["value", "note"]] = [math.nan, ""]
+    elif kind == "inf":
+        df.loc[row, "value"] = math.inf
+    elif kind == "missing":
+        df = df.drop(index=row)
+    elif kind == "negative":
+        df.loc[row, "value"] = -abs(float(df.loc[row, "value"])) - 1e-12
+    elif kind == "drop_run":
+        df = df[df["run"] != run]
+    elif kind == "warning":
+        sel = (df["run"] == run) & (df["axis"] == "other") & (df["metric"] == "n_warnings")
+        assert sel.any()
+        df.loc[sel, ["value", "note"]] = [1.0, "log not closed cleanly"]
+    elif kind == "r_out":
+        rs = df.index[(df["metric"] == "pearson_r") & df["value"].notna()]
+        df.loc[rs[pick % len(rs)], "value"] = 1.0 + 1e-9
+    return ResultsTable.from_dataframe(df, table.factors)
+
+
+def _gate_never_passes_damage(table: ResultsTable, kind: str, pick: int) -> None:
+    th = parse_thresholds(_FUZZ_RULES)
+    damaged = _damage(table, kind, pick)
+    verdict = check(damaged, th, expected_runs=table.runs)
+    assert not verdict.passed, (kind, pick, verdict.format())
+    # against the intact table as the baseline, too (only thresholds-free: the baseline gate)
+    if kind != "warning":  # a warning is gated by the thresholds' allow_log_warnings
+        against = check(damaged, baseline=table, expected_runs=table.runs)
+        assert not against.passed, (kind, pick, against.format())
+
+
+@pytest.fixture(scope="module")
+def small(table: ResultsTable) -> ResultsTable:
+    """Three runs of the experiment (both topics): enough places to damage, quick to gate."""
+    return ResultsTable.from_dataframe(
+        table.df[table.df["run"].isin(table.runs[:3])], table.factors
+    )
+
+
+def test_the_intact_table_passes_the_fuzz_rules(small: ResultsTable) -> None:
+    assert check(small, parse_thresholds(_FUZZ_RULES), expected_runs=small.runs).passed
+    assert check(small, baseline=small, expected_runs=small.runs).passed
+
+
+@settings(max_examples=25, deadline=None)
+@given(kind=st.sampled_from(_FUZZ_KINDS), pick=st.integers(0, 10**6))
+def test_no_single_damage_passes_the_gate(small: ResultsTable, kind: str, pick: int) -> None:
+    _gate_never_passes_damage(small, kind, pick)
+
+
+@pytest.mark.slow
+@settings(max_examples=1500, deadline=None)
+@given(kind=st.sampled_from(_FUZZ_KINDS), pick=st.integers(0, 10**6))
+def test_no_single_damage_passes_the_gate_long(small: ResultsTable, kind: str, pick: int) -> None:
+    """The long mode of the test above (pytest -m slow): 1,500 damaged tables."""
+    _gate_never_passes_damage(small, kind, pick)

@@ -475,16 +475,18 @@ def check_thresholds(table: ResultsTable, thresholds: Thresholds) -> GateResult:
                 )
             )
             continue
-        # a run the rule covers must not escape it: each of its axes needs a row
-        for run in dict.fromkeys(df.loc[in_scope, "run"]):
-            have = set(rows.loc[rows["run"] == run, "axis"])
-            lacking = [a for a in rule.axes if a not in have]
+        # a run the rule covers must not escape it: each of its topics (that the rule's
+        # patterns name) needs a row for each of the rule's axes
+        scope = df.loc[in_scope & df["topic"].isin(want_topics), ["run", "topic"]]
+        have = set(zip(rows["run"], rows["topic"], rows["axis"], strict=True))
+        for run, topic in dict.fromkeys(zip(scope["run"], scope["topic"], strict=True)):
+            lacking = [a for a in rule.axes if (run, topic, a) not in have]
             if lacking:
                 result.violations.append(
                     Violation(
                         ViolationKind.NO_MATCH,
                         rule.metric,
-                        ",".join(rule.topics),
+                        str(topic),
                         ",".join(lacking),
                         str(run),
                         {},
@@ -492,7 +494,8 @@ def check_thresholds(table: ResultsTable, thresholds: Thresholds) -> GateResult:
                         math.nan,
                         "",
                         rule=rule.label(),
-                        note=f"run {run} has no {rule.metric} for axis {', '.join(lacking)}",
+                        note=f"run {run} has no {rule.metric} for {topic} "
+                        f"axis {', '.join(lacking)}",
                     )
                 )
         for _, row in rows.iterrows():
