@@ -1,8 +1,9 @@
 """The ``uwval`` command line: a thin typer layer over functions that return result objects.
 
 Each area registers its commands from its own module (``compare_cmd``, ``io_cmd``, ...), so
-the areas do not edit one file. ``main`` turns every :class:`UwvalError` into a one-line
-message and exit code 2 (no traceback reaches the user).
+the areas do not edit one file. ``main`` turns every :class:`UwvalError`, and output that
+cannot be written (stdout on a full device), into a one-line message and exit code 2 (no
+traceback reaches the user).
 
 typer and rich are imported on first use (``uwval.cli.app`` is created lazily): a plain
 ``uwval compare`` takes the fast path of :mod:`uwval.cli.compare_run` without them, since
