@@ -15,8 +15,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from uwval.bridge import protocol as wire
+from uwval.bridge.errors import BridgeError
 from uwval.bridge.server import BridgeServer
-from uwval.errors import BridgeError
 from uwval.frames import convert_arrays, get_convention
 from uwval.posestream import PoseStream
 

@@ -24,7 +24,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from uwval.errors import BridgeError
+from uwval.bridge.errors import BridgeError
 
 F64 = NDArray[np.float64]
 Protocol = Literal["ROS1", "ROS2"]

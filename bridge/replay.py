@@ -14,9 +14,9 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from uwval.bridge.errors import BridgeError
 from uwval.bridge.gazebo import GazeboPublisher, Tick, ticks_from_streams
 from uwval.bridge.server import BridgeServer
-from uwval.errors import BridgeError
 from uwval.io import read_stream
 
 DEFAULT_REPLAY_TOPICS = ("/gazebo/model_rov_pose", "/gazebo/gui_camera_pose")

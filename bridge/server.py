@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from uwval.bridge import protocol as wire
-from uwval.errors import BridgeError
+from uwval.bridge.errors import BridgeError
 
 log = logging.getLogger("uwval.bridge.server")
 

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from uwval.bridge import protocol as wire
+from uwval.bridge.errors import BridgeError
 from uwval.bridge.gazebo import DEFAULT_TOPICS, GazeboPublisher, Tick, ticks_from_streams
 from uwval.bridge.recorder import BridgeRecorder, PoseWriter
 from uwval.bridge.server import BridgeServer
@@ -34,7 +35,6 @@ from uwval.bridge.unity_client import (
     UnityConnection,
     decode_pose_frame,
 )
-from uwval.errors import BridgeError
 
 __all__ = ["SessionStats", "run_session", "ticks_from_streams"]
 

@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from uwval.bridge import protocol as wire
-from uwval.errors import BridgeError
+from uwval.bridge.errors import BridgeError
 from uwval.frames import convert_arrays, get_convention
 
 F64 = NDArray[np.float64]

@@ -151,7 +151,7 @@ def build_report(
     th = _resolve_thresholds(thresholds)
     gate: GateResult | None = None
     if th is not None or baseline is not None:
-        gate = check(table, th, baseline)
+        gate = check(table, th, baseline, expected_runs=[r.name for r in exp.runs])
     report = _compose(
         exp,
         details,
@@ -293,7 +293,7 @@ def _verdict_section(
                 unit = f" {v.unit}" if v.unit else ""
                 t.rows.append(
                     [
-                        v.kind,
+                        v.kind.value,
                         v.metric,
                         v.run,
                         v.topic,
@@ -301,7 +301,7 @@ def _verdict_section(
                         levels,
                         fmt_num(v.value) + unit,
                         f"{v.op} {fmt_num(v.bound)}{unit}",
-                        v.rule,
+                        v.rule + (f" ({v.note})" if v.note else ""),
                     ]
                 )
                 t.flags[(len(t.rows) - 1, 6)] = "bad"
@@ -322,6 +322,15 @@ def _verdict_section(
         sec.blocks.append(Text(problems, kind="list"))
     if warnings:
         sec.blocks.append(Text(warnings, kind="list"))
+    run_warnings = exp.run_warnings()
+    if run_warnings:
+        sec.blocks.append(Text("Warnings of the compared logs: ", css="fail"))
+        sec.blocks.append(
+            Text(
+                [f"{run}: {w}" for run, ws in run_warnings.items() for w in ws],
+                kind="list",
+            )
+        )
     return sec
 
 

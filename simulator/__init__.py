@@ -29,9 +29,10 @@ from uwval.simulator.inputs import (
     Step,
     constant_inputs,
 )
+from uwval.simulator.presets import load_vehicle, preset_names
 from uwval.simulator.sdf import load_vehicle_sdf
 from uwval.simulator.thrusters import Thrusters
-from uwval.simulator.vehicle import Vehicle, load_vehicle, preset_names
+from uwval.simulator.vehicle import Vehicle
 
 __all__ = [
     "CAMERA_TOPIC",

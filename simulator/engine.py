@@ -25,10 +25,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from uwval.errors import SimulationError
 from uwval.posestream import PoseStream
 from uwval.rotations import quat_from_rpy
 from uwval.simulator.dynamics import N_STATE, build_params, get_kernel, initial_state
+from uwval.simulator.errors import SimulationError
 from uwval.simulator.inputs import Constant, InputProfile, constant_inputs
 from uwval.simulator.vehicle import Vehicle
 

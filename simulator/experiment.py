@@ -55,11 +55,11 @@ from uwval.simulator.inputs import (
     Sum,
     signal_from_spec,
 )
+from uwval.simulator.presets import load_vehicle
 from uwval.simulator.vehicle import (
     SCALAR_PARAMETERS,
     Vehicle,
     classify_hydro_name,
-    load_vehicle,
     read_toml,
 )
 

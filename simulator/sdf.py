@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 import xml.etree.ElementTree as ET
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
@@ -48,7 +49,7 @@ _NON_COEFFICIENT_TAGS = {
 }
 
 
-def _plugin_kind(el: ET.Element) -> str:
+def _plugin_kind(el: ET.Element) -> Literal["hydro", "buoyancy", ""]:
     name = (el.get("name", "") + " " + el.get("filename", "")).lower()
     if any(k in name for k in _HYDRO_PLUGINS):
         return "hydro"

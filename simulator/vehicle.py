@@ -22,6 +22,7 @@ import math
 import re
 import sys
 from dataclasses import dataclass, field, replace
+from enum import Enum
 from pathlib import Path
 from typing import Any
 
@@ -53,14 +54,26 @@ DEFAULT_WATER_DENSITY = 1000.0  # kg/m^3, as DESIGN.md section 5 (gz Buoyancy's 
 DEFAULT_GRAVITY = 9.8  # m/s^2, gz-sim's default world gravity magnitude
 
 
-def classify_hydro_name(name: str) -> tuple[str, tuple[int, ...]]:
+class HydroKind(str, Enum):
+    """The kinds of gz-sim Hydrodynamics parameters (by the shape of their names)."""
+
+    ADDED_MASS = "added_mass"  # xDotU: added mass
+    LINEAR = "linear"  # xU: linear damping
+    QUADRATIC_ABS = "quadratic_abs"  # xUabsU: quadratic damping with |.|
+    QUADRATIC = "quadratic"  # xUU: quadratic damping
+
+    def __str__(self) -> str:
+        return self.value
+
+
+def classify_hydro_name(name: str) -> tuple[HydroKind, tuple[int, ...]]:
     """Kind (``added_mass``, ``linear``, ``quadratic_abs``, ``quadratic``) and indices of a
     gz-sim Hydrodynamics parameter name; raises :class:`ConfigError` for an unknown name."""
     for kind, rx in (
-        ("added_mass", _ADDED_MASS_RE),
-        ("quadratic_abs", _QUAD_ABS_RE),
-        ("linear", _LINEAR_RE),
-        ("quadratic", _QUAD_RE),
+        (HydroKind.ADDED_MASS, _ADDED_MASS_RE),
+        (HydroKind.QUADRATIC_ABS, _QUAD_ABS_RE),
+        (HydroKind.LINEAR, _LINEAR_RE),
+        (HydroKind.QUADRATIC, _QUAD_RE),
     ):
         mt = rx.match(name)
         if mt:
@@ -169,7 +182,7 @@ class Vehicle:
         ma = np.zeros((6, 6))
         for k, val in self.hydro.items():
             kind, idx = classify_hydro_name(k)
-            if kind == "added_mass":
+            if kind is HydroKind.ADDED_MASS:
                 ma[idx] = val
         return ma
 
@@ -180,11 +193,11 @@ class Vehicle:
         quad = np.zeros((6, 6, 6))
         for k, val in self.hydro.items():
             kind, idx = classify_hydro_name(k)
-            if kind == "linear":
+            if kind is HydroKind.LINEAR:
                 lin[idx] = val
-            elif kind == "quadratic_abs":
+            elif kind is HydroKind.QUADRATIC_ABS:
                 qabs[idx] = val
-            elif kind == "quadratic":
+            elif kind is HydroKind.QUADRATIC:
                 quad[idx] = val
         return lin, qabs, quad
 
@@ -391,39 +404,3 @@ def _parse_inertia(val: Any, where: str) -> F64:
             m[i, j] = m[j, i] = _number(val.get(k, 0.0), f"inertia.{k}", where)
         return m
     raise ConfigError(f"{where}: inertia must be a list or a table, got {val!r}")
-
-
-# ---------------------------------------------------------------------- presets / dispatch
-def vehicles_dir() -> Path:
-    """The folder of vehicle presets (``data/vehicles``, package data ``uwval.data``)."""
-    from uwval.resources import data_path
-
-    return data_path("vehicles")
-
-
-def preset_names() -> list[str]:
-    """Names of the vehicle presets shipped in ``data/vehicles``."""
-    return sorted(p.stem for p in vehicles_dir().glob("*.toml"))
-
-
-def load_vehicle(name_or_path: str | Path = "tethys") -> Vehicle:
-    """A vehicle from a preset name (``tethys``, ``bluerov2_heavy``, ``bluerov2_heavy_stable``),
-    a Gazebo model SDF (``model.sdf`` / ``*.sdf`` or a model folder holding ``model.sdf``),
-    or a vehicle TOML file."""
-    s = str(name_or_path)
-    p = Path(s)
-    if p.is_dir() and (p / "model.sdf").exists():
-        p = p / "model.sdf"
-    if p.suffix.lower() in (".sdf", ".world", ".xml"):
-        from uwval.simulator.sdf import load_vehicle_sdf
-
-        return load_vehicle_sdf(p)
-    if p.suffix.lower() == ".toml":
-        return load_vehicle_toml(p)
-    preset = vehicles_dir() / f"{s}.toml"
-    if preset.exists():
-        return load_vehicle_toml(preset)
-    raise ConfigError(
-        f"unknown vehicle {s!r}: not a preset ({', '.join(preset_names())}), "
-        "nor an existing .sdf or .toml file"
-    )

@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 
 from uwval.bridge import protocol as wire
+from uwval.bridge.errors import BridgeError
 from uwval.bridge.recorder import BridgeRecorder, open_mcap_writer
 from uwval.bridge.server import BridgeServer
 from uwval.bridge.unity_client import AppliedTransform, FaultModel, UnityClient, UnityConnection
-from uwval.errors import BridgeError
 
 REPO = Path(__file__).resolve().parents[1]
 

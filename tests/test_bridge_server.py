@@ -19,8 +19,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from uwval.bridge.errors import BridgeError
 from uwval.bridge.server import BridgeServer
-from uwval.errors import BridgeError
 
 
 class RawClient:

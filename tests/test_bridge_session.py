@@ -9,10 +9,10 @@ from typing import Any
 import numpy as np
 import pytest
 
+from uwval.bridge.errors import BridgeError
 from uwval.bridge.gazebo import ticks_from_streams
 from uwval.bridge.recorder import open_mcap_writer
 from uwval.bridge.session import SessionStats, run_session
-from uwval.errors import BridgeError
 from uwval.frames import convert_arrays, enu_from_unity
 from uwval.io import list_topics, read_stream
 from uwval.posestream import PoseStream

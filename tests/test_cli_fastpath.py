@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
+import pytest
 import typer.main
 
 from uwval.cli import app
-from uwval.cli.compare_run import _FAST_OPTIONS, fast_compare
+from uwval.cli.compare_run import _FAST_OPTIONS, COMPARE_OPTIONS, fast_compare
 
 
 def _compare_params() -> dict[str, str]:
@@ -27,9 +30,27 @@ def test_every_fast_option_is_a_typer_option_with_the_same_destination() -> None
         assert params.get(opt) == dest, opt
 
 
+def test_the_typer_command_and_the_fast_parser_come_from_one_option_table() -> None:
+    # one source of truth: every flag typer knows (but --help) is a row of COMPARE_OPTIONS,
+    # with its destination and default, and the fast parser knows exactly the fast rows
+    import inspect
+
+    from uwval.cli.compare_cmd import compare_command
+
+    params = _compare_params()
+    table = {f: o for o in COMPARE_OPTIONS for f in o.flags}
+    assert set(params) - {"--help"} == set(table)
+    for flag, o in table.items():
+        assert params[flag] == o.dest
+    sig = inspect.signature(compare_command).parameters
+    assert all(sig[o.dest].default == o.default for o in COMPARE_OPTIONS)
+    assert set(_FAST_OPTIONS) == {f for o in COMPARE_OPTIONS if o.fast for f in o.flags}
+
+
 def test_every_value_option_of_compare_is_known_to_the_fast_path_or_declined() -> None:
     params = _compare_params()
-    declined = {"--batch", "--help", "--executor", "--workers", "--scheduler"}
+    declined = {"--help"} | {f for o in COMPARE_OPTIONS if not o.fast for f in o.flags}
+    assert declined >= {"--batch", "--executor", "--workers", "--scheduler"}
     for opt in params:
         if opt == "--json":
             continue
@@ -153,3 +174,96 @@ def test_compare_with_stdout_closed_writes_its_file_and_exits_0(tmp_path: object
     )
     assert res.returncode == 0, res.stderr
     assert '"n_samples": 200' in (d / "out.json").read_text()
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full")
+@pytest.mark.parametrize(
+    "extra",
+    [
+        [],  # the fast path, table output (rich)
+        ["--json"],  # the fast path, buffered JSON: fails only at the final flush
+        ["--sync", "nearest", "--align", "se3", "--json"],
+        ["--sync=nearest", "--batch"],  # declined by the fast path: typer's usage error
+    ],
+)
+def test_output_to_a_full_device_is_a_one_line_error(tmp_path: Path, extra: list[str]) -> None:
+    import subprocess
+    import sys
+
+    a, b = _tum_pair(tmp_path)
+    with open("/dev/full", "w") as full:
+        res = subprocess.run(
+            [sys.executable, "-m", "uwval", "compare", str(a), str(b), *extra],
+            stdout=full,
+            stderr=subprocess.PIPE,
+            text=True,
+            timeout=120,
+            stdin=subprocess.DEVNULL,
+        )
+    assert "Traceback" not in res.stderr
+    assert "Exception ignored" not in res.stderr
+    if "--batch" in extra:  # a usage error goes to stderr: exit 2 from typer, one message
+        assert res.returncode == 2
+        return
+    assert res.returncode == 2, res.stderr
+    assert res.stderr.strip().splitlines() == [
+        "error: cannot write the output: No space left on device"
+    ]
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full")
+@pytest.mark.parametrize("args", [["--help"], ["inspect", "A"], ["compare", "--help"]])
+def test_typer_commands_on_a_full_device_give_one_line(tmp_path: Path, args: list[str]) -> None:
+    import subprocess
+    import sys
+
+    a, _ = _tum_pair(tmp_path)
+    with open("/dev/full", "w") as full:
+        res = subprocess.run(
+            [sys.executable, "-m", "uwval", *[str(a) if x == "A" else x for x in args]],
+            stdout=full,
+            stderr=subprocess.PIPE,
+            text=True,
+            timeout=120,
+            stdin=subprocess.DEVNULL,
+        )
+    assert res.returncode == 2, res.stderr
+    assert res.stderr.strip().splitlines() == [
+        "error: cannot write the output: No space left on device"
+    ]
+
+
+def _tum_pair(d: Path) -> tuple[Path, Path]:
+    lines = [f"{i * 0.02:.6f} {i * 0.01} {0.1 * (i % 7)} 0 0 0 0 1" for i in range(100)]
+    a, b = d / "a.tum", d / "b.tum"
+    a.write_text("\n".join(lines) + "\n")
+    b.write_text("\n".join(lines) + "\n")
+    return a, b
+
+
+def test_the_fast_exit_still_runs_the_atexit_handlers(tmp_path: Path) -> None:
+    # the fast path ends with os._exit (no teardown); what registered for the exit (coverage
+    # saving its data, a user's hook) must still run, without special cases
+    import subprocess
+    import sys
+
+    a, b = _tum_pair(tmp_path)
+    mark = tmp_path / "ran"
+    probe = (
+        "import atexit, sys\n"
+        f"atexit.register(lambda: open({str(mark)!r}, 'w').write('x'))\n"
+        f"sys.argv = ['uwval', 'compare', {str(a)!r}, {str(b)!r}, '--json']\n"
+        "from uwval.cli import main\n"
+        "main()\n"
+        "raise SystemExit(7)  # not reached: main ends the process\n"
+    )
+    res = subprocess.run(
+        [sys.executable, "-c", probe],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        stdin=subprocess.DEVNULL,
+    )
+    assert res.returncode == 0, res.stderr
+    assert '"n_samples": 100' in res.stdout
+    assert mark.read_text() == "x"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import re
 import subprocess
 import sys
@@ -12,6 +13,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 from cli_runner import run_uwval as _uwval
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from uwval.errors import ConfigError
 from uwval.gate import (
@@ -215,7 +218,9 @@ def test_missing_run_in_results_fails(table: ResultsTable) -> None:
     part = ResultsTable.from_dataframe(table.df[table.df["run"] != table.runs[0]], table.factors)
     verdict = check_baseline(part, table)
     assert verdict.violations
-    assert {v.kind for v in verdict.violations} == {"missing"}
+    # the whole run is absent: one failure naming it, not one per value
+    assert {v.kind for v in verdict.violations} == {"missing-run"}
+    assert [v.run for v in verdict.violations] == [table.runs[0]]
     assert {v.run for v in verdict.violations} == {table.runs[0]}
     assert "missing from the results" in verdict.format()
 
@@ -435,3 +440,310 @@ def test_cli_check_bad_inputs_one_line_exit_2(experiment: Path, tmp_path: Path) 
         lines = proc.stderr.strip().splitlines()
         assert len(lines) == 1, proc.stderr
         assert re.search(message, lines[0]), lines[0]
+
+
+# ------------------------------------------------------ issue 14: what the gate must not pass
+_MAE_RULE = {"threshold": [{"metric": "mae", "axes": ["x", "y", "z"], "max": 1.0}]}
+
+
+def _with(table: ResultsTable, metric: str, value: float, note: str = "") -> ResultsTable:
+    df = table.df.copy()
+    sel = df["metric"] == metric
+    df.loc[sel, "value"] = value
+    df.loc[sel, "note"] = note
+    return ResultsTable.from_dataframe(df, table.factors)
+
+
+def test_nan_error_metrics_fail_instead_of_being_skipped(
+    table: ResultsTable, tmp_path: Path
+) -> None:
+    # every MAE and max NaN used to print "PASS (... undefined value(s) skipped)"
+    broken = _with(_with(table, "mae", math.nan), "max", math.nan)
+    rules = {"threshold": [*_MAE_RULE["threshold"], {"metric": "max", "max": 5.0}]}
+    verdict = check(broken, parse_thresholds(rules))
+    assert not verdict.passed
+    assert {v.kind for v in verdict.violations} == {"undefined"}
+    assert not verdict.skipped
+    # undefined = "skip" covers only what the engine leaves undefined on purpose
+    skip = {"threshold": [{"metric": "mae", "max": 1.0, "undefined": "skip"}]}
+    assert not check(broken, parse_thresholds(skip)).passed
+    # the command line: exit 1 with the reason
+    broken.save(tmp_path / "results.csv")
+    th = _toml(tmp_path, '[[threshold]]\nmetric = "mae"\nmax = 1.0\n')
+    res = _uwval("check", tmp_path / "results.csv", "--thresholds", th)
+    assert res.returncode == 1, res.stdout + res.stderr
+    assert "undefined (NaN)" in res.stderr
+
+
+def test_a_missing_gated_value_in_the_compare_json_fails(table: ResultsTable) -> None:
+    from uwval.results import MISSING_NOTE
+
+    holed = _with(table, "mae", math.nan, MISSING_NOTE)
+    verdict = check(holed, parse_thresholds(_MAE_RULE))
+    assert {v.kind for v in verdict.violations} == {"undefined"}
+    assert MISSING_NOTE in verdict.format()
+
+
+def test_pearson_r_of_a_constant_series_may_be_undefined_with_its_reason(
+    table: ResultsTable,
+) -> None:
+    # the engine's reason travels into the table and the skip line
+    z = table.select(metric="pearson_r", axis="z")
+    assert z["value"].isna().all()
+    assert z["note"].str.contains("constant").all()
+    rule = {"threshold": [{"metric": "pearson_r", "axes": ["z"], "min": 0.9}]}
+    verdict = check(table, parse_thresholds(rule))
+    assert verdict.passed
+    assert all("constant" in s for s in verdict.skipped)
+    # the same NaN without the engine's reason is not undefined by definition: it fails
+    stripped = _with(table, "pearson_r", math.nan)
+    assert not check(stripped, parse_thresholds(rule)).passed
+
+
+def test_negative_mae_fails(table: ResultsTable) -> None:
+    forged = _with(table, "mae", -0.5)
+    verdict = check(forged, parse_thresholds(_MAE_RULE))
+    assert not verdict.passed
+    assert "invalid" in {v.kind for v in verdict.violations}
+    assert "cannot be negative" in verdict.format()
+    # against a baseline too (an error below the baseline would look like an improvement)
+    assert not check(forged, baseline=table).passed
+
+
+def test_impossible_correlation_fails(table: ResultsTable) -> None:
+    verdict = check(_with(table, "pearson_r", 1.5), parse_thresholds(_MAE_RULE))
+    assert "a correlation lies in [-1, 1]" in verdict.format()
+
+
+def test_an_empty_baseline_is_refused(table: ResultsTable, tmp_path: Path) -> None:
+    empty = tmp_path / "empty.json"
+    empty.write_text(json.dumps({"format": "uwval-results", "version": 1, "rows": []}))
+    with pytest.raises(ConfigError, match="no rows of the gated metrics"):
+        check(table, baseline=empty)
+    table.save(tmp_path / "results.csv")
+    res = _uwval("check", tmp_path / "results.csv", "--baseline", empty)
+    assert res.returncode == 2, res.stdout + res.stderr
+    assert "cannot gate anything" in res.stderr
+    assert "Traceback" not in res.stderr
+
+
+def test_an_all_nan_baseline_is_refused(table: ResultsTable, tmp_path: Path) -> None:
+    df = table.df.copy()
+    df["value"] = math.nan
+    nan_base = ResultsTable.from_dataframe(df, table.factors)
+    with pytest.raises(ConfigError, match="NaN"):
+        check(table, baseline=nan_base)
+    # one NaN error metric in a baseline is refused too, naming the row
+    one = table.df.copy()
+    one.loc[one.index[(one["metric"] == "mae")][0], "value"] = math.nan
+    with pytest.raises(ConfigError, match=r"baseline mae .* is NaN"):
+        check(table, baseline=ResultsTable.from_dataframe(one, table.factors))
+    nan_base.save(tmp_path / "base.json")
+    table.save(tmp_path / "results.csv")
+    res = _uwval("check", tmp_path / "results.csv", "--baseline", tmp_path / "base.json")
+    assert res.returncode == 2, res.stdout + res.stderr
+
+
+def test_a_baseline_covering_one_run_leaves_no_run_ungated(table: ResultsTable) -> None:
+    first = table.runs[0]
+    base = ResultsTable.from_dataframe(table.df[table.df["run"] == first], table.factors)
+    # another run with MAE 5 m used to pass
+    df = table.df.copy()
+    df.loc[(df["run"] == table.runs[1]) & (df["metric"] == "mae"), "value"] = 5.0
+    verdict = check(ResultsTable.from_dataframe(df, table.factors), baseline=base)
+    assert not verdict.passed
+    ungated = {v.run for v in verdict.violations if v.kind == "ungated"}
+    assert ungated == set(table.runs[1:])
+    assert "not covered by the baseline" in verdict.format()
+
+
+def test_runs_of_the_manifest_missing_from_the_results_fail(
+    experiment: Path, tmp_path: Path
+) -> None:
+    import shutil
+
+    exp = tmp_path / "exp"
+    shutil.copytree(experiment, exp)
+    comp = json.loads((exp / "results" / "comparisons.json").read_text())
+    dropped = comp["runs"].pop(0)["name"]
+    (exp / "results" / "comparisons.json").write_text(json.dumps(comp))
+    loaded = load_experiment_results(exp)
+    assert dropped not in loaded.table.runs
+    th = parse_thresholds(_MAE_RULE)
+    verdict = check(loaded.table, th, expected_runs=[r.name for r in loaded.runs])
+    assert [(v.kind, v.run) for v in verdict.violations] == [("missing-run", dropped)]
+    th_file = _toml(tmp_path, '[[threshold]]\nmetric = "mae"\nmax = 1.0\n')
+    res = _uwval("check", exp, "--thresholds", th_file)
+    assert res.returncode == 1, res.stdout + res.stderr
+    assert f"run={dropped}: the run is missing from the results" in res.stderr
+
+
+def _warned_comparison(log: Path, warning: str, dropped: int) -> dict[str, object]:
+    """A real comparison of ``log`` whose Unity stream carries a reader warning and drops."""
+    from uwval import compare
+    from uwval.comparison.logs import LogComparison
+    from uwval.io import read_stream
+
+    ref = read_stream(log, f"/gazebo/{VEHICLE}")
+    uni = read_stream(log, f"/unity/{VEHICLE}")
+    uni = uni.with_(warnings=(warning,), dropped={"truncated": dropped})
+    return LogComparison({VEHICLE: compare(ref, uni)}, VEHICLE, [str(log)]).to_json()
+
+
+def test_a_log_warning_travels_into_the_table_and_fails_the_gate(
+    table: ResultsTable, tmp_path: Path
+) -> None:
+    log = write_pair_log(tmp_path / "cut.mcap", camera=False)
+    text = "cut.mcap: not closed cleanly (no footer); 40 % of the bytes lost"
+    obj = _warned_comparison(log, text, 7)
+    # the compare JSON carries it at the top, per topic and per source
+    assert text in obj["warnings"]  # type: ignore[operator]
+    topic = obj["topics"][VEHICLE]  # type: ignore[index]
+    assert topic["other"]["warnings"] == [text]
+    assert topic["other"]["dropped"] == {"truncated": 7}
+    warned = ResultsTable.from_comparisons([("cut", {}, obj)])
+    row = warned.select(run="cut", axis="other", metric="n_warnings")
+    assert float(row["value"].iloc[0]) == 1.0
+    assert row["note"].iloc[0] == text
+    assert warned.value("cut", VEHICLE, "other", "dropped.truncated") == 7.0
+    # the table survives its files with the warning
+    for suffix in (".csv", ".json"):
+        warned.save(tmp_path / f"t{suffix}")
+        again = ResultsTable.load(tmp_path / f"t{suffix}")
+        assert again.select(axis="other", metric="n_warnings")["note"].iloc[0] == text
+    # small errors, but the log was damaged: FAIL by default, with the reader's words
+    th = parse_thresholds(_MAE_RULE)
+    verdict = check(warned, th)
+    assert not verdict.passed
+    assert [v.kind for v in verdict.violations] == ["log-warning"]
+    assert text in verdict.format()
+    assert "7 message(s) dropped (truncated)" in verdict.format()
+    # the thresholds may allow it: then it passes, and the warning is still shown
+    allowed = parse_thresholds({**_MAE_RULE, "allow_log_warnings": True})
+    ok = check(warned, allowed)
+    assert ok.passed
+    assert text in ok.format()
+    with pytest.raises(ConfigError, match="allow_log_warnings"):
+        parse_thresholds({**_MAE_RULE, "allow_log_warnings": "yes"})
+
+
+def test_a_log_warning_reaches_the_command_line_gate_and_the_report(
+    tmp_path: Path,
+) -> None:
+    log = write_pair_log(tmp_path / "cut.mcap", camera=False)
+    text = "cut.mcap: not closed cleanly (no footer); 40 % of the bytes lost"
+    comp = {
+        "runs": [{"name": "cut", "factors": {}, "comparison": _warned_comparison(log, text, 3)}],
+        "failed": [],
+    }
+    (tmp_path / "comparisons.json").write_text(json.dumps(comp))
+    th = _toml(tmp_path, '[[threshold]]\nmetric = "mae"\nmax = 1.0\n')
+    res = _uwval("check", tmp_path / "comparisons.json", "--thresholds", th)
+    assert res.returncode == 1, res.stdout + res.stderr
+    assert text in res.stderr
+    exp = load_experiment_results(tmp_path / "comparisons.json")
+    assert exp.run_warnings()["cut"][0] == text
+    from uwval.reports.builder import build_report
+
+    out = build_report(tmp_path / "comparisons.json", tmp_path / "r.html", thresholds=th)
+    assert not out.gate.passed  # type: ignore[union-attr]
+    assert text in (tmp_path / "r.html").read_text()
+
+
+def test_check_on_a_manifest_with_one_bad_log_checks_the_rest(tmp_path: Path) -> None:
+    from uwval.cli.pipeline import SessionOptions
+    from uwval.cli.simulate_cmd import run_experiment
+    from uwval.resources import data_path
+
+    m = run_experiment(
+        data_path("experiments", "default.toml"),
+        tmp_path / "exp",
+        SessionOptions(),
+        executor="inline",
+        progress=False,
+    )
+    bad = m["runs"][2]
+    (tmp_path / "exp" / bad["log"]).write_bytes(b"garbage")
+    res = _uwval(
+        "check", str(tmp_path / "exp"), "--thresholds", str(data_path("thresholds", "default.toml"))
+    )
+    assert res.returncode == 1, res.stdout + res.stderr
+    assert "1 run(s) failed" in res.stderr
+    assert bad["name"] in res.stderr
+    assert "values checked" in res.stdout + res.stderr  # the other runs were gated
+
+
+# ------------------------------------------------ looking for the next ones: a gate fuzzer
+_AXES = ("x", "y", "z", "roll", "pitch", "yaw")
+_FUZZ_KINDS = ("nan", "missing", "negative", "drop_run", "warning", "r_out", "inf")
+_FUZZ_RULES = {
+    "threshold": [
+        {"metric": "mae", "max": 1e3},
+        {"metric": "max", "max": 1e3},
+        {"metric": "pearson_r", "axes": ["x"], "min": -1.0},
+    ]
+}
+
+
+def _damage(table: ResultsTable, kind: str, pick: int) -> ResultsTable:
+    """``table`` with one damage of ``kind`` at a place chosen by ``pick``."""
+    df = table.df.copy()
+    gated = df.index[df["metric"].isin(["mae", "max"]) & df["axis"].isin(list(_AXES))]
+    row = gated[pick % len(gated)]
+    run = table.runs[pick % len(table.runs)]
+    if kind == "nan":
+        df.loc[row, ["value", "note"]] = [math.nan, ""]
+    elif kind == "inf":
+        df.loc[row, "value"] = math.inf
+    elif kind == "missing":
+        df = df.drop(index=row)
+    elif kind == "negative":
+        df.loc[row, "value"] = -abs(float(df.loc[row, "value"])) - 1e-12
+    elif kind == "drop_run":
+        df = df[df["run"] != run]
+    elif kind == "warning":
+        sel = (df["run"] == run) & (df["axis"] == "other") & (df["metric"] == "n_warnings")
+        assert sel.any()
+        df.loc[sel, ["value", "note"]] = [1.0, "log not closed cleanly"]
+    elif kind == "r_out":
+        rs = df.index[(df["metric"] == "pearson_r") & df["value"].notna()]
+        df.loc[rs[pick % len(rs)], "value"] = 1.0 + 1e-9
+    return ResultsTable.from_dataframe(df, table.factors)
+
+
+def _gate_never_passes_damage(table: ResultsTable, kind: str, pick: int) -> None:
+    th = parse_thresholds(_FUZZ_RULES)
+    damaged = _damage(table, kind, pick)
+    verdict = check(damaged, th, expected_runs=table.runs)
+    assert not verdict.passed, (kind, pick, verdict.format())
+    # against the intact table as the baseline, too (only thresholds-free: the baseline gate)
+    if kind != "warning":  # a warning is gated by the thresholds' allow_log_warnings
+        against = check(damaged, baseline=table, expected_runs=table.runs)
+        assert not against.passed, (kind, pick, against.format())
+
+
+@pytest.fixture(scope="module")
+def small(table: ResultsTable) -> ResultsTable:
+    """Three runs of the experiment (both topics): enough places to damage, quick to gate."""
+    return ResultsTable.from_dataframe(
+        table.df[table.df["run"].isin(table.runs[:3])], table.factors
+    )
+
+
+def test_the_intact_table_passes_the_fuzz_rules(small: ResultsTable) -> None:
+    assert check(small, parse_thresholds(_FUZZ_RULES), expected_runs=small.runs).passed
+    assert check(small, baseline=small, expected_runs=small.runs).passed
+
+
+@settings(max_examples=25, deadline=None)
+@given(kind=st.sampled_from(_FUZZ_KINDS), pick=st.integers(0, 10**6))
+def test_no_single_damage_passes_the_gate(small: ResultsTable, kind: str, pick: int) -> None:
+    _gate_never_passes_damage(small, kind, pick)
+
+
+@pytest.mark.slow
+@settings(max_examples=1500, deadline=None)
+@given(kind=st.sampled_from(_FUZZ_KINDS), pick=st.integers(0, 10**6))
+def test_no_single_damage_passes_the_gate_long(small: ResultsTable, kind: str, pick: int) -> None:
+    """The long mode of the test above (pytest -m slow): 1,500 damaged tables."""
+    _gate_never_passes_damage(small, kind, pick)

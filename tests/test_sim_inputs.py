@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from uwval.errors import ConfigError, SimulationError
+from uwval.errors import ConfigError
 from uwval.rotations import quat_from_rpy, rotate_vectors
 from uwval.simulator import (
     CAMERA_TOPIC,
@@ -26,6 +26,7 @@ from uwval.simulator import (
     load_vehicle,
     simulate,
 )
+from uwval.simulator.errors import SimulationError
 from uwval.simulator.inputs import signal_from_spec
 
 

@@ -7,7 +7,6 @@ import math
 import numpy as np
 import pytest
 
-from uwval.errors import SimulationError
 from uwval.rotations import matrix_from_quat, quat_from_rpy, rpy_from_quat
 from uwval.simulator import (
     Vehicle,
@@ -20,6 +19,7 @@ from uwval.simulator import (
     simulate_batch,
 )
 from uwval.simulator.dynamics import build_params, get_kernel, initial_state
+from uwval.simulator.errors import SimulationError
 
 TETHYS = load_vehicle("tethys")
 

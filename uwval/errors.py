@@ -1,5 +1,8 @@
 """Error classes, one per area (as rosbags does), all deriving from :class:`UwvalError`.
 
+The parts outside the core keep their own: :class:`uwval.simulator.errors.SimulationError`,
+:class:`uwval.bridge.errors.BridgeError`.
+
 The CLI catches :class:`UwvalError` and prints its message without a traceback, so every
 message must name what was wrong and where (file, topic, line or byte offset).
 """
@@ -33,11 +36,3 @@ class AlignmentError(UwvalError):
 
 class ConfigError(UwvalError, ValueError):
     """An experiment, vehicle, threshold or mapping file is invalid."""
-
-
-class SimulationError(UwvalError):
-    """The simulator cannot run (bad parameters, divergence)."""
-
-
-class BridgeError(UwvalError):
-    """A bridge peer broke the protocol, or a connection failed."""

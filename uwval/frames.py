@@ -164,4 +164,5 @@ def unity_euler_from_quat(q: F64) -> F64:
     ex = np.arcsin(np.clip(-r[..., 1, 2], -1.0, 1.0))
     ey = np.arctan2(r[..., 0, 2], r[..., 2, 2])
     ez = np.arctan2(r[..., 1, 0], r[..., 1, 1])
-    return np.mod(np.degrees(np.stack([ex, ey, ez], axis=-1)), 360.0)
+    out: F64 = np.mod(np.degrees(np.stack([ex, ey, ez], axis=-1)), 360.0)
+    return out

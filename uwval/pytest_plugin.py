@@ -68,8 +68,22 @@ def gate(
     thresholds: ThresholdsLike = None,
     baseline: ResultsTable | str | Path | None = None,
 ) -> GateResult:
-    """Run the gate and return its result (no assertion)."""
-    return check(as_results_table(results), _as_thresholds(thresholds), baseline)
+    """Run the gate and return its result (no assertion).
+
+    A results location with a manifest also gates that every run of the manifest has results.
+    """
+    expected: list[str] = []
+    location = Path(results) if isinstance(results, (str, Path)) else None
+    if location is not None and location.is_dir() and not (location / "metadata.yaml").is_file():
+        exp = load_experiment_results(location)
+        if not exp.table.df.empty:
+            results, expected = exp.table, [r.name for r in exp.runs]
+    return check(
+        as_results_table(results),
+        _as_thresholds(thresholds),
+        baseline,
+        expected_runs=expected,
+    )
 
 
 def assert_pose_correspondence(

@@ -86,7 +86,8 @@ def quat_from_matrix(m: F64) -> F64:
     )
     q = np.take_along_axis(np.moveaxis(cands, 0, -2), k[..., None, None], axis=-2)[..., 0, :]
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    return np.where(q[..., 3:4] < 0, -q, q)
+    out: F64 = np.where(q[..., 3:4] < 0, -q, q)
+    return out
 
 
 def quat_multiply(a: F64, b: F64) -> F64:

@@ -1,8 +1,9 @@
 """The ``uwval`` command line: a thin typer layer over functions that return result objects.
 
 Each area registers its commands from its own module (``compare_cmd``, ``io_cmd``, ...), so
-the areas do not edit one file. ``main`` turns every :class:`UwvalError` into a one-line
-message and exit code 2 (no traceback reaches the user).
+the areas do not edit one file. ``main`` turns every :class:`UwvalError`, and output that
+cannot be written (stdout on a full device), into a one-line message and exit code 2 (no
+traceback reaches the user).
 
 typer and rich are imported on first use (``uwval.cli.app`` is created lazily): a plain
 ``uwval compare`` takes the fast path of :mod:`uwval.cli.compare_run` without them, since
@@ -11,6 +12,8 @@ start-up is most of the whole-command time of a compare.
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import importlib
 import sys
 from typing import TYPE_CHECKING, Any
@@ -118,53 +121,96 @@ def _print_error(prefix_markup: str, text: str) -> None:
     from rich.console import Console
     from rich.markup import escape
 
-    Console(stderr=True).print(f"{prefix_markup} {escape(text)}", highlight=False, soft_wrap=True)
+    # stderr unwritable too: the exit status still tells
+    with contextlib.suppress(OSError, ValueError):
+        Console(stderr=True).print(
+            f"{prefix_markup} {escape(text)}", highlight=False, soft_wrap=True
+        )
+
+
+#: errno values of a failed write to stdout that are the environment's, not uwval's:
+#: a full device (``> /dev/full``), a reader that went away (``| head``), an I/O error.
+_OUTPUT_ERRNOS = frozenset({errno.ENOSPC, errno.EPIPE, errno.EIO, errno.EFBIG, errno.EDQUOT})
+
+
+def _silence_stdout() -> None:
+    """Point fd 1 at /dev/null, so that the interpreter's final flush of what is still
+    buffered cannot fail a second time (and print "Exception ignored ...")."""
+    import os
+
+    with contextlib.suppress(OSError, ValueError):
+        if sys.stdout is not None:
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
 
 
 def _exit_now() -> None:
-    """End the process at once, after flushing stdout/stderr (exit status 0).
+    """End the process at once (exit status 0); stdout/stderr were flushed by :func:`main`.
 
     The fast compare path has written and closed everything it writes; what is left is the
     interpreter's teardown (freeing ~100 MB of arrays and every module), ~25 ms, a tenth of
-    a large compare. A failed flush (a closed pipe) is left to the normal exit to report.
+    a large compare. The ``atexit`` handlers still run first (e.g. coverage saving its data),
+    so nothing registered for the exit is skipped.
     """
+    import atexit
     import os
 
-    if "coverage" in sys.modules:  # a measured run saves its data at exit: exit normally
-        return
-    try:
-        for stream in (sys.stdout, sys.stderr):
-            if stream is not None:  # None when the process started with that fd closed
-                stream.flush()
-    except (OSError, ValueError):
-        return
+    atexit._run_exitfuncs()
     os._exit(0)
 
 
+def _flush_output() -> None:
+    """Flush stdout and stderr (None when the process started with that fd closed)."""
+    for stream in (sys.stdout, sys.stderr):
+        if stream is not None:
+            stream.flush()
+
+
+def _dispatch(args: list[str], argv: list[str] | None) -> None:
+    """Run one command: the fast compare path when it applies, otherwise typer."""
+    if args[:1] == ["compare"]:
+        # plain compare arguments skip typer's parsing layer (start-up time is most of
+        # a small compare); anything unusual falls through to typer below.
+        # A compare does no large matrix products: OpenBLAS's thread pool (started when
+        # numpy loads, below) would cost ~25 ms of start-up and contend with the parser
+        # for the second core. Set before numpy is imported; a user's setting wins.
+        import os
+
+        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+        from uwval.cli.compare_run import fast_compare
+
+        if fast_compare(list(args[1:])):
+            _flush_output()  # a failed write surfaces here, inside main's handlers
+            if argv is None:  # the process's own entry point: nothing is left to do
+                _exit_now()
+            return
+    _register(args)
+    try:
+        get_app()(args=argv, standalone_mode=True)
+    except SystemExit:
+        _flush_output()
+        raise
+
+
 def main(argv: list[str] | None = None) -> None:
-    """Console entry point: run the app, printing UwvalErrors as clean messages."""
+    """Console entry point: run the app, printing UwvalErrors as clean messages.
+
+    Exit status 2 with one line on stderr for a :class:`UwvalError` and for output that
+    cannot be written (stdout on a full device); 130 on Ctrl-C.
+    """
     args = sys.argv[1:] if argv is None else argv
     try:
-        if args[:1] == ["compare"]:
-            # plain compare arguments skip typer's parsing layer (start-up time is most of
-            # a small compare); anything unusual falls through to typer below.
-            # A compare does no large matrix products: OpenBLAS's thread pool (started when
-            # numpy loads, below) would cost ~25 ms of start-up and contend with the parser
-            # for the second core. Set before numpy is imported; a user's setting wins.
-            import os
-
-            os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-            from uwval.cli.compare_run import fast_compare
-
-            if fast_compare(list(args[1:])):
-                if argv is None:  # the process's own entry point: nothing is left to do
-                    _exit_now()
-                return
-        _register(args)
-        get_app()(args=argv, standalone_mode=True)
+        _dispatch(args, argv)
     except UwvalError as exc:
         _print_error("[bold red]error:[/]", str(exc))
         sys.exit(2)
     except KeyboardInterrupt:
         _print_error("[yellow]interrupted[/]", "")
         sys.exit(130)
+    except OSError as exc:
+        if exc.errno not in _OUTPUT_ERRNOS or exc.filename is not None:
+            raise  # not a failed write to stdout: a bug, keep its traceback
+        _silence_stdout()
+        if exc.errno == errno.EPIPE:  # the reader went away (| head): nothing to tell it
+            sys.exit(1)
+        _print_error("[bold red]error:[/]", f"cannot write the output: {exc.strerror or exc}")
+        sys.exit(2)

@@ -20,8 +20,8 @@ from rich.console import Console
 from rich.logging import RichHandler
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
+from uwval.bridge.errors import BridgeError
 from uwval.cli import app
-from uwval.errors import BridgeError
 
 if TYPE_CHECKING:
     from uwval.bridge.protocol import Protocol

@@ -4,123 +4,91 @@ Imports of the engine happen inside the commands, so registering them costs noth
 start-up, and the TUM ``--sync nearest`` path loads no pandas, scipy or matplotlib.
 :func:`fast_compare` runs ``uwval compare`` without typer's per-parameter coercion layer
 (which imports pydantic and builds a validator per option: ~0.1 s and ~15 MB per run).
+The options of ``compare`` are declared once, in :data:`uwval.cli.compare_run.COMPARE_OPTIONS`;
+the typer command below is built from that table, as is the fast parser.
 """
 
 from __future__ import annotations
 
+import inspect
 import json
 import sys
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Optional
 
 import typer
 
 from uwval.cli import app
 from uwval.cli.compare_run import (  # noqa: F401  (fast path re-exported for callers)
     _FAST_OPTIONS,
+    COMPARE_OPTIONS,
     _parse_offset,
     fast_compare,
     run_compare,
 )
 
-FRAME_HELP = (
-    "Convention of the second (Unity) stream: unity-flu, unity-enu, ned, enu or auto "
-    "(default: from the log's frame_id; enu for TUM files)"
-)
+
+def _compare_parameters() -> list[inspect.Parameter]:
+    """The typer signature of ``compare``: two arguments, then :data:`COMPARE_OPTIONS`."""
+    kw = inspect.Parameter.KEYWORD_ONLY
+    params = [
+        inspect.Parameter(
+            "log_a",
+            kw,
+            annotation=Annotated[
+                Path, typer.Argument(help="Log (both sides) or the reference file")
+            ],
+        ),
+        inspect.Parameter(
+            "log_b",
+            kw,
+            default=None,
+            annotation=Annotated[
+                Optional[Path],  # noqa: UP045  (a runtime object: typer reads it)
+                typer.Argument(help="Second file: the Unity side"),
+            ],
+        ),
+    ]
+    for o in COMPARE_OPTIONS:
+        kind: Any = o.kind if o.default is not None else Optional[o.kind]  # noqa: UP045
+        params.append(
+            inspect.Parameter(
+                o.dest,
+                kw,
+                default=o.default,
+                annotation=Annotated[kind, typer.Option(*o.flags, help=o.help)],
+            )
+        )
+    return params
 
 
-@app.command("compare")
-def compare_command(
-    log_a: Annotated[Path, typer.Argument(help="Log (both sides) or the reference file")],
-    log_b: Annotated[Path | None, typer.Argument(help="Second file: the Unity side")] = None,
-    gazebo_topic: Annotated[str | None, typer.Option(help="Reference topic")] = None,
-    unity_topic: Annotated[str | None, typer.Option(help="Other (Unity) topic")] = None,
-    fmt: Annotated[
-        str | None,
-        typer.Option(
-            "--format",
-            help="Input format: tum, or a log format read by uwval.io (default: by suffix)",
-        ),
-    ] = None,
-    frame: Annotated[str | None, typer.Option(help=FRAME_HELP)] = None,
-    sync: Annotated[
-        str,
-        typer.Option(help="interp (lerp+slerp at reference stamps) or nearest (evo's association)"),
-    ] = "interp",
-    max_gap: Annotated[
-        float | None,
-        typer.Option(help="interp: mask samples in gaps longer than this (s; default 5 periods)"),
-    ] = None,
-    max_diff: Annotated[float, typer.Option(help="nearest: max stamp difference (s)")] = 0.01,
-    offset: Annotated[
-        str,
-        typer.Option(
-            help="Clock offset added to the second stream's stamps (s), or 'auto' to estimate it"
-        ),
-    ] = "0",
-    max_offset: Annotated[float | None, typer.Option(help="Bound for --offset auto (s)")] = None,
-    align: Annotated[str, typer.Option(help="none, se3, sim3 (Umeyama) or origin")] = "none",
-    as_json: Annotated[bool, typer.Option("--json", help="Print the JSON result")] = False,
-    output: Annotated[
-        Path | None,
-        typer.Option(
-            "-o",
-            "--output",
-            help="Also write the JSON result here (with --batch: the results directory)",
-        ),
-    ] = None,
-    batch: Annotated[
-        bool,
-        typer.Option(
-            "--batch",
-            help="LOG_A is an experiment directory or "
-            "manifest: compare every log into one results table",
-        ),
-    ] = False,
-    executor: Annotated[
-        str, typer.Option(help="--batch: local (process pool), dask or inline")
-    ] = "local",
-    workers: Annotated[int | None, typer.Option(help="--batch: worker processes")] = None,
-    scheduler: Annotated[str | None, typer.Option(help="--batch: Dask scheduler address")] = None,
-) -> None:
+def compare_command(**kwargs: Any) -> None:
     """Compare the Gazebo and Unity pose streams: per-axis errors, Pearson r, evo's APE stats."""
-    if batch:
+    batch_keys = {o.dest for o in COMPARE_OPTIONS if not o.fast}
+    opts = {k: v for k, v in kwargs.items() if k not in batch_keys}
+    log_a, log_b = opts.pop("log_a"), opts.pop("log_b")
+    if kwargs["batch"]:
+        output = opts.pop("output")
+        opts.pop("as_json")
+        opts["offset"] = _parse_offset(opts["offset"])
         _batch(
             log_a,
             output,
-            executor=executor,
-            workers=workers,
-            scheduler=scheduler,
-            options={
-                "gazebo_topic": gazebo_topic,
-                "unity_topic": unity_topic,
-                "fmt": fmt,
-                "frame": frame,
-                "sync": sync,
-                "max_gap": max_gap,
-                "max_diff": max_diff,
-                "offset": _parse_offset(offset),
-                "max_offset": max_offset,
-                "align": align,
-            },
+            executor=kwargs["executor"],
+            workers=kwargs["workers"],
+            scheduler=kwargs["scheduler"],
+            options=opts,
         )
         return
-    run_compare(
-        log_a,
-        log_b,
-        gazebo_topic=gazebo_topic,
-        unity_topic=unity_topic,
-        fmt=fmt,
-        frame=frame,
-        sync=sync,
-        max_gap=max_gap,
-        max_diff=max_diff,
-        offset=offset,
-        max_offset=max_offset,
-        align=align,
-        as_json=as_json,
-        output=output,
-    )
+    run_compare(log_a, log_b, **opts)
+
+
+_signature = inspect.Signature(_compare_parameters(), return_annotation=None)
+compare_command.__signature__ = _signature  # type: ignore[attr-defined]
+compare_command.__annotations__ = {p.name: p.annotation for p in _signature.parameters.values()} | {
+    "return": None
+}
+app.command("compare")(compare_command)
 
 
 def _batch(

@@ -12,6 +12,7 @@ import json
 import math
 import re
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -147,20 +148,98 @@ def run_compare(
         _print_table(res.to_json(), f"{name}: {res.other.describe()} vs {res.reference.describe()}")
 
 
-#: Options ``fast_compare`` understands: option -> (parameter of compare_command, kind).
-_FAST_OPTIONS: dict[str, tuple[str, str]] = {
-    "--gazebo-topic": ("gazebo_topic", "str"),
-    "--unity-topic": ("unity_topic", "str"),
-    "--format": ("fmt", "str"),
-    "--frame": ("frame", "str"),
-    "--sync": ("sync", "str"),
-    "--max-gap": ("max_gap", "float"),
-    "--max-diff": ("max_diff", "float"),
-    "--offset": ("offset", "str"),
-    "--max-offset": ("max_offset", "float"),
-    "--align": ("align", "str"),
-    "--output": ("output", "path"),
-    "-o": ("output", "path"),
+@dataclass(frozen=True)
+class CompareOption:
+    """One option of ``uwval compare``: the one source of both command-line parsers.
+
+    The typer command (:mod:`uwval.cli.compare_cmd`, for ``--help``, usage errors and
+    ``--batch``) is built from :data:`COMPARE_OPTIONS`, and so is the light parser of
+    :func:`fast_compare`; an option exists in both or in neither.
+    """
+
+    dest: str  # keyword of run_compare / the typer command
+    flags: tuple[str, ...]
+    kind: type  # str, float, int, bool (a flag) or Path
+    default: Any
+    help: str
+    fast: bool = True  # False: only typer handles it (the fast path declines, runs nothing)
+
+
+FRAME_HELP = (
+    "Convention of the second (Unity) stream: unity-flu, unity-enu, ned, enu or auto "
+    "(default: from the log's frame_id; enu for TUM files)"
+)
+
+#: Every option of ``uwval compare``, in ``--help`` order.
+COMPARE_OPTIONS: tuple[CompareOption, ...] = (
+    CompareOption("gazebo_topic", ("--gazebo-topic",), str, None, "Reference topic"),
+    CompareOption("unity_topic", ("--unity-topic",), str, None, "Other (Unity) topic"),
+    CompareOption(
+        "fmt",
+        ("--format",),
+        str,
+        None,
+        "Input format: tum, or a log format read by uwval.io (default: by suffix)",
+    ),
+    CompareOption("frame", ("--frame",), str, None, FRAME_HELP),
+    CompareOption(
+        "sync",
+        ("--sync",),
+        str,
+        "interp",
+        "interp (lerp+slerp at reference stamps) or nearest (evo's association)",
+    ),
+    CompareOption(
+        "max_gap",
+        ("--max-gap",),
+        float,
+        None,
+        "interp: mask samples in gaps longer than this (s; default 5 periods)",
+    ),
+    CompareOption("max_diff", ("--max-diff",), float, 0.01, "nearest: max stamp difference (s)"),
+    CompareOption(
+        "offset",
+        ("--offset",),
+        str,
+        "0",
+        "Clock offset added to the second stream's stamps (s), or 'auto' to estimate it",
+    ),
+    CompareOption("max_offset", ("--max-offset",), float, None, "Bound for --offset auto (s)"),
+    CompareOption("align", ("--align",), str, "none", "none, se3, sim3 (Umeyama) or origin"),
+    CompareOption("as_json", ("--json",), bool, False, "Print the JSON result"),
+    CompareOption(
+        "output",
+        ("-o", "--output"),
+        Path,
+        None,
+        "Also write the JSON result here (with --batch: the results directory)",
+    ),
+    CompareOption(
+        "batch",
+        ("--batch",),
+        bool,
+        False,
+        "LOG_A is an experiment directory or manifest: compare every log into one results table",
+        fast=False,
+    ),
+    CompareOption(
+        "executor",
+        ("--executor",),
+        str,
+        "local",
+        "--batch: local (process pool), dask or inline",
+        fast=False,
+    ),
+    CompareOption("workers", ("--workers",), int, None, "--batch: worker processes", fast=False),
+    CompareOption(
+        "scheduler", ("--scheduler",), str, None, "--batch: Dask scheduler address", fast=False
+    ),
+)
+
+#: What ``fast_compare`` understands, derived from :data:`COMPARE_OPTIONS`:
+#: option flag -> (keyword of run_compare, kind).
+_FAST_OPTIONS: dict[str, tuple[str, type]] = {
+    flag: (o.dest, o.kind) for o in COMPARE_OPTIONS if o.fast for flag in o.flags
 }
 _PLAIN_FLOAT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
 
@@ -177,23 +256,29 @@ def fast_compare(argv: list[str]) -> bool:
     positional: list[str] = []
     args = iter(argv)
     for arg in args:
-        if arg == "--json" and "as_json" not in kwargs:
-            kwargs["as_json"] = True
-            continue
         if arg.startswith("-"):
             name, has_value, value = arg.partition("=")
             spec = _FAST_OPTIONS.get(name)
-            if not has_value:
-                value = next(args, "")
-            if spec is None or spec[0] in kwargs or not value:
+            if spec is None or spec[0] in kwargs:
                 return False
             dest, kind = spec
-            if kind == "float":
+            if kind is bool:  # a flag: no value
+                if has_value:
+                    return False
+                kwargs[dest] = True
+                continue
+            if not has_value:
+                value = next(args, "")
+            if not value:
+                return False
+            if kind is float:
                 if not _PLAIN_FLOAT.fullmatch(value):
                     return False
                 kwargs[dest] = float(value)
-            else:
-                kwargs[dest] = Path(value) if kind == "path" else value
+            elif kind is str or kind is Path:
+                kwargs[dest] = kind(value)
+            else:  # a kind the light parser does not convert: typer's job
+                return False
         else:
             positional.append(arg)
     if len(positional) not in (1, 2):

@@ -167,7 +167,7 @@ def check(
         if exp.failed:
             raise typer.Exit(1)
         return
-    verdict = run_check(exp.table, thresholds, baseline)
+    verdict = run_check(exp.table, thresholds, baseline, expected_runs=[r.name for r in exp.runs])
     if json_out:
         typer.echo(json.dumps(verdict.to_json(), indent=1))
     else:

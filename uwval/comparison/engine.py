@@ -87,7 +87,8 @@ class ComparisonResult:
 
     def to_json(self) -> dict[str, Any]:
         """The JSON contract of ``uwval compare --json`` (plain dicts, lists, floats, None)."""
-        return _json_clean(self.stats)
+        out: dict[str, Any] = _json_clean(self.stats)
+        return out
 
     def to_dataframe(self) -> Any:
         """A pandas DataFrame: t (s), reference/other poses and every error series."""

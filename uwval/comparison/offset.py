@@ -244,7 +244,7 @@ def _position_cost(ref_t: F64, ref_p: F64, oth_t: F64, oth_p: F64, offset: float
         return math.inf
     e = np.column_stack([np.interp(tq[ok], oth_t, oth_p[:, j]) for j in range(3)]) - ref_p[ok]
     e -= e.mean(axis=0)
-    return float(np.einsum("ij,ij->", e, e)) / ok.sum()
+    return float(np.einsum("ij,ij->", e, e)) / int(ok.sum())
 
 
 def _refine(

@@ -200,7 +200,9 @@ def read_csv(
         )
 
     def numbers(names: list[str]) -> np.ndarray:
-        block = df[names].apply(pd.to_numeric, errors="coerce").to_numpy(dtype=np.float64)
+        block: np.ndarray = (
+            df[names].apply(pd.to_numeric, errors="coerce").to_numpy(dtype=np.float64)
+        )
         bad = ~np.isfinite(block)
         if bad.any():
             r, c = np.argwhere(bad)[0]

@@ -262,7 +262,7 @@ def write_stream(
         for i in range(hdr.shape[0]):
             writer.write_raw(topic + APPLIED_SUFFIX, HEADER, hdr[i].tobytes(), lt_list[i])
         n += hdr.shape[0]
-    return n
+    return int(n)
 
 
 def _clear_old_log(p: Path) -> None:

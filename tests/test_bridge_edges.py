@@ -1,5 +1,5 @@
-"""Regressions found in review: crash-scan byte counts, stats with nothing delivered, and a
-Unity-like recorder that never connected."""
+"""The bridge at its edges: a recording cut mid-file (crash scan byte counts), a run where
+nothing was delivered, a Unity-like recorder that never connects, generic bodies via rosbags."""
 
 from __future__ import annotations
 

@@ -1,0 +1,63 @@
+"""``uwval compare`` on the command line: bad options and unwritable outputs are clean one-line
+errors (exit 2), a reader warning one clean line; never a traceback."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from cli_runner import run_uwval as _uwval
+
+
+@pytest.fixture(scope="module")
+def run_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    log = tmp_path_factory.mktemp("rv") / "run.mcap"
+    res = _uwval(
+        "simulate", "--force", "10,0,0", "--torque", "0,0,1", "--duration", "5", "-o", str(log)
+    )
+    assert res.returncode == 0, res.stderr
+    return log
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["--offset", "nan"], "finite"),
+        (["--offset", "inf"], "finite"),
+        (["--max-gap", "-1"], "max_gap"),
+        (["--max-gap", "0"], "max_gap"),
+        (["--sync", "nearest", "--max-diff", "-1"], "max_diff"),
+        (["--format", "foo"], "--format 'foo'"),
+    ],
+)
+def test_bad_compare_options_are_clean_errors(run_log: Path, args: list[str], needle: str) -> None:
+    res = _uwval("compare", str(run_log), *args)
+    assert res.returncode == 2, res.stdout + res.stderr
+    assert needle in res.stderr
+    assert "Traceback" not in res.stderr
+
+
+def test_compare_output_creates_its_folder_or_fails_cleanly(tmp_path: Path, run_log: Path) -> None:
+    out = tmp_path / "new" / "dir" / "result.json"
+    res = _uwval("compare", str(run_log), "-o", str(out))
+    assert res.returncode == 0, res.stderr
+    assert json.loads(out.read_text())["n_samples"] > 0
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    res = _uwval("compare", str(run_log), "-o", str(blocker / "x.json"))
+    assert res.returncode == 2
+    assert "cannot write" in res.stderr
+    assert "Traceback" not in res.stderr
+
+
+def test_truncated_log_warning_is_one_clean_line(tmp_path: Path, run_log: Path) -> None:
+    data = run_log.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: int(len(data) * 0.8)])
+    res = _uwval("compare", str(cut))
+    assert res.returncode == 0, res.stderr
+    lines = [ln for ln in res.stderr.splitlines() if "truncated" in ln]
+    assert len(lines) == 1  # once, although the file is opened more than once
+    assert lines[0].startswith("warning:")
+    assert ".py:" not in res.stderr  # not the warnings module's file:line form
