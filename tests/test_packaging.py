@@ -1,4 +1,6 @@
-"""The package's shape: what pyproject installs, the import graph, the embedded data.
+"""The package's shape: what pyproject installs, the arrows between its parts, the embedded data.
+
+No circle and no arrow into the core: tests/test_import_graph.py.
 
 The wheel itself is built and installed in fresh virtual environments by ``.ci/package-smoke``
 (every claimed Python, commands run from another folder); these tests keep the sources in a
@@ -23,8 +25,6 @@ REPO = Path(__file__).resolve().parents[1]
 PYPROJECT = tomllib.loads((REPO / "pyproject.toml").read_text())
 SETUPTOOLS = PYPROJECT["tool"]["setuptools"]
 PACKAGE_DIR: dict[str, str] = SETUPTOOLS["package-dir"]
-#: The parts that the core must not import (DESIGN.md section 1: dependencies point one way).
-OUTER = ("uwval.simulator", "uwval.bridge", "uwval.reports", "uwval.cli")
 
 
 def _folder_of(package: str) -> Path:
@@ -109,17 +109,6 @@ def test_package_data_covers_every_data_file() -> None:
     )
 
 
-def test_core_imports_none_of_the_outer_parts() -> None:
-    """uwval's core (everything but the CLI) never imports simulator, bridge, reports or cli."""
-    graph = _imports(_modules())
-    bad = {
-        m: sorted(t for t in targets if t.startswith(OUTER))
-        for m, targets in graph.items()
-        if not m.startswith(OUTER) and m != "uwval.__main__"  # ``python -m uwval`` is the CLI
-    }
-    assert not {m: t for m, t in bad.items() if t}
-
-
 def test_outer_parts_do_not_import_each_other() -> None:
     """simulator, bridge and reports use the core, never each other (the bridge may drive the
     simulator in a live run), and none of them imports the CLI."""
@@ -138,46 +127,6 @@ def test_outer_parts_do_not_import_each_other() -> None:
             if other and other != home and (home, other) not in allowed:
                 bad.append((m, t))
     assert not bad
-
-
-def test_import_graph_has_no_cycle() -> None:
-    """No two modules import each other, directly or through others (lazy imports included)."""
-    graph = _imports(_modules())
-    index: dict[str, int] = {}
-    low: dict[str, int] = {}
-    stack: list[str] = []
-    on_stack: set[str] = set()
-    cycles: list[list[str]] = []
-    counter = 0
-
-    def visit(v: str) -> None:  # Tarjan's strongly connected components
-        nonlocal counter
-        index[v] = low[v] = counter
-        counter += 1
-        stack.append(v)
-        on_stack.add(v)
-        for w in graph[v]:
-            if w not in index:
-                visit(w)
-                low[v] = min(low[v], low[w])
-            elif w in on_stack:
-                low[v] = min(low[v], index[w])
-        if low[v] == index[v]:
-            component = []
-            while True:
-                w = stack.pop()
-                on_stack.discard(w)
-                component.append(w)
-                if w == v:
-                    break
-            if len(component) > 1:
-                cycles.append(sorted(component))
-
-    sys.setrecursionlimit(max(sys.getrecursionlimit(), 10_000))
-    for v in graph:
-        if v not in index:
-            visit(v)
-    assert not cycles
 
 
 def test_embedded_data_is_found_through_the_package() -> None:
