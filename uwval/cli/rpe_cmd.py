@@ -82,7 +82,9 @@ def rpe_command(
     ] = "f",
     delta_tol: Annotated[
         float,
-        typer.Option("--delta-tol", "--delta_tol", "-t", help="Relative delta tolerance (all pairs)"),
+        typer.Option(
+            "--delta-tol", "--delta_tol", "-t", help="Relative delta tolerance (all pairs)"
+        ),
     ] = 0.1,
     all_pairs: Annotated[
         bool, typer.Option("--all-pairs", "--all_pairs", help="All pairs, not consecutive ones")
@@ -114,9 +116,7 @@ def rpe_command(
     ] = "nearest",
     max_diff: Annotated[
         float,
-        typer.Option(
-            "--max-diff", "--t-max-diff", "--t_max_diff", help="Max stamp difference (s)"
-        ),
+        typer.Option("--max-diff", "--t-max-diff", "--t_max_diff", help="Max stamp difference (s)"),
     ] = 0.01,
     t_offset: Annotated[
         float,
@@ -178,7 +178,13 @@ def rpe_command(
         f"for delta = {res.delta:g} ({DELTA_UNITS[res.delta_unit]}) using "
         f"{'all' if res.all_pairs else 'consecutive'} pairs\n({_ALIGN_TITLES[mode]})"
     )
-    lines = [title, f"pairs {res.n_pairs} of {res.n_poses} matched poses; sync {res.sync['method']}"]
-    lines += [f"{k:>8}  {res.stats[k]:.6f}" for k in ("max", "mean", "median", "min", "rmse", "sse", "std")]
+    lines = [
+        title,
+        f"pairs {res.n_pairs} of {res.n_poses} matched poses; sync {res.sync['method']}",
+    ]
+    lines += [
+        f"{k:>8}  {res.stats[k]:.6f}"
+        for k in ("max", "mean", "median", "min", "rmse", "sse", "std")
+    ]
     lines += [f"warning: {w}" for w in res.warnings]
     sys.stdout.write("\n".join(lines) + "\n")

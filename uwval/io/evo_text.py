@@ -16,9 +16,7 @@ from uwval.posestream import PoseStream
 EVO_TEXT_FORMATS = ("kitti", "euroc")
 
 
-def read_evo_text(
-    path: str | Path, fmt: str, *, frame: str = "enu", topic: str = ""
-) -> PoseStream:
+def read_evo_text(path: str | Path, fmt: str, *, frame: str = "enu", topic: str = "") -> PoseStream:
     """One trajectory file in evo's ``kitti`` or ``euroc`` layout (see the module doc)."""
     if fmt == "kitti":
         from uwval.io.kitti import read_kitti
