@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from cli_runner import run_uwval
+
 from uwval.errors import LogReadError
 from uwval.io.euroc import read_euroc
 from uwval.io.kitti import read_kitti
@@ -173,13 +173,13 @@ def test_rpe_euroc_equals_evo_rpe(euroc_pair: tuple[Path, Path], tmp_path: Path)
 def test_kitti_errors_name_the_line(tmp_path: Path, kitti_pair: tuple[Path, Path]) -> None:
     lines = kitti_pair[0].read_text().splitlines()
     bad = tmp_path / "bad.kitti"
-    bad.write_text("# header\n" + "\n".join(lines[:4] + [" ".join(lines[4].split()[:11])]) + "\n")
+    bad.write_text("# header\n" + "\n".join([*lines[:4], " ".join(lines[4].split()[:11])]) + "\n")
     with pytest.raises(LogReadError, match=r"bad.kitti line 6: 11 fields, expected 12"):
         read_kitti(bad)
-    bad.write_text("\n".join(lines[:2] + [lines[2].replace(lines[2].split()[3], "x", 1)]) + "\n")
+    bad.write_text("\n".join([*lines[:2], lines[2].replace(lines[2].split()[3], "x", 1)]) + "\n")
     with pytest.raises(LogReadError, match=r"line 3: 'x' is not a number"):
         read_kitti(bad)
-    bad.write_text("\n".join(lines[:1] + ["2 0 0 0 0 1 0 0 0 0 1 0"]) + "\n")
+    bad.write_text("\n".join([*lines[:1], "2 0 0 0 0 1 0 0 0 0 1 0"]) + "\n")
     with pytest.raises(LogReadError, match=r"line 2: the rotation block is not a rotation"):
         read_kitti(bad)
     short = tmp_path / "short.kitti"
@@ -193,7 +193,7 @@ def test_kitti_errors_name_the_line(tmp_path: Path, kitti_pair: tuple[Path, Path
 def test_euroc_errors_name_the_line(tmp_path: Path, euroc_pair: tuple[Path, Path]) -> None:
     lines = euroc_pair[0].read_text().splitlines()
     bad = tmp_path / "bad.csv"
-    bad.write_text("\n".join(lines[:3] + [",".join(lines[3].split(",")[:5])]) + "\n")
+    bad.write_text("\n".join([*lines[:3], ",".join(lines[3].split(",")[:5])]) + "\n")
     with pytest.raises(LogReadError, match=r"bad.csv line 4: 5 fields, expected at least 8"):
         read_euroc(bad)
     fields = lines[2].split(",")

@@ -3,6 +3,8 @@
 Expected values were produced with evo 1.38.1 by (D = /work/shared/data/evo):
 
     evo_rpe tum $D/<ref> $D/<est> <flags> --save_results out.zip --no_warnings --silent
+    # FR1 = freiburg1_xyz-groundtruth.txt $D/freiburg1_xyz-rgbdslam.txt
+    # FR2 = fr2_desk_groundtruth.txt $D/fr2_desk_ORB.txt
     # then: unzip -p out.zip stats.json
 
 (evo's defaults: -r trans_part -d 1 -u f --t_max_diff 0.01.) The same <flags> are given to
@@ -14,6 +16,7 @@ evo is importable, and a property test checks the vectorised core against a slow
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import shutil
@@ -39,7 +42,7 @@ needs_data = pytest.mark.skipif(not DATA.is_dir(), reason="shared evo data not p
 
 # (pair, evo_rpe flags, evo's stats.json)
 EVO_RPE = [
-    # evo_rpe tum $D/freiburg1_xyz-groundtruth.txt $D/freiburg1_xyz-rgbdslam.txt --t_max_diff 0.01
+    # evo_rpe tum $D/$FR1 --t_max_diff 0.01
     (
         "fr1",
         "--t_max_diff 0.01",
@@ -53,7 +56,7 @@ EVO_RPE = [
             sse=0.026050729486636066,
         ),
     ),
-    # evo_rpe tum $D/freiburg1_xyz-groundtruth.txt $D/freiburg1_xyz-rgbdslam.txt -r rot_part
+    # evo_rpe tum $D/$FR1 -r rot_part
     (
         "fr1",
         "-r rot_part",
@@ -67,7 +70,7 @@ EVO_RPE = [
             sse=0.05972455241051687,
         ),
     ),
-    # evo_rpe tum $D/freiburg1_xyz-groundtruth.txt $D/freiburg1_xyz-rgbdslam.txt -r full
+    # evo_rpe tum $D/$FR1 -r full
     (
         "fr1",
         "-r full",
@@ -81,7 +84,7 @@ EVO_RPE = [
             sse=0.08577528189715293,
         ),
     ),
-    # evo_rpe tum $D/freiburg1_xyz-groundtruth.txt $D/freiburg1_xyz-rgbdslam.txt -r angle_deg -d 10
+    # evo_rpe tum $D/$FR1 -r angle_deg -d 10
     (
         "fr1",
         "-r angle_deg -d 10",
@@ -95,7 +98,7 @@ EVO_RPE = [
             sse=38.391784911627575,
         ),
     ),
-    # evo_rpe tum $D/freiburg1_xyz-groundtruth.txt $D/freiburg1_xyz-rgbdslam.txt -r angle_rad -as
+    # evo_rpe tum $D/$FR1 -r angle_rad -as
     (
         "fr1",
         "-r angle_rad -as",
@@ -109,7 +112,7 @@ EVO_RPE = [
             sse=0.029862601505050497,
         ),
     ),
-    # evo_rpe tum $D/freiburg1_xyz-groundtruth.txt $D/freiburg1_xyz-rgbdslam.txt -r point_distance -d 5
+    # evo_rpe tum $D/$FR1 -r point_distance -d 5
     (
         "fr1",
         "-r point_distance -d 5",
@@ -123,7 +126,7 @@ EVO_RPE = [
             sse=0.009473404398114811,
         ),
     ),
-    # evo_rpe tum $D/freiburg1_xyz-groundtruth.txt $D/freiburg1_xyz-rgbdslam.txt -d 0.1 -u m
+    # evo_rpe tum $D/$FR1 -d 0.1 -u m
     (
         "fr1",
         "-d 0.1 -u m",
@@ -137,7 +140,7 @@ EVO_RPE = [
             sse=0.016370662467311684,
         ),
     ),
-    # evo_rpe tum $D/freiburg1_xyz-groundtruth.txt $D/freiburg1_xyz-rgbdslam.txt -d 0.1 -u m --all_pairs
+    # evo_rpe tum $D/$FR1 -d 0.1 -u m --all_pairs
     (
         "fr1",
         "-d 0.1 -u m --all_pairs",
@@ -151,7 +154,7 @@ EVO_RPE = [
             sse=0.1286207022150575,
         ),
     ),
-    # evo_rpe tum $D/freiburg1_xyz-groundtruth.txt $D/freiburg1_xyz-rgbdslam.txt -d 10 --all_pairs -as
+    # evo_rpe tum $D/$FR1 -d 10 --all_pairs -as
     (
         "fr1",
         "-d 10 --all_pairs -as",
@@ -165,7 +168,7 @@ EVO_RPE = [
             sse=0.1538907029689634,
         ),
     ),
-    # evo_rpe tum $D/freiburg1_xyz-groundtruth.txt $D/freiburg1_xyz-rgbdslam.txt -d 1 -u d -r angle_deg
+    # evo_rpe tum $D/$FR1 -d 1 -u d -r angle_deg
     (
         "fr1",
         "-d 1 -u d -r angle_deg",
@@ -179,7 +182,7 @@ EVO_RPE = [
             sse=67.81133855073224,
         ),
     ),
-    # evo_rpe tum $D/freiburg1_xyz-groundtruth.txt $D/freiburg1_xyz-rgbdslam.txt -d 0.05 -u r --all_pairs
+    # evo_rpe tum $D/$FR1 -d 0.05 -u r --all_pairs
     (
         "fr1",
         "-d 0.05 -u r --all_pairs",
@@ -193,7 +196,7 @@ EVO_RPE = [
             sse=2.0185385994152774,
         ),
     ),
-    # evo_rpe tum $D/fr2_desk_groundtruth.txt $D/fr2_desk_ORB.txt
+    # evo_rpe tum $D/$FR2
     (
         "fr2",
         "",
@@ -207,7 +210,7 @@ EVO_RPE = [
             sse=0.026472231989372496,
         ),
     ),
-    # evo_rpe tum $D/fr2_desk_groundtruth.txt $D/fr2_desk_ORB.txt -s
+    # evo_rpe tum $D/$FR2 -s
     (
         "fr2",
         "-s",
@@ -221,7 +224,7 @@ EVO_RPE = [
             sse=0.02639182975180323,
         ),
     ),
-    # evo_rpe tum $D/fr2_desk_groundtruth.txt $D/fr2_desk_ORB.txt -as -d 0.2 -u m
+    # evo_rpe tum $D/$FR2 -as -d 0.2 -u m
     (
         "fr2",
         "-as -d 0.2 -u m",
@@ -235,7 +238,7 @@ EVO_RPE = [
             sse=0.004333769048756614,
         ),
     ),
-    # evo_rpe tum $D/fr2_desk_groundtruth.txt $D/fr2_desk_ORB.txt -r full -d 30 --all_pairs
+    # evo_rpe tum $D/$FR2 -r full -d 30 --all_pairs
     (
         "fr2",
         "-r full -d 30 --all_pairs",
@@ -249,7 +252,7 @@ EVO_RPE = [
             sse=0.4396349258085672,
         ),
     ),
-    # evo_rpe tum $D/fr2_desk_groundtruth.txt $D/fr2_desk_ORB.txt --align_origin -r angle_deg -d 10
+    # evo_rpe tum $D/$FR2 --align_origin -r angle_deg -d 10
     (
         "fr2",
         "--align_origin -r angle_deg -d 10",
@@ -263,7 +266,7 @@ EVO_RPE = [
             sse=38.39640757433399,
         ),
     ),
-    # evo_rpe tum $D/fr2_desk_groundtruth.txt $D/fr2_desk_ORB.txt -u d -d 2 --pairs_from_reference
+    # evo_rpe tum $D/$FR2 -u d -d 2 --pairs_from_reference
     (
         "fr2",
         "-u d -d 2 --pairs_from_reference",
@@ -277,7 +280,7 @@ EVO_RPE = [
             sse=0.012647861589853284,
         ),
     ),
-    # evo_rpe tum $D/fr2_desk_groundtruth.txt $D/fr2_desk_ORB.txt --t_offset 0.005 --t_max_diff 0.02
+    # evo_rpe tum $D/$FR2 --t_offset 0.005 --t_max_diff 0.02
     (
         "fr2",
         "--t_offset 0.005 --t_max_diff 0.02",
@@ -291,7 +294,7 @@ EVO_RPE = [
             sse=0.028465347266669546,
         ),
     ),
-    # evo_rpe tum $D/fr2_desk_groundtruth.txt $D/fr2_desk_ORB.txt -r point_distance_error_ratio -d 20
+    # evo_rpe tum $D/$FR2 -r point_distance_error_ratio -d 20
     (
         "fr2",
         "-r point_distance_error_ratio -d 20",
@@ -437,7 +440,7 @@ def _slow_pairs(
         if all_pairs:
             return [(i, i + d) for i in range(n) if i + d < n]
         ids = list(range(0, n, d))
-        return list(zip(ids, ids[1:]))
+        return list(itertools.pairwise(ids))
     if unit == "m":
         steps = [float(np.linalg.norm(mats[k + 1][:3, 3] - mats[k][:3, 3])) for k in range(n - 1)]
     else:
@@ -449,7 +452,7 @@ def _slow_pairs(
             if acc >= delta:
                 ids.append(k)
                 acc = 0.0
-        return list(zip(ids, ids[1:]))
+        return list(itertools.pairwise(ids))
     tol = 0.1 * delta
     out = []
     if unit == "m":
@@ -468,7 +471,7 @@ def _slow_pairs(
     return out
 
 
-def _slow_error(qi, qj, pi, pj, relation: str) -> float:  # noqa: ANN001 (4x4 arrays)
+def _slow_error(qi, qj, pi, pj, relation: str) -> float:
     if relation == "point_distance":
         return abs(np.linalg.norm(qj[:3, 3] - qi[:3, 3]) - np.linalg.norm(pj[:3, 3] - pi[:3, 3]))
     e = np.linalg.inv(np.linalg.inv(qi) @ qj) @ (np.linalg.inv(pi) @ pj)
@@ -513,8 +516,8 @@ def test_vectorised_equals_slow_matrix_reference(
         _random_stream(rng, n, 0.2, 0.1).orientation,
     )
     unit, delta = unit_delta
-    mats_r = [_mat(p, q) for p, q in zip(ref.position, ref.orientation)]
-    mats_e = [_mat(p, q) for p, q in zip(est.position, est.orientation)]
+    mats_r = [_mat(p, q) for p, q in zip(ref.position, ref.orientation, strict=False)]
+    mats_e = [_mat(p, q) for p, q in zip(est.position, est.orientation, strict=False)]
     d_rad = math.radians(delta) if unit == "d" else delta
     want_pairs = _slow_pairs(mats_e, d_rad, "r" if unit == "d" else unit, all_pairs)
     if not want_pairs:
@@ -522,7 +525,7 @@ def test_vectorised_equals_slow_matrix_reference(
             rpe(ref, est, relation=relation, delta=delta, delta_unit=unit, all_pairs=all_pairs)
         return
     res = rpe(ref, est, relation=relation, delta=delta, delta_unit=unit, all_pairs=all_pairs)
-    assert list(zip(res.first.tolist(), res.second.tolist())) == want_pairs
+    assert list(zip(res.first.tolist(), res.second.tolist(), strict=False)) == want_pairs
     want = [
         _slow_error(mats_r[i], mats_r[j], mats_e[i], mats_e[j], relation) for i, j in want_pairs
     ]

@@ -226,7 +226,7 @@ def select_pairs(
     """evo's ``id_pairs_from_delta`` on the poses given (evo: the estimate's, by default)."""
     if delta_unit not in DELTA_UNITS:
         raise ConfigError(
-            f"--delta-unit {delta_unit!r}: choose f (frames), m (metres), d (degrees) or r (radians)"
+            f"--delta-unit {delta_unit!r}: choose f (frames), m (metres), d (deg) or r (rad)"
         )
     if not (delta >= 0 and math.isfinite(delta)):
         raise ConfigError(f"--delta must be a non-negative number, got {delta}")
