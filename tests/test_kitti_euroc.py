@@ -204,3 +204,35 @@ def test_euroc_errors_name_the_line(tmp_path: Path, euroc_pair: tuple[Path, Path
     bad.write_text("\n".join([lines[0], lines[2], lines[1]]) + "\n")
     with pytest.raises(LogReadError, match=r"line 3: timestamp \d+ ns does not increase"):
         read_euroc(bad)
+
+
+def test_rpe_reads_topics_of_logs(tmp_path: Path) -> None:
+    """Two topics of one MCAP, and one topic from each of two logs: same numbers as rpe()."""
+    from uwval.comparison.rpe import rpe
+    from uwval.io.writers import open_writer, write_stream
+    from uwval.posestream import PoseStream
+
+    rng = np.random.default_rng(5)
+    pos, quat = _trajectory(rng, 200)
+    t = 1_700_000_000_000_000_000 + np.arange(200, dtype=np.int64) * 10_000_000
+    ref = PoseStream(t, pos, quat, topic="/gt")
+    est = PoseStream(t + 2_000_000, pos + rng.normal(0, 0.01, pos.shape), quat, topic="/est")
+    with open_writer(tmp_path / "run.mcap", "mcap") as w:
+        write_stream(w, "/gt", ref, "enu")
+        write_stream(w, "/est", est, "enu")
+    for name, s in (("gt.mcap", ref), ("est.mcap", est)):
+        with open_writer(tmp_path / name, "mcap") as w:
+            write_stream(w, s.topic, s, "enu")
+    want = rpe(ref, est, relation="full", delta=3).stats
+    one = run_uwval(
+        "rpe", tmp_path / "run.mcap", "--ref-topic", "/gt", "--est-topic", "/est", "-r", "full",
+        "-d", "3", "--json", check=True,
+    )  # fmt: skip
+    two = run_uwval(
+        "rpe", tmp_path / "gt.mcap", tmp_path / "est.mcap", "-r", "full", "-d", "3", "--json",
+        check=True,
+    )  # fmt: skip
+    for proc in (one, two):
+        doc = json.loads(proc.stdout)
+        assert doc["n_pairs"] == 66
+        _close(doc["stats"], want)
