@@ -52,7 +52,7 @@ DELTA_UNITS = {"f": "frames", "m": "m", "d": "deg", "r": "rad"}
 #: ``align`` values of :func:`rpe`: the compare modes plus ``scale`` (evo's ``-s`` alone).
 RPE_ALIGN_MODES = (*ALIGN_MODES, "scale")
 #: Rows of the all-pairs angle search done per step (each row compares with every later pose).
-_ANGLE_BLOCK_ELEMENTS = 1 << 22
+_ANGLE_BLOCK_ELEMENTS = 1 << 20
 
 
 @dataclass(frozen=True)
