@@ -33,6 +33,7 @@ COMMAND_MODULES = (
     "uwval.cli.demo_cmd",
     "uwval.cli.teleop_cmd",
     "uwval.cli.bench_cmd",
+    "uwval.cli.rpe_cmd",
 )
 
 #: Which module defines each top-level command, so that ``uwval compare`` imports only the
@@ -48,6 +49,7 @@ COMMAND_HOME = {
     "demo": "uwval.cli.demo_cmd",
     "teleop": "uwval.cli.teleop_cmd",
     "bench": "uwval.cli.bench_cmd",
+    "rpe": "uwval.cli.rpe_cmd",
 }
 
 _app: typer.Typer | None = None

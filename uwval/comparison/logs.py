@@ -43,7 +43,7 @@ class LogComparison:
 
 #: Values of ``--format``: ``tum`` selects the TUM text reader; the others name formats the
 #: log readers recognise by suffix anyway (accepted for clarity, checked for typos).
-INPUT_FORMATS = ("tum", "mcap", "bag", "rosbag2", "db3", "csv")
+INPUT_FORMATS = ("tum", "mcap", "bag", "rosbag2", "db3", "csv", "kitti", "euroc")
 
 
 def is_tum(path: str | Path, fmt: str | None = None) -> bool:
@@ -67,6 +67,10 @@ def read_pose_stream(
 
     With no topic, a log holding exactly one pose topic gives that one.
     """
+    if fmt in ("kitti", "euroc"):  # evo's text formats (uwval.io.evo_text)
+        from uwval.io.evo_text import read_evo_text
+
+        return read_evo_text(path, fmt, frame=frame or "enu", topic=topic or "")
     if is_tum(path, fmt):
         from uwval.io.tum import read_tum
 
@@ -162,6 +166,10 @@ def _read_pair(
     frame: str | None,
 ) -> tuple[PoseStream, PoseStream]:
     """Read the two files; two TUM files are parsed concurrently when that pays off."""
+    if fmt in ("kitti", "euroc"):  # evo's text formats (uwval.io.evo_text)
+        from uwval.io.evo_text import read_evo_pair
+
+        return read_evo_pair(path_a, path_b, fmt, frame_b=frame or "enu")
     if is_tum(path_a, fmt) and is_tum(path_b, fmt):
         from uwval.io.tum import read_tum_pair
 
