@@ -18,9 +18,9 @@ from uwval.errors import PoseStreamError
 #: Quaternions whose norm differs from 1 by more than this are rejected, not normalised.
 QUAT_NORM_TOLERANCE = 1e-2
 
-#: Largest |stamp| accepted, in ns (2**62 ns, about 146 years either side of 1970): any two
+#: Largest |stamp| accepted, in ns (2**62 - 1 ns, about 146 years either side of 1970): any two
 #: stamps then differ by less than 2**63, so differences and offsets never wrap in int64.
-MAX_ABS_STAMP_NS = 1 << 62
+MAX_ABS_STAMP_NS = (1 << 62) - 1
 
 #: Largest |stamp| accepted for float seconds (the same bound, in seconds).
 MAX_ABS_STAMP_S = MAX_ABS_STAMP_NS * 1e-9

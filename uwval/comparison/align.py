@@ -8,6 +8,7 @@ p' = s R p + t, R' = R_a R_other. Computed on arrays, without lists of 4x4 matri
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -81,7 +82,14 @@ def umeyama(x: F64, y: F64, with_scale: bool = False) -> tuple[F64, F64, float]:
     yc = y - mean_y
     sigma_x = float(np.einsum("ij,ij->", xc, xc)) / n
     cov_xy = np.einsum("ni,nj->ij", yc, xc) / n  # no BLAS threads for a 3x3 result
-    u, d, v = np.linalg.svd(cov_xy)
+    if not bool(np.isfinite(cov_xy).all()) or not math.isfinite(sigma_x):
+        raise AlignmentError(
+            "alignment covariance is not finite (positions NaN/inf or too large to square)"
+        )
+    try:
+        u, d, v = np.linalg.svd(cov_xy)
+    except np.linalg.LinAlgError as exc:
+        raise AlignmentError(f"Umeyama alignment failed: {exc}") from None
     if np.count_nonzero(d > np.finfo(d.dtype).eps) < 2:
         raise AlignmentError(
             "degenerate covariance rank (motion along a line or a point): "
