@@ -82,6 +82,14 @@ def compare_command(
     ] = "local",
     workers: Annotated[int | None, typer.Option(help="--batch: worker processes")] = None,
     scheduler: Annotated[str | None, typer.Option(help="--batch: Dask scheduler address")] = None,
+    allow_protocol: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--allow-protocol",
+            help="--batch: fetch manifest logs by this remote protocol (s3, gs, http...; "
+            "repeatable; also UWVAL_ALLOW_PROTOCOLS=s3,gs). Without it only local paths are read",
+        ),
+    ] = None,
 ) -> None:
     """Compare the Gazebo and Unity pose streams: per-axis errors, Pearson r, evo's APE stats."""
     if batch:
@@ -91,6 +99,7 @@ def compare_command(
             executor=executor,
             workers=workers,
             scheduler=scheduler,
+            allow_protocols=allow_protocol or [],
             options={
                 "gazebo_topic": gazebo_topic,
                 "unity_topic": unity_topic,
@@ -131,6 +140,7 @@ def _batch(
     workers: int | None,
     scheduler: str | None,
     options: dict[str, Any],
+    allow_protocols: list[str],
 ) -> None:
     """``compare --batch``: every log of a sweep -> comparisons.json + the results table."""
     from rich.console import Console
@@ -140,7 +150,12 @@ def _batch(
     console = Console()
     opts = {k: v for k, v in options.items() if v is not None}
     result = compare_batch(
-        source, executor=executor, workers=workers, scheduler=scheduler, options=opts
+        source,
+        executor=executor,
+        workers=workers,
+        scheduler=scheduler,
+        options=opts,
+        allow_protocols=allow_protocols,
     )
     out = output or (source if source.is_dir() else source.parent) / "results"
     written = result.save(out)
