@@ -188,3 +188,20 @@ def test_report_of_a_log_named_with_dollars(tmp_path: Path) -> None:
     p = run_uwval("report", log, "-o", tmp_path / "r.html", timeout=300)
     assert p.returncode in (0, 1), p.stderr
     assert "Traceback" not in p.stderr and (tmp_path / "r.html").stat().st_size > 10_000
+
+
+# ------------------------------------------------------------------ options as enums
+def test_options_are_enums_and_their_strings_still_work() -> None:
+    from uwval.comparison import AlignMode, SyncMethod
+    from uwval.executors import EXECUTORS, Executor
+
+    g = vehicle_motion(300)
+    u = unity_view(g, latency=0.02)
+    by_enum = compare(g, u, sync=SyncMethod.NEAREST, align=AlignMode.SE3).to_json()
+    by_str = compare(g, u, sync="nearest", align="se3").to_json()
+    assert by_enum == by_str
+    assert json.dumps(by_enum["sync"]["method"]) == '"nearest"'
+    assert by_enum["alignment"]["mode"] == "se3" and type(by_enum["alignment"]["mode"]) is str
+    assert EXECUTORS == ("local", "dask", "inline") and Executor("dask") == "dask"
+    with pytest.raises(AlignmentError, match="unknown sync method"):
+        compare(g, u, sync="linear")

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from uwval.errors import ConfigError
-from uwval.executors import run_tasks
+from uwval.executors import Executor, run_tasks
 
 LOG_SUFFIXES = (".mcap", ".bag", ".db3")
 
@@ -192,7 +192,7 @@ class BatchResult:
 def compare_batch(
     source: Path,
     *,
-    executor: str = "local",
+    executor: Executor | str = Executor.LOCAL,
     workers: int | None = None,
     scheduler: str | None = None,
     options: dict[str, Any] | None = None,

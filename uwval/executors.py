@@ -25,6 +25,7 @@ from contextlib import contextmanager
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
+from enum import StrEnum
 from multiprocessing import get_context
 from typing import Any, Generic, TypeVar
 
@@ -33,7 +34,17 @@ from uwval.errors import UwvalError
 T = TypeVar("T")
 R = TypeVar("R")
 
-EXECUTORS = ("local", "dask", "inline")
+
+
+class Executor(StrEnum):
+    """Where tasks run (a StrEnum: each equals its CLI string)."""
+
+    LOCAL = "local"
+    DASK = "dask"
+    INLINE = "inline"
+
+
+EXECUTORS = tuple(e.value for e in Executor)
 
 #: Seconds a worker is given to end after SIGTERM before it is killed.
 TERMINATE_GRACE_S = 2.0
@@ -155,7 +166,7 @@ def run_tasks(
     items: Sequence[T],
     keys: Sequence[str],
     *,
-    executor: str = "local",
+    executor: Executor | str = Executor.LOCAL,
     workers: int | None = None,
     scheduler: str | None = None,
     retries: int = 2,
@@ -185,7 +196,7 @@ def _dispatch(
     fn: Callable[[T], R],
     items: Sequence[T],
     keys: Sequence[str],
-    executor: str,
+    executor: Executor | str,
     workers: int | None,
     scheduler: str | None,
     retries: int,

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from enum import StrEnum
 from typing import Any
 
 import numpy as np
@@ -20,7 +21,16 @@ from uwval.rotations import matrix_from_quat, quat_from_matrix, quat_multiply
 
 F64 = NDArray[np.float64]
 
-ALIGN_MODES = ("none", "se3", "sim3", "origin")
+class AlignMode(StrEnum):
+    """Spatial alignment modes (a StrEnum: each equals its CLI string, ``"se3"``...)."""
+
+    NONE = "none"
+    SE3 = "se3"
+    SIM3 = "sim3"
+    ORIGIN = "origin"
+
+
+ALIGN_MODES = tuple(m.value for m in AlignMode)
 
 
 @dataclass(frozen=True)
@@ -105,11 +115,13 @@ def umeyama(x: F64, y: F64, with_scale: bool = False) -> tuple[F64, F64, float]:
 
 
 def estimate_alignment(
-    mode: str, ref_pos: F64, ref_quat: F64, oth_pos: F64, oth_quat: F64
+    mode: AlignMode | str, ref_pos: F64, ref_quat: F64, oth_pos: F64, oth_quat: F64
 ) -> Alignment:
-    """The alignment ``mode`` that maps the (associated) other poses onto the reference."""
+    """The alignment ``mode`` (an :class:`AlignMode` or its string) that maps the (associated)
+    other poses onto the reference."""
     if mode not in ALIGN_MODES:
         raise AlignmentError(f"unknown alignment {mode!r}; choose one of {', '.join(ALIGN_MODES)}")
+    mode = AlignMode(mode).value
     if mode == "none":
         return identity()
     if mode in ("se3", "sim3"):

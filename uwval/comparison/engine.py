@@ -12,12 +12,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from uwval.comparison.align import Alignment, estimate_alignment
+from uwval.comparison.align import Alignment, AlignMode, estimate_alignment
 from uwval.comparison.doctor import FrameDiagnosis, diagnose
 from uwval.comparison.offset import OffsetEstimate, estimate_offset, latency_stats
 from uwval.comparison.stats import axis_stats, norm_stats
@@ -36,7 +37,16 @@ F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 
 AXES = ("x", "y", "z", "roll", "pitch", "yaw")
-SYNC_METHODS = ("interp", "nearest")
+
+
+class SyncMethod(StrEnum):
+    """Time association methods (a StrEnum: each equals its CLI string)."""
+
+    INTERP = "interp"
+    NEAREST = "nearest"
+
+
+SYNC_METHODS = tuple(m.value for m in SyncMethod)
 JSON_SCHEMA_VERSION = 1
 
 #: Largest offset, gap or time difference accepted (s): beyond it stamps leave int64 ns.
@@ -154,12 +164,12 @@ def compare(
     other: PoseStream,
     *,
     frame: str | None = None,
-    sync: str = "interp",
+    sync: SyncMethod | str = SyncMethod.INTERP,
     max_gap: float | None = None,
     max_diff: float = 0.01,
     offset: float | str = 0.0,
     max_offset: float | None = None,
-    align: str = "none",
+    align: AlignMode | str = AlignMode.NONE,
     min_samples: int = 2,
     check_frame: bool | None = None,
 ) -> ComparisonResult:
@@ -184,6 +194,7 @@ def compare(
         raise AlignmentError(
             f"unknown sync method {sync!r}; choose one of {', '.join(SYNC_METHODS)}"
         )
+    sync = SyncMethod(sync).value  # a plain str from here on (it goes into the JSON)
     if len(reference) < 1 or len(other) < 1:
         raise AlignmentError("cannot compare an empty stream")
     if max_gap is not None and not (max_gap > 0 and max_gap <= MAX_SECONDS):
