@@ -4,7 +4,9 @@ Starts ``uwval bridge serve`` in its own process on a free loopback port, record
 then opens N hostile connections (default 10,000) from a few threads, at most 200 open at a
 time, cycling through: idle sockets held open, 256 KiB ``__subscribe`` topics, 8 MiB
 ``__log`` texts, subscriptions to 256 distinct 1 KiB topics, garbage length prefixes, and
-connect-then-close. When they are all closed it times a well-behaved client (connect, read
+connect-then-close. The baseline RSS is taken after one well-behaved warm-up client has
+come and gone. When the hostile connections are all closed it times a well-behaved client
+(connect, read
 the handshake, ask ``__topic_list``, read the answer) and reads the RSS again.
 
     python -m benchmarks.bridge_hostile [--connections 10000]
@@ -63,7 +65,9 @@ def _hostile(kind: int, port: int, held: list[socket.socket], lock: threading.Lo
         elif kind == 3:  # many registrations of long (1 KiB) names
             for i in range(300):
                 t = f"/{i:04d}" + "c" * 1000
-                s.sendall(_frame("__subscribe", json.dumps({"topic": t, "message_name": "a/B"}).encode()))
+                s.sendall(
+                    _frame("__subscribe", json.dumps({"topic": t, "message_name": "a/B"}).encode())
+                )
         elif kind == 4:  # garbage length prefix
             s.sendall(b"\xf0\xff\xff\xff" + os.urandom(64))
         # kind 5: connect and close at once
@@ -77,18 +81,29 @@ def main() -> None:
     ap.add_argument("--connections", type=int, default=10_000)
     ap.add_argument("--threads", type=int, default=8)
     args = ap.parse_args()
+    with socket.socket() as probe:  # a free loopback port for the server
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
     proc = subprocess.Popen(
-        [sys.executable, "-m", "uwval", "bridge", "serve", "--port", "0", "--quiet"],
-        stdout=subprocess.PIPE,
+        [sys.executable, "-m", "uwval", "bridge", "serve", "--port", str(port), "--quiet"],
+        stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
-        text=True,
-        env={**os.environ, "PYTHONUNBUFFERED": "1", "COLUMNS": "200"},
     )
     try:
-        assert proc.stdout is not None
-        line = proc.stdout.readline()
-        port = int(re.search(r":(\d+) ", line).group(1))  # type: ignore[union-attr]
-        time.sleep(0.5)
+        for _ in range(600):  # up to 60 s for the server to listen
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=1).close()
+                break
+            except OSError:
+                time.sleep(0.1)
+        # warm-up: one well-behaved client first, so lazily imported code and the first
+        # thread's arenas are in the baseline (as in a server that has served someone)
+        w = socket.create_connection(("127.0.0.1", port), timeout=5)
+        w.sendall(_frame("__topic_list", b"{}"))
+        w.recv(65536)
+        time.sleep(0.3)
+        w.close()
+        time.sleep(1.0)
         rss_start = _rss_mb(proc.pid)
         peak = rss_start
         held: list[socket.socket] = []

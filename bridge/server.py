@@ -150,6 +150,23 @@ class _Client:
 
 #: Flag for a non-blocking send (Linux/macOS); 0 disables the direct-send fast path.
 _DONTWAIT = getattr(socket, "MSG_DONTWAIT", 0)
+
+
+def _load_malloc_trim() -> Callable[[int], int] | None:
+    """glibc's ``malloc_trim`` (returns freed heap pages to the system), or None elsewhere."""
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL("libc.so.6")
+        trim: Callable[[int], int] = libc.malloc_trim
+    except (OSError, AttributeError):
+        return None
+    return trim
+
+
+_MALLOC_TRIM = _load_malloc_trim()
+
+
 #: SO_LINGER (on, 0 s): close with a reset, leaving no TIME_WAIT for a refused connection.
 _LINGER_RESET = struct.pack("ii", 1, 0)
 
@@ -529,10 +546,15 @@ class BridgeServer:
             self._closed_stats.append(c.stats)
             self.closed_count += 1
             self._sub_cond.notify_all()
+            idle = not self._clients
         with contextlib.suppress(OSError):
             c.sock.shutdown(socket.SHUT_RDWR)
         c.sock.close()
         self._event(f"client {c.client_id} ({c.address}) closed: {reason}")
+        if idle and _MALLOC_TRIM is not None:
+            # the last client left: give the memory its buffers and threads used back to
+            # the system (glibc keeps freed pages of per-thread arenas otherwise)
+            _MALLOC_TRIM(0)
 
     def _reply(self, c: _Client, command: str, params: dict[str, Any]) -> None:
         c.enqueue(wire.encode_command(command, params, nul=False))

@@ -21,9 +21,9 @@ import threading
 import time
 import traceback
 from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
+from contextlib import contextmanager
 from dataclasses import dataclass
 from enum import StrEnum
 from multiprocessing import get_context
@@ -33,7 +33,6 @@ from uwval.errors import UwvalError
 
 T = TypeVar("T")
 R = TypeVar("R")
-
 
 
 class Executor(StrEnum):

@@ -21,6 +21,7 @@ from uwval.rotations import matrix_from_quat, quat_from_matrix, quat_multiply
 
 F64 = NDArray[np.float64]
 
+
 class AlignMode(StrEnum):
     """Spatial alignment modes (a StrEnum: each equals its CLI string, ``"se3"``...)."""
 

@@ -436,8 +436,8 @@ def check_pose_values(stream: PoseStream) -> None:
         bad = int(np.argmax(np.abs(pos).max(axis=1)))
         raise PoseStreamError(
             f"{stream.describe()}: position of sample {bad} (t={int(stream.t[bad])} ns) is "
-            f"{float(np.abs(pos[bad]).max()):.6g} m from the origin, beyond {MAX_POSITION_M:.0e} m: "
-            "not a vehicle position (wrong units or a corrupt value?)"
+            f"{float(np.abs(pos[bad]).max()):.6g} m from the origin, beyond "
+            f"{MAX_POSITION_M:.0e} m: not a vehicle position (wrong units or a corrupt value?)"
         )
 
 

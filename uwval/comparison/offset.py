@@ -320,9 +320,13 @@ def _refine(
     scan = np.linspace(-window, window, 121)
     costs = np.array([cost(float(x)) for x in scan])
     if not np.isfinite(costs).any():
-        return coarse, window, (
-            "the fine offset search found no overlap around the coarse estimate: "
-            f"offset {coarse:.9g} s is only good to +-{window:.3g} s"
+        return (
+            coarse,
+            window,
+            (
+                "the fine offset search found no overlap around the coarse estimate: "
+                f"offset {coarse:.9g} s is only good to +-{window:.3g} s"
+            ),
         )
     j = int(np.argmin(costs))
     cell = float(scan[1] - scan[0])
@@ -370,8 +374,14 @@ def _refine(
     sigma2 = float(np.einsum("ij,ij->", e, e)) / max(1, 3 * m - 4)
     info = float(np.einsum("ij,ij->", v, v))
     if info <= 0.0:
-        return best, math.inf, note or (
-            f"the other stream does not move where it overlaps: offset {best:.9g} s is undecided"
+        return (
+            best,
+            math.inf,
+            note
+            or (
+                "the other stream does not move where it overlaps: "
+                f"offset {best:.9g} s is undecided"
+            ),
         )
     return best, math.sqrt(sigma2 / info), note
 
