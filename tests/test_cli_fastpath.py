@@ -29,7 +29,7 @@ def test_every_fast_option_is_a_typer_option_with_the_same_destination() -> None
 
 def test_every_value_option_of_compare_is_known_to_the_fast_path_or_declined() -> None:
     params = _compare_params()
-    declined = {"--batch", "--help", "--executor", "--workers", "--scheduler"}
+    declined = {"--batch", "--help", "--executor", "--workers", "--scheduler", "--allow-protocol"}
     for opt in params:
         if opt == "--json":
             continue
