@@ -39,6 +39,10 @@ KEEPALIVE = b"\x00" * 8
 MAX_FRAME_BYTES = 16 * 1024 * 1024
 #: Cap on a destination's length (topic names and commands are short).
 MAX_DESTINATION_BYTES = 1024
+#: Cap on a system command's payload (``__subscribe`` JSON, ``__log`` text...): commands
+#: are small, so a larger one is malformed (it would otherwise be buffered up to the
+#: frame cap, per connection).
+MAX_COMMAND_BYTES = 64 * 1024
 #: ROS 2 CDR encapsulation header: representation CDR_LE, options 0.
 CDR_HEADER = b"\x00\x01\x00\x00"
 
@@ -203,16 +207,21 @@ class FrameParser:
     """Incremental frame parser for one connection: ``feed(bytes) -> list[Frame]``.
 
     Bytes may arrive split anywhere. A destination longer than ``max_destination`` bytes,
-    a payload longer than ``max_frame`` bytes, or a destination that is not UTF-8 raises
+    a payload longer than ``max_frame`` bytes (``max_command`` for a system command, whose
+    destination starts with ``__``), or a destination that is not UTF-8 raises
     :class:`ProtocolError` naming the byte offset of the bad frame; after an error the
     parser is unusable (the connection must be closed, since framing is lost).
     """
 
     def __init__(
-        self, max_frame: int = MAX_FRAME_BYTES, max_destination: int = MAX_DESTINATION_BYTES
+        self,
+        max_frame: int = MAX_FRAME_BYTES,
+        max_destination: int = MAX_DESTINATION_BYTES,
+        max_command: int = MAX_COMMAND_BYTES,
     ) -> None:
         self.max_frame = max_frame
         self.max_destination = max_destination
+        self.max_command = max_command
         self._buf = bytearray()
         self._consumed = 0  # stream offset of _buf[0]
         self._failed: ProtocolError | None = None
@@ -247,6 +256,12 @@ class FrameParser:
             if plen > self.max_frame:
                 self._fail(
                     f"payload length {plen} exceeds the frame cap of {self.max_frame} bytes", pos
+                )
+            if plen > self.max_command and buf[pos + 4 : pos + 6] == b"__":
+                self._fail(
+                    f"system command payload of {plen} bytes exceeds the cap of "
+                    f"{self.max_command} bytes",
+                    pos,
                 )
             end = pos + 8 + dlen + plen
             if end > n:

@@ -11,6 +11,25 @@ Robustness rules (issue 6):
 - a frame-size cap; a malformed frame closes only that client, with a logged reason;
 - a frame is queued atomically (a ``__response`` and its body travel as one item) so a drop
   never splits a pair.
+
+Limits against hostile clients (issue 14), so that memory and threads stay bounded and the
+accept loop never dies:
+- at most ``max_clients`` connections (default 64, two threads each); one more is accepted
+  and closed at once, without a thread, and counted in :attr:`BridgeServer.refused`;
+- a system command's payload is at most ``protocol.MAX_COMMAND_BYTES`` (64 KiB), a frame's
+  destination ``MAX_DESTINATION_BYTES`` (1 KiB); a registered topic or message name is at
+  most ``MAX_NAME_BYTES`` (1 KiB, a longer topic could never be a frame's destination), and
+  a client holds at most ``MAX_REGISTRATIONS`` (256) registrations;
+- texts kept in :attr:`BridgeServer.events` are cut to ``EVENT_TEXT_CHARS``; the statistics
+  of only the last ``CLOSED_STATS_KEPT`` closed clients are kept (their subscription lists
+  cut to 16 names), so memory comes back when clients leave;
+- the listen backlog is the system's ``SOMAXCONN`` (bursts of connections do not wait for
+  SYN retries); an accept or thread-start failure (out of descriptors, "can't start new
+  thread") closes that one connection, and the loop goes on.
+
+Worst case per connection: the incoming frame buffer (``max_frame``, default 16 MiB, only
+while a frame of that size is arriving), the outgoing queue (``queue_size`` frames) and
+256 registrations of at most 2 KiB each.
 """
 
 from __future__ import annotations
@@ -19,6 +38,7 @@ import contextlib
 import itertools
 import logging
 import socket
+import struct
 import threading
 import time
 from collections import deque
@@ -28,6 +48,19 @@ from typing import Any
 
 from uwval.bridge import protocol as wire
 from uwval.bridge.errors import BridgeError
+
+#: Default bound on simultaneous connections (each has a reader and a writer thread).
+DEFAULT_MAX_CLIENTS = 64
+#: Registrations (subscribe, publish, services) one client may hold.
+MAX_REGISTRATIONS = 256
+#: Longest topic, service or message name accepted in a registration (bytes of UTF-8).
+MAX_NAME_BYTES = wire.MAX_DESTINATION_BYTES
+#: Longest text kept in an event (client log texts, names in messages).
+EVENT_TEXT_CHARS = 300
+#: Statistics of closed clients kept (the newest).
+CLOSED_STATS_KEPT = 256
+#: Seconds the accept loop pauses after an accept failure (e.g. out of file descriptors).
+ACCEPT_BACKOFF_S = 0.05
 
 log = logging.getLogger("uwval.bridge.server")
 
@@ -119,6 +152,25 @@ class _Client:
 _DONTWAIT = getattr(socket, "MSG_DONTWAIT", 0)
 
 
+def _load_malloc_trim() -> Callable[[int], int] | None:
+    """glibc's ``malloc_trim`` (returns freed heap pages to the system), or None elsewhere."""
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL("libc.so.6")
+        trim: Callable[[int], int] = libc.malloc_trim
+    except (OSError, AttributeError):
+        return None
+    return trim
+
+
+_MALLOC_TRIM = _load_malloc_trim()
+
+
+#: SO_LINGER (on, 0 s): close with a reset, leaving no TIME_WAIT for a refused connection.
+_LINGER_RESET = struct.pack("ii", 1, 0)
+
+
 class BridgeServer:
     """ROS-TCP-Endpoint-compatible server (default 127.0.0.1:10000).
 
@@ -127,6 +179,7 @@ class BridgeServer:
         protocol: ``"ROS2"`` (CDR bodies) or ``"ROS1"``, announced in the handshake.
         queue_size: bound of each client's outgoing queue (items).
         max_frame: cap on one incoming frame's payload, bytes.
+        max_clients: bound on simultaneous connections; more are closed on arrival.
     """
 
     def __init__(
@@ -137,6 +190,7 @@ class BridgeServer:
         protocol: wire.Protocol = "ROS2",
         queue_size: int = 1024,
         max_frame: int = wire.MAX_FRAME_BYTES,
+        max_clients: int = DEFAULT_MAX_CLIENTS,
     ) -> None:
         self.host = host
         self.port = port
@@ -147,12 +201,19 @@ class BridgeServer:
             raise BridgeError(f"queue size must be >= 1 item, got {queue_size}")
         if self.max_frame < 1:
             raise BridgeError(f"max frame size must be >= 1 byte, got {max_frame}")
+        self.max_clients = int(max_clients)
+        if self.max_clients < 1:
+            raise BridgeError(f"max clients must be >= 1, got {max_clients}")
+        #: Connections closed on arrival because ``max_clients`` were connected.
+        self.refused = 0
+        #: Connections closed since the start (their stats: :meth:`closed_clients`).
+        self.closed_count = 0
         self._listener: socket.socket | None = None
         self._accept_thread: threading.Thread | None = None
         self._stopping = threading.Event()
         self._lock = threading.RLock()
         self._clients: dict[int, _Client] = {}
-        self._closed_stats: list[ClientStats] = []
+        self._closed_stats: deque[ClientStats] = deque(maxlen=CLOSED_STATS_KEPT)
         self._ids = itertools.count(1)
         self._srv_ids = itertools.count(1001)
         self._advertised: dict[str, str] = {}  # ROS-side topics -> pkg/Type
@@ -175,7 +236,7 @@ class BridgeServer:
         except (OSError, OverflowError) as exc:
             sock.close()
             raise BridgeError(f"cannot listen on {self.host}:{self.port}: {exc}") from exc
-        sock.listen(16)
+        sock.listen(socket.SOMAXCONN)
         sock.settimeout(0.1)
         self._listener = sock
         self.port = sock.getsockname()[1]
@@ -336,47 +397,83 @@ class BridgeServer:
             return out
 
     def closed_clients(self) -> list[ClientStats]:
-        """Stats of clients that have disconnected, with the reason."""
+        """Stats of the last ``CLOSED_STATS_KEPT`` clients that disconnected, with the reason
+        (:attr:`closed_count` counts them all)."""
         with self._lock:
             return list(self._closed_stats)
 
     # ------------------------------------------------------------------ internals
     def _event(self, text: str, level: int = logging.INFO) -> None:
+        if len(text) > EVENT_TEXT_CHARS:
+            text = f"{text[:EVENT_TEXT_CHARS]}... ({len(text)} characters)"
         self.events.append(text)
         log.log(level, text)
 
     def _accept_loop(self) -> None:
-        assert self._listener is not None
+        """Accept clients until stopped; no failure but a closed listener ends it."""
+        listener = self._listener
+        assert listener is not None
         while not self._stopping.is_set():
             try:
-                conn, addr = self._listener.accept()
+                conn, addr = listener.accept()
             except TimeoutError:
                 continue
-            except OSError:
-                break
+            except OSError as exc:
+                if self._stopping.is_set() or listener.fileno() < 0:
+                    break
+                # out of descriptors, a connection reset before accept...: keep serving
+                self._event(f"accept failed: {exc}", logging.WARNING)
+                time.sleep(ACCEPT_BACKOFF_S)
+                continue
             if self._stopping.is_set():
                 conn.close()
                 break
-            conn.settimeout(None)
-            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            cid = next(self._ids)
-            address = f"{addr[0]}:{addr[1]}"
-            client = _Client(conn, cid, address, self.queue_size)
-            client.stats = ClientStats(cid, address)
-            # The endpoint's first frame is the handshake (version + protocol).
-            client.queue.append(wire.handshake_frame(self.protocol))
-            with self._lock:
-                self._clients[cid] = client
-            reader = threading.Thread(
-                target=self._read_loop, args=(client,), daemon=True, name=f"bridge-read-{cid}"
-            )
-            writer = threading.Thread(
-                target=self._write_loop, args=(client,), daemon=True, name=f"bridge-write-{cid}"
-            )
-            client.threads = [reader, writer]
-            self._event(f"client {cid} connected from {address}")
+            try:
+                self._admit(conn, addr)
+            except Exception as exc:  # never let one connection end the accept loop
+                self._event(f"could not serve {addr}: {type(exc).__name__}: {exc}", logging.ERROR)
+                with contextlib.suppress(OSError):
+                    conn.close()
+
+    def _admit(self, conn: socket.socket, addr: Any) -> None:
+        """Start serving one accepted connection, or close it if ``max_clients`` are served."""
+        with self._lock:
+            full = len(self._clients) >= self.max_clients
+        if full:
+            self.refused += 1
+            with contextlib.suppress(OSError):
+                conn.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, _LINGER_RESET)
+            conn.close()
+            if self.refused == 1 or self.refused % 1000 == 0:
+                self._event(
+                    f"refused a connection from {addr[0]}:{addr[1]}: {self.max_clients} "
+                    f"clients connected (the limit); {self.refused} refused so far",
+                    logging.WARNING,
+                )
+            return
+        conn.settimeout(None)
+        conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        cid = next(self._ids)
+        address = f"{addr[0]}:{addr[1]}"
+        client = _Client(conn, cid, address, self.queue_size)
+        client.stats = ClientStats(cid, address)
+        # The endpoint's first frame is the handshake (version + protocol).
+        client.queue.append(wire.handshake_frame(self.protocol))
+        with self._lock:
+            self._clients[cid] = client
+        reader = threading.Thread(
+            target=self._read_loop, args=(client,), daemon=True, name=f"bridge-read-{cid}"
+        )
+        writer = threading.Thread(
+            target=self._write_loop, args=(client,), daemon=True, name=f"bridge-write-{cid}"
+        )
+        client.threads = [reader, writer]
+        self._event(f"client {cid} connected from {address}")
+        try:
             writer.start()
             reader.start()
+        except RuntimeError as exc:  # "can't start new thread"
+            self._close(client, f"cannot start its threads: {exc}")
 
     def _write_loop(self, c: _Client) -> None:
         assert c.stats is not None
@@ -445,13 +542,19 @@ class BridgeServer:
             self._clients.pop(c.client_id, None)
             assert c.stats is not None
             c.stats.closed_reason = reason
-            c.stats.subscriptions = tuple(sorted(c.subscriptions))
+            c.stats.subscriptions = tuple(sorted(c.subscriptions)[:16])
             self._closed_stats.append(c.stats)
+            self.closed_count += 1
             self._sub_cond.notify_all()
+            idle = not self._clients
         with contextlib.suppress(OSError):
             c.sock.shutdown(socket.SHUT_RDWR)
         c.sock.close()
         self._event(f"client {c.client_id} ({c.address}) closed: {reason}")
+        if idle and _MALLOC_TRIM is not None:
+            # the last client left: give the memory its buffers and threads used back to
+            # the system (glibc keeps freed pages of per-thread arenas otherwise)
+            _MALLOC_TRIM(0)
 
     def _reply(self, c: _Client, command: str, params: dict[str, Any]) -> None:
         c.enqueue(wire.encode_command(command, params, nul=False))
@@ -533,6 +636,18 @@ class BridgeServer:
             if not topic:
                 self._reply(c, wire.ERROR, {"text": f"{cmd}: can't register a blank topic name"})
                 return
+            too_long = [
+                what
+                for what, text in (("topic", topic), ("message name", name))
+                if len(text.encode("utf-8", "surrogatepass")) > MAX_NAME_BYTES
+            ]
+            if too_long:
+                self._reply(
+                    c,
+                    wire.ERROR,
+                    {"text": f"{cmd}: {' and '.join(too_long)} longer than {MAX_NAME_BYTES} bytes"},
+                )
+                return
             if name.count("/") != 1 or not all(name.split("/")):
                 # ROS-TCP-Endpoint cannot resolve such a class and does not register it.
                 self._reply(
@@ -551,6 +666,19 @@ class BridgeServer:
                 wire.ROS_SERVICE: c.ros_services,
                 wire.UNITY_SERVICE: c.unity_services,
             }[cmd]
+            held = (
+                len(c.subscriptions)
+                + len(c.publications)
+                + len(c.ros_services)
+                + len(c.unity_services)
+            )
+            if topic not in table and held >= MAX_REGISTRATIONS:
+                self._reply(
+                    c,
+                    wire.ERROR,
+                    {"text": f"{cmd}({topic}): more than {MAX_REGISTRATIONS} registrations"},
+                )
+                return
             with self._lock:
                 table[topic] = name
                 self._sub_cond.notify_all()

@@ -136,7 +136,7 @@ def trajectory_figure(pair: AlignedPair, title: str = "") -> Figure:
         ax.set_aspect("equal", adjustable="datalim")
     ax_top.legend(loc="best", fontsize=8)
     if title:
-        fig.suptitle(title)
+        fig.suptitle(literal(title))
     return fig
 
 
@@ -179,7 +179,7 @@ def timeseries_figure(pair: AlignedPair, title: str = "") -> Figure:
     axes[-1][0].set_xlabel("time (s)")
     axes[-1][1].set_xlabel("time (s)")
     if title:
-        fig.suptitle(title)
+        fig.suptitle(literal(title))
     return fig
 
 
@@ -212,7 +212,7 @@ def scatter_figure(
         if k == 0:
             ax.legend(loc="best", fontsize=8)
     if title:
-        fig.suptitle(title)
+        fig.suptitle(literal(title))
     return fig
 
 
@@ -236,10 +236,12 @@ def box_mae_figure(table: ResultsTable, factor: str, topic: str, metric: str = "
                 showmeans=True,
             )
         ax.set_title(f"{metric.upper()} {a}")
-        ax.set_xlabel(factor_label(factor))
+        ax.set_xlabel(literal(factor_label(factor)))
         ax.set_ylabel(f"{metric.upper()} ({AXIS_UNITS[a]})")
         ax.grid(True, axis="y", alpha=0.3)
-    fig.suptitle(f"{topic}: {metric.upper()} per level of {factor} (box: runs; triangle: mean)")
+    fig.suptitle(
+        literal(f"{topic}: {metric.upper()} per level of {factor} (box: runs; triangle: mean)")
+    )
     return fig
 
 
@@ -263,12 +265,12 @@ def main_effects_figure(table: ResultsTable, topic: str, metric: str = "mae") ->
                 xs = np.arange(len(levels))
                 ax.plot(xs, rows["mean"].to_numpy(), "o-", color=AXIS_COLOURS[a], label=a)
                 ax.set_xticks(xs, [_fmt(v) for v in levels])
-            ax.set_xlabel(factor_label(f))
+            ax.set_xlabel(literal(factor_label(f)))
             ax.set_ylabel(f"mean {metric.upper()} ({'m' if r == 0 else 'deg'})")
             ax.grid(True, alpha=0.3)
             if c == 0:
                 ax.legend(loc="best", fontsize=8)
-    fig.suptitle(f"{topic}: main effects on {metric.upper()}")
+    fig.suptitle(literal(f"{topic}: main effects on {metric.upper()}"))
     return fig
 
 
@@ -292,7 +294,7 @@ def bridge_figure(stats: Mapping[str, Mapping[str, Any]]) -> Figure | None:
     )
     keys = keys[:6]
     runs = list(stats)
-    labels = short_run_labels(runs)
+    labels = [literal(x) for x in short_run_labels(runs)]
     fig = _new_figure(11, 2.6 * math.ceil(len(keys) / 2))
     grid = np.atleast_2d(fig.subplots(math.ceil(len(keys) / 2), 2, squeeze=False))
     for i, key in enumerate(keys):
@@ -306,7 +308,7 @@ def bridge_figure(stats: Mapping[str, Mapping[str, Any]]) -> Figure | None:
         ax.bar(np.arange(len(runs)), vals, color="#4c72b0")
         ax.set_xticks(np.arange(len(runs)), labels, fontsize=7)
         ax.set_xlabel("run", fontsize=8)
-        ax.set_title(key)
+        ax.set_title(literal(key))
         ax.grid(True, axis="y", alpha=0.3)
     for i in range(len(keys), grid.size):
         grid[i // 2][i % 2].set_visible(False)
@@ -332,7 +334,13 @@ def short_run_labels(runs: Sequence[str], max_len: int = 10) -> list[str]:
 def _fmt(v: Any) -> str:
     if isinstance(v, float):
         return f"{v:g}"
-    return str(v)
+    return literal(str(v))
+
+
+def literal(text: str) -> str:
+    """``text`` shown as written: matplotlib reads a pair of ``$`` as mathtext (and fails on
+    a file name such as ``price_$5_and_$6.mcap``), so user-provided text escapes them."""
+    return text.replace("$", r"\$")
 
 
 def close(figs: Sequence[Figure]) -> None:

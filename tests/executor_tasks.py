@@ -62,3 +62,16 @@ def count_and_fail(args: tuple[int, str]) -> int:
     with open(Path(marker_dir) / f"attempts-{x}", "a") as fh:
         fh.write("x")
     raise ConfigError(f"run {x}: bad parameter")
+
+
+def spin_forever(args: tuple[int, str]) -> int:
+    """Writes its worker's pid into ``pid_dir`` then burns CPU for up to 10 minutes (a run
+    that would outlive a test by far if nobody stopped it)."""
+    x, pid_dir = args
+    (Path(pid_dir) / f"{os.getpid()}.pid").write_text(str(os.getpid()))
+    import time
+
+    end = time.monotonic() + 600
+    while time.monotonic() < end:
+        pass
+    return x

@@ -50,7 +50,7 @@ def test_the_typer_command_and_the_fast_parser_come_from_one_option_table() -> N
 def test_every_value_option_of_compare_is_known_to_the_fast_path_or_declined() -> None:
     params = _compare_params()
     declined = {"--help"} | {f for o in COMPARE_OPTIONS if not o.fast for f in o.flags}
-    assert declined >= {"--batch", "--executor", "--workers", "--scheduler"}
+    assert declined >= {"--batch", "--executor", "--workers", "--scheduler", "--allow-protocol"}
     for opt in params:
         if opt == "--json":
             continue

@@ -123,7 +123,9 @@ def test_logs_on_an_object_store_url_are_fetched(tmp_path: Path) -> None:
         runs.append({**r, "log": url})
     runs.append({"name": "gone", "log": "memory://bucket/missing.mcap", "factors": {}})
     (tmp_path / "remote.json").write_text(json.dumps({"runs": runs}))
-    batch = compare_batch(tmp_path / "remote.json", executor="inline", progress=False)
+    batch = compare_batch(
+        tmp_path / "remote.json", executor="inline", progress=False, allow_protocols=["memory"]
+    )
     local = compare_batch(tmp_path / "sweep", executor="inline", progress=False)
     assert [r["name"] for r in batch.runs] == [r["name"] for r in m["runs"][:2]]
     assert _numbers(batch.runs) == {

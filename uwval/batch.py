@@ -3,19 +3,52 @@
 A task is one whole log, so a batch runs on any executor of :mod:`uwval.executors` (process
 pool or Dask distributed) and gives the same table either way. A log that fails to compare
 is reported with its run name and cause while the others complete.
+
+Security: a manifest is data, and may come from anywhere. Its logs are read as local paths;
+a URL (``s3://``, ``ftp://``, ``http://``...) is fetched only when the user allowed its
+protocol themselves (``compare --batch --allow-protocol s3``, or the environment variable
+``UWVAL_ALLOW_PROTOCOLS=s3,gs``), never because a manifest names it.
 """
 
 from __future__ import annotations
 
 import json
+import os
+from collections.abc import Collection
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from uwval.errors import ConfigError
-from uwval.executors import run_tasks
+from uwval.executors import Executor, run_tasks
 
 LOG_SUFFIXES = (".mcap", ".bag", ".db3")
+
+#: Environment variable naming the remote protocols a batch may fetch (comma-separated).
+ALLOW_PROTOCOLS_ENV = "UWVAL_ALLOW_PROTOCOLS"
+
+
+def allowed_protocols(extra: Collection[str] = ()) -> frozenset[str]:
+    """Protocols the user allowed: ``extra`` (the command line) plus ``UWVAL_ALLOW_PROTOCOLS``."""
+    env = os.environ.get(ALLOW_PROTOCOLS_ENV, "")
+    names = [*extra, *env.split(",")]
+    return frozenset(n.strip().lower().removesuffix("://") for n in names if n.strip())
+
+
+def url_protocols(log: str) -> list[str]:
+    """Every protocol of a (possibly chained, ``simplecache::s3://b/k``) fsspec URL."""
+    return [part.partition("://")[0].lower() for part in log.split("::")]
+
+
+def check_remote_allowed(log: str, allowed: Collection[str], where: str) -> None:
+    """Refuse a URL unless every protocol of it is in ``allowed`` (named by the user)."""
+    refused = [p for p in url_protocols(log) if p not in allowed]
+    if refused:
+        raise ConfigError(
+            f"{where}: log {log!r} is remote ({', '.join(refused)}); uwval reads local paths "
+            "unless you allow a protocol yourself (compare --batch --allow-protocol "
+            f"{refused[0]}, or {ALLOW_PROTOCOLS_ENV}={refused[0]})"
+        )
 
 
 @dataclass(frozen=True)
@@ -27,11 +60,20 @@ class BatchItem:
     factors: dict[str, Any] = field(default_factory=dict)
     options: dict[str, Any] = field(default_factory=dict)
     bridge: dict[str, Any] = field(default_factory=dict)
+    #: remote protocols the user allowed (a URL log with another protocol is refused)
+    allow: frozenset[str] = frozenset()
 
 
-def items_from(source: Path, options: dict[str, Any] | None = None) -> list[BatchItem]:
-    """Batch items from a manifest.json, a directory holding one, or a directory of logs."""
+def items_from(
+    source: Path, options: dict[str, Any] | None = None, *, allow: Collection[str] = ()
+) -> list[BatchItem]:
+    """Batch items from a manifest.json, a directory holding one, or a directory of logs.
+
+    A manifest's URL logs are refused (:class:`ConfigError`) unless their protocols are in
+    ``allow`` or ``UWVAL_ALLOW_PROTOCOLS``: a file's contents alone never make uwval fetch.
+    """
     opts = dict(options or {})
+    allowed = allowed_protocols(allow)
     manifest = source if source.is_file() else source / "manifest.json"
     if manifest.is_file():
         try:
@@ -47,11 +89,18 @@ def items_from(source: Path, options: dict[str, Any] | None = None) -> list[Batc
             if "name" not in r or "log" not in r:
                 raise ConfigError(f"{manifest}: run {i} lacks 'name' or 'log'")
             log = str(r["log"])
-            if not is_url(log) and not Path(log).is_absolute():
+            if is_url(log):
+                check_remote_allowed(log, allowed, f"{manifest}: run {i} ({r['name']})")
+            elif not Path(log).is_absolute():
                 log = str(base / log)
             items.append(
                 BatchItem(
-                    r["name"], log, dict(r.get("factors", {})), opts, dict(r.get("bridge", {}))
+                    r["name"],
+                    log,
+                    dict(r.get("factors", {})),
+                    opts,
+                    dict(r.get("bridge", {})),
+                    allowed,
                 )
             )
         return items
@@ -72,9 +121,10 @@ def items_from(source: Path, options: dict[str, Any] | None = None) -> list[Batc
 
 
 def is_url(log: str) -> bool:
-    """True for object-store / remote URLs (``s3://``, ``gs://``, ``memory://``...)."""
+    """True for object-store / remote URLs (``s3://``, ``gs://``, ``memory://``, chained
+    ``simplecache::s3://``...); ``file://`` and plain paths are local."""
     scheme, sep, _ = log.partition("://")
-    return bool(sep) and scheme not in ("", "file")
+    return (bool(sep) and scheme.lower() not in ("", "file")) or "::" in log
 
 
 def compare_item(item: BatchItem) -> dict[str, Any]:
@@ -88,6 +138,7 @@ def compare_item(item: BatchItem) -> dict[str, Any]:
     if is_url(item.log):
         import tempfile
 
+        check_remote_allowed(item.log, item.allow, item.name)
         with tempfile.TemporaryDirectory(prefix="uwval-") as tmp:
             local = Path(tmp) / Path(item.log.split("://", 1)[1]).name
             _fetch(item.log, local)
@@ -141,16 +192,21 @@ class BatchResult:
 def compare_batch(
     source: Path,
     *,
-    executor: str = "local",
+    executor: Executor | str = Executor.LOCAL,
     workers: int | None = None,
     scheduler: str | None = None,
     options: dict[str, Any] | None = None,
     progress: bool = True,
+    allow_protocols: Collection[str] = (),
 ) -> BatchResult:
-    """Compare every log of ``source``; gather the results into one table."""
+    """Compare every log of ``source``; gather the results into one table.
+
+    ``allow_protocols``: remote protocols (``s3``, ``gs``, ``memory``...) whose URLs in the
+    manifest may be fetched, besides those in ``UWVAL_ALLOW_PROTOCOLS``; others are refused.
+    """
     from uwval.results import ResultsTable
 
-    items = items_from(source, options)
+    items = items_from(source, options, allow=allow_protocols)
     outcomes = run_tasks(
         compare_item,
         items,

@@ -6,25 +6,102 @@ scheduler by address, or a LocalCluster it starts). Dask is imported only when a
 A failing task is reported with its key and cause while the others complete; failures that
 are not uwval's own deterministic errors (a worker killed, a broken pool, an OS error) are
 retried a bounded number of times.
+
+Stopping: SIGTERM or SIGINT (Ctrl-C) to the process running ``run_tasks`` stops its worker
+processes too (they are terminated, then killed, before the exception goes on: SIGTERM ends
+the process with status 143); and a worker whose parent died anyway (SIGKILL) notices it
+within half a second and exits, so no worker is left computing for nobody.
 """
 
 from __future__ import annotations
 
 import os
+import signal
+import threading
+import time
 import traceback
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
+from contextlib import contextmanager
 from dataclasses import dataclass
 from multiprocessing import get_context
 from typing import Any, Generic, TypeVar
 
+from uwval.compat import StrEnum
 from uwval.errors import UwvalError
 
 T = TypeVar("T")
 R = TypeVar("R")
 
-EXECUTORS = ("local", "dask", "inline")
+
+class Executor(StrEnum):
+    """Where tasks run (a StrEnum: each equals its CLI string)."""
+
+    LOCAL = "local"
+    DASK = "dask"
+    INLINE = "inline"
+
+
+EXECUTORS = tuple(e.value for e in Executor)
+
+#: Seconds a worker is given to end after SIGTERM before it is killed.
+TERMINATE_GRACE_S = 2.0
+
+#: How often (s) a worker checks that the process that started it is still alive.
+PARENT_POLL_S = 0.5
+
+
+@contextmanager
+def _sigterm_raises() -> Iterator[None]:
+    """While inside, SIGTERM raises ``SystemExit(143)`` in the main thread (so cleanup runs,
+    as for Ctrl-C's KeyboardInterrupt); a handler someone else installed is left alone."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.getsignal(signal.SIGTERM)
+    if previous not in (signal.SIG_DFL, None):
+        yield
+        return
+
+    def _raise(signum: int, _frame: Any) -> None:
+        raise SystemExit(128 + signum)
+
+    signal.signal(signal.SIGTERM, _raise)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _watch_parent(parent_pid: int) -> None:
+    """Worker initializer: exit when the parent process is gone (e.g. it was SIGKILLed), and
+    leave SIGINT to the parent (a Ctrl-C reaches the whole process group at once)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    def _poll() -> None:
+        while True:
+            time.sleep(PARENT_POLL_S)
+            if os.getppid() != parent_pid:
+                os._exit(1)
+
+    threading.Thread(target=_poll, name="uwval-parent-watch", daemon=True).start()
+
+
+def _stop_workers(pool: ProcessPoolExecutor) -> None:
+    """Terminate the pool's worker processes now (a running task is not waited for), kill
+    those still alive after ``TERMINATE_GRACE_S``, and cancel what has not started."""
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    for p in procs:
+        if p.is_alive():
+            p.terminate()
+    deadline = time.monotonic() + TERMINATE_GRACE_S
+    for p in procs:
+        p.join(max(0.0, deadline - time.monotonic()))
+        if p.is_alive():
+            p.kill()
+            p.join(1.0)
+    pool.shutdown(wait=False, cancel_futures=True)
 
 
 @dataclass
@@ -88,7 +165,7 @@ def run_tasks(
     items: Sequence[T],
     keys: Sequence[str],
     *,
-    executor: str = "local",
+    executor: Executor | str = Executor.LOCAL,
     workers: int | None = None,
     scheduler: str | None = None,
     retries: int = 2,
@@ -108,14 +185,29 @@ def run_tasks(
         raise ValueError("task keys must be unique")
     bar = _Progress(len(items), description, progress)
     try:
-        if executor == "inline":
-            return _run_inline(fn, items, keys, retries, bar)
-        if executor == "local":
-            return _run_local(fn, items, keys, workers, retries, bar)
-        if executor == "dask":
-            return _run_dask(fn, items, keys, workers, scheduler, retries, bar)
+        with _sigterm_raises():
+            return _dispatch(fn, items, keys, executor, workers, scheduler, retries, bar)
     finally:
         bar.close()
+
+
+def _dispatch(
+    fn: Callable[[T], R],
+    items: Sequence[T],
+    keys: Sequence[str],
+    executor: Executor | str,
+    workers: int | None,
+    scheduler: str | None,
+    retries: int,
+    bar: _Progress,
+) -> list[TaskOutcome[R]]:
+    """Run the tasks on the chosen executor (see :func:`run_tasks`)."""
+    if executor == "inline":
+        return _run_inline(fn, items, keys, retries, bar)
+    if executor == "local":
+        return _run_local(fn, items, keys, workers, retries, bar)
+    if executor == "dask":
+        return _run_dask(fn, items, keys, workers, scheduler, retries, bar)
     raise UwvalError(f"unknown executor {executor!r}; choose one of {', '.join(EXECUTORS)}")
 
 
@@ -153,7 +245,13 @@ def _run_local(
     pending = list(range(len(items)))
     while pending:
         # a killed worker breaks the whole pool: start a new one for what is left
-        with ProcessPoolExecutor(n_workers, mp_context=get_context("spawn")) as pool:
+        pool = ProcessPoolExecutor(
+            n_workers,
+            mp_context=get_context("spawn"),
+            initializer=_watch_parent,
+            initargs=(os.getpid(),),
+        )
+        try:
             futures: dict[Future[R], int] = {}
             for i in pending:
                 attempts[i] += 1
@@ -176,6 +274,12 @@ def _run_local(
                                 keys[i], False, error=_describe_exc(exc), attempts=attempts[i]
                             )
                             bar.advance()
+        except BaseException:
+            # SIGTERM (SystemExit), Ctrl-C or an error here: do not wait for running tasks
+            _stop_workers(pool)
+            raise
+        else:
+            pool.shutdown(wait=True)
     return [results[i] for i in range(len(items))]
 
 

@@ -18,6 +18,13 @@ from uwval.errors import PoseStreamError
 #: Quaternions whose norm differs from 1 by more than this are rejected, not normalised.
 QUAT_NORM_TOLERANCE = 1e-2
 
+#: Largest |stamp| accepted, in ns (2**62 - 1 ns, about 146 years either side of 1970): any two
+#: stamps then differ by less than 2**63, so differences and offsets never wrap in int64.
+MAX_ABS_STAMP_NS = (1 << 62) - 1
+
+#: Largest |stamp| accepted for float seconds (the same bound, in seconds).
+MAX_ABS_STAMP_S = MAX_ABS_STAMP_NS * 1e-9
+
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 
@@ -70,6 +77,8 @@ class PoseStream:
             )
         if self.applied_stamp is not None and self.applied_stamp.shape != (n,):
             raise PoseStreamError(f"{where}: applied_stamp must have shape ({n},)")
+        if n > 0:
+            _check_stamp_range(self.t, where)
         if n > 1 and not bool(np.all(np.diff(self.t) > 0)):
             raise PoseStreamError(
                 f"{where}: stamps must be strictly increasing (use PoseStream.from_arrays "
@@ -93,7 +102,10 @@ class PoseStream:
     ) -> PoseStream:
         """Validate and repair raw arrays into a PoseStream.
 
-        ``t`` may be int nanoseconds or float seconds (floats are taken as seconds).
+        ``t`` may be int nanoseconds or float seconds (floats are taken as seconds). Floats
+        too large to be seconds (beyond ``MAX_ABS_STAMP_S``, e.g. epoch nanoseconds stored as
+        floats, which have already lost precision) and stamps whose differences would
+        overflow int64 are refused with a :class:`PoseStreamError`.
         Unsorted stamps are sorted (counted in ``repairs['sorted']``); samples with a duplicate
         stamp are dropped keeping the first (``duplicates='drop'``) or rejected
         (``duplicates='error'``); NaN/inf values are rejected naming the first bad row;
@@ -105,9 +117,19 @@ class PoseStream:
             if not np.all(np.isfinite(t_arr)):
                 bad = int(np.flatnonzero(~np.isfinite(t_arr))[0])
                 raise PoseStreamError(f"{where}: stamp of sample {bad} is not finite")
+            if t_arr.size:
+                _check_float_seconds(t_arr, where)
             t_arr = np.round(t_arr * 1e9).astype(np.int64)
         elif t_arr.dtype.kind in "iu":
+            if t_arr.dtype.kind == "u" and t_arr.size and int(t_arr.max()) > MAX_ABS_STAMP_NS:
+                bad = int(np.argmax(t_arr))
+                raise PoseStreamError(
+                    f"{where}: stamp of sample {bad} ({int(t_arr[bad])} ns) is beyond "
+                    f"{MAX_ABS_STAMP_NS} ns (year ~2116): not a valid time"
+                )
             t_arr = t_arr.astype(np.int64)
+            if t_arr.size:
+                _check_stamp_range(t_arr, where)
         else:
             raise PoseStreamError(f"{where}: stamps must be numbers, got dtype {t_arr.dtype}")
         pos = np.ascontiguousarray(position, dtype=np.float64)
@@ -230,6 +252,37 @@ class PoseStream:
         if self.applied_stamp is not None:
             data["applied_stamp"] = self.applied_stamp.astype(np.float64) * 1e-9
         return pd.DataFrame(data)
+
+
+def _check_stamp_range(t: I64, where: str) -> None:
+    """Refuse int64 ns stamps beyond +-``MAX_ABS_STAMP_NS`` (their differences could wrap)."""
+    lo, hi = int(t.min()), int(t.max())
+    if lo < -MAX_ABS_STAMP_NS or hi > MAX_ABS_STAMP_NS:
+        bad = int(np.argmax(t)) if hi > MAX_ABS_STAMP_NS else int(np.argmin(t))
+        raise PoseStreamError(
+            f"{where}: stamp of sample {bad} ({int(t[bad])} ns) is beyond +-{MAX_ABS_STAMP_NS} "
+            "ns (about 146 years from 1970): stamp differences would overflow int64"
+        )
+
+
+def _check_float_seconds(t: F64, where: str) -> None:
+    """Refuse float stamps that cannot be seconds: too large for int64 nanoseconds (often
+    epoch nanoseconds passed as floats, which float64 cannot hold to the nanosecond)."""
+    big = np.abs(t)
+    j = int(np.argmax(big))
+    peak = float(big[j])
+    if peak <= MAX_ABS_STAMP_S:
+        return
+    if 1e15 <= peak <= 1e20:
+        raise PoseStreamError(
+            f"{where}: stamp of sample {j} is {t[j]:.17g}: float stamps are taken as seconds, "
+            "and this looks like epoch nanoseconds stored as floats (float64 cannot hold them "
+            "to the nanosecond); pass int64 nanoseconds, or float seconds"
+        )
+    raise PoseStreamError(
+        f"{where}: stamp of sample {j} is {t[j]:.6g} s, beyond +-{MAX_ABS_STAMP_S:.4g} s "
+        "(about 146 years from 1970): not a valid time in int64 nanoseconds"
+    )
 
 
 def _describe(topic: str, source: str) -> str:

@@ -81,6 +81,10 @@ def serve(
     max_frame: Annotated[int, typer.Option(help="Largest accepted frame payload, bytes.")] = 16
     * 1024
     * 1024,
+    max_clients: Annotated[
+        int,
+        typer.Option(help="Simultaneous connections (two threads each); more are closed at once."),
+    ] = 64,
     duration: Annotated[
         float, typer.Option(help="Stop after this many seconds (0: run until Ctrl-C).")
     ] = 0.0,
@@ -88,14 +92,25 @@ def serve(
         bool, typer.Option("--verbose/--quiet", help="Log connections and registrations.")
     ] = True,
 ) -> None:
-    """Run the ROS-TCP endpoint that Unity's ROS-TCP-Connector connects to."""
+    """Run the ROS-TCP endpoint that Unity's ROS-TCP-Connector connects to.
+
+    Limits (a client breaking one gets an __error, or is closed): --max-clients connections;
+    a frame's payload at most --max-frame bytes and its destination 1 KiB; a system command
+    (__subscribe, __log...) at most 64 KiB; topic and message names at most 1 KiB; 256
+    registrations per client; --queue-size outgoing frames per client (oldest dropped).
+    """
     from uwval.bridge.server import BridgeServer
 
     _check_port(port)
     _check_seconds(duration, "--duration", zero_ok=True)
     _logging(verbose)
     server = BridgeServer(
-        host, port, protocol=_protocol(protocol), queue_size=queue_size, max_frame=max_frame
+        host,
+        port,
+        protocol=_protocol(protocol),
+        queue_size=queue_size,
+        max_frame=max_frame,
+        max_clients=max_clients,
     ).start()
     console.print(
         f"[green]ROS-TCP endpoint[/] listening on {host}:{server.port} "

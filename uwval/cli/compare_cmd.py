@@ -77,6 +77,7 @@ def compare_command(**kwargs: Any) -> None:
             executor=kwargs["executor"],
             workers=kwargs["workers"],
             scheduler=kwargs["scheduler"],
+            allow_protocols=kwargs["allow_protocol"] or [],
             options=opts,
         )
         return
@@ -98,6 +99,7 @@ def _batch(
     executor: str,
     workers: int | None,
     scheduler: str | None,
+    allow_protocols: list[str],
     options: dict[str, Any],
 ) -> None:
     """``compare --batch``: every log of a sweep -> comparisons.json + the results table."""
@@ -108,7 +110,12 @@ def _batch(
     console = Console()
     opts = {k: v for k, v in options.items() if v is not None}
     result = compare_batch(
-        source, executor=executor, workers=workers, scheduler=scheduler, options=opts
+        source,
+        executor=executor,
+        workers=workers,
+        scheduler=scheduler,
+        allow_protocols=allow_protocols,
+        options=opts,
     )
     out = output or (source if source.is_dir() else source.parent) / "results"
     written = result.save(out)

@@ -159,7 +159,7 @@ class CompareOption:
 
     dest: str  # keyword of run_compare / the typer command
     flags: tuple[str, ...]
-    kind: type  # str, float, int, bool (a flag) or Path
+    kind: Any  # str, float, int, bool (a flag), Path, or list[str] (a repeatable option)
     default: Any
     help: str
     fast: bool = True  # False: only typer handles it (the fast path declines, runs nothing)
@@ -233,6 +233,15 @@ COMPARE_OPTIONS: tuple[CompareOption, ...] = (
     CompareOption("workers", ("--workers",), int, None, "--batch: worker processes", fast=False),
     CompareOption(
         "scheduler", ("--scheduler",), str, None, "--batch: Dask scheduler address", fast=False
+    ),
+    CompareOption(
+        "allow_protocol",
+        ("--allow-protocol",),
+        list[str],
+        None,
+        "--batch: fetch manifest logs by this remote protocol (s3, gs, http...; repeatable; "
+        "also UWVAL_ALLOW_PROTOCOLS=s3,gs). Without it only local paths are read",
+        fast=False,
     ),
 )
 

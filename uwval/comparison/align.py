@@ -8,18 +8,30 @@ p' = s R p + t, R' = R_a R_other. Computed on arrays, without lists of 4x4 matri
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from uwval.compat import StrEnum
 from uwval.errors import AlignmentError
 from uwval.rotations import matrix_from_quat, quat_from_matrix, quat_multiply
 
 F64 = NDArray[np.float64]
 
-ALIGN_MODES = ("none", "se3", "sim3", "origin")
+
+class AlignMode(StrEnum):
+    """Spatial alignment modes (a StrEnum: each equals its CLI string, ``"se3"``...)."""
+
+    NONE = "none"
+    SE3 = "se3"
+    SIM3 = "sim3"
+    ORIGIN = "origin"
+
+
+ALIGN_MODES = tuple(m.value for m in AlignMode)
 
 
 @dataclass(frozen=True)
@@ -81,7 +93,14 @@ def umeyama(x: F64, y: F64, with_scale: bool = False) -> tuple[F64, F64, float]:
     yc = y - mean_y
     sigma_x = float(np.einsum("ij,ij->", xc, xc)) / n
     cov_xy = np.einsum("ni,nj->ij", yc, xc) / n  # no BLAS threads for a 3x3 result
-    u, d, v = np.linalg.svd(cov_xy)
+    if not bool(np.isfinite(cov_xy).all()) or not math.isfinite(sigma_x):
+        raise AlignmentError(
+            "alignment covariance is not finite (positions NaN/inf or too large to square)"
+        )
+    try:
+        u, d, v = np.linalg.svd(cov_xy)
+    except np.linalg.LinAlgError as exc:
+        raise AlignmentError(f"Umeyama alignment failed: {exc}") from None
     if np.count_nonzero(d > np.finfo(d.dtype).eps) < 2:
         raise AlignmentError(
             "degenerate covariance rank (motion along a line or a point): "
@@ -97,11 +116,13 @@ def umeyama(x: F64, y: F64, with_scale: bool = False) -> tuple[F64, F64, float]:
 
 
 def estimate_alignment(
-    mode: str, ref_pos: F64, ref_quat: F64, oth_pos: F64, oth_quat: F64
+    mode: AlignMode | str, ref_pos: F64, ref_quat: F64, oth_pos: F64, oth_quat: F64
 ) -> Alignment:
-    """The alignment ``mode`` that maps the (associated) other poses onto the reference."""
+    """The alignment ``mode`` (an :class:`AlignMode` or its string) that maps the (associated)
+    other poses onto the reference."""
     if mode not in ALIGN_MODES:
         raise AlignmentError(f"unknown alignment {mode!r}; choose one of {', '.join(ALIGN_MODES)}")
+    mode = AlignMode(mode).value
     if mode == "none":
         return identity()
     if mode in ("se3", "sim3"):

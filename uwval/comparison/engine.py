@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from uwval.comparison.align import Alignment, estimate_alignment
+from uwval.comparison.align import Alignment, AlignMode, estimate_alignment
 from uwval.comparison.doctor import FrameDiagnosis, diagnose
 from uwval.comparison.offset import OffsetEstimate, estimate_offset, latency_stats
 from uwval.comparison.stats import axis_stats, norm_stats
@@ -27,17 +27,34 @@ from uwval.comparison.sync import (
     interpolate_at,
     nominal_period_ns,
 )
-from uwval.errors import AlignmentError
+from uwval.compat import StrEnum
+from uwval.errors import AlignmentError, PoseStreamError
 from uwval.frames import CONVENTIONS, convert_stream, get_convention
-from uwval.posestream import PoseStream
+from uwval.posestream import MAX_ABS_STAMP_S, PoseStream
 from uwval.rotations import geodesic_angle, rpy_from_quat, wrap_deg
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 
 AXES = ("x", "y", "z", "roll", "pitch", "yaw")
-SYNC_METHODS = ("interp", "nearest")
+
+
+class SyncMethod(StrEnum):
+    """Time association methods (a StrEnum: each equals its CLI string)."""
+
+    INTERP = "interp"
+    NEAREST = "nearest"
+
+
+SYNC_METHODS = tuple(m.value for m in SyncMethod)
 JSON_SCHEMA_VERSION = 1
+
+#: Largest offset, gap or time difference accepted (s): beyond it stamps leave int64 ns.
+MAX_SECONDS = MAX_ABS_STAMP_S
+
+#: Largest |position| coordinate accepted (m): far beyond any vehicle (Earth-centred
+#: coordinates are ~6.4e6 m), small enough that squared errors of 1e6 samples stay finite.
+MAX_POSITION_M = 1e9
 
 
 @dataclass
@@ -148,12 +165,12 @@ def compare(
     other: PoseStream,
     *,
     frame: str | None = None,
-    sync: str = "interp",
+    sync: SyncMethod | str = SyncMethod.INTERP,
     max_gap: float | None = None,
     max_diff: float = 0.01,
     offset: float | str = 0.0,
     max_offset: float | None = None,
-    align: str = "none",
+    align: AlignMode | str = AlignMode.NONE,
     min_samples: int = 2,
     check_frame: bool | None = None,
 ) -> ComparisonResult:
@@ -178,14 +195,26 @@ def compare(
         raise AlignmentError(
             f"unknown sync method {sync!r}; choose one of {', '.join(SYNC_METHODS)}"
         )
+    sync = SyncMethod(sync).value  # a plain str from here on (it goes into the JSON)
     if len(reference) < 1 or len(other) < 1:
         raise AlignmentError("cannot compare an empty stream")
-    if max_gap is not None and not (max_gap > 0 and math.isfinite(max_gap)):
-        raise AlignmentError(f"max_gap must be a positive number of seconds, got {max_gap}")
-    if not (max_diff >= 0 and math.isfinite(max_diff)):
-        raise AlignmentError(f"max_diff must be a non-negative number of seconds, got {max_diff}")
-    if isinstance(offset, int | float) and not math.isfinite(offset):
-        raise AlignmentError(f"offset must be a finite number of seconds, got {offset}")
+    if max_gap is not None and not (max_gap > 0 and max_gap <= MAX_SECONDS):
+        raise AlignmentError(
+            f"max_gap must be a positive number of seconds up to {MAX_SECONDS:.4g}, got {max_gap}"
+        )
+    if not (max_diff >= 0 and max_diff <= MAX_SECONDS):
+        raise AlignmentError(
+            f"max_diff must be a non-negative number of seconds up to {MAX_SECONDS:.4g}, "
+            f"got {max_diff}"
+        )
+    if isinstance(offset, int | float):
+        _check_offset(offset)
+    if max_offset is not None and not max_offset > 0:  # NaN fails too
+        raise AlignmentError(
+            f"max_offset must be a positive number of seconds (or none), got {max_offset}"
+        )
+    for s in (reference, other):
+        check_pose_values(s)
     # What the readers found wrong with either source travels with the result (never silent).
     warnings: list[str] = [w for s in (reference, other) for w in s.warnings]
     for s in (reference, other):
@@ -206,8 +235,7 @@ def compare(
             offset = float(offset)
         except ValueError:
             raise AlignmentError(f"offset must be seconds or 'auto', got {offset!r}") from None
-        if not math.isfinite(offset):
-            raise AlignmentError(f"offset must be a finite number of seconds, got {offset}")
+        _check_offset(offset)
     if offset == "auto":
         if frame == "auto":
             # the frame is unknown yet: estimate under every known convention, keep the
@@ -243,6 +271,8 @@ def compare(
             elif diagnosis.warning:
                 warnings.append(diagnosis.warning)
     oth_c = _to_canonical(raw_other)
+    if estimate is not None and estimate.note:
+        warnings.append(estimate.note)
 
     # ---- time association
     sync_info: dict[str, Any] = {"method": sync, "n_reference": len(ref_c), "n_other": len(oth_c)}
@@ -375,6 +405,41 @@ def compare(
         diagnosis=diagnosis,
         warnings=warnings,
     )
+
+
+def _check_offset(offset: float) -> None:
+    """Refuse an offset that is not finite or would carry stamps beyond int64 nanoseconds."""
+    if not (math.isfinite(offset) and abs(offset) <= MAX_SECONDS):
+        raise AlignmentError(
+            f"offset must be a finite number of seconds within +-{MAX_SECONDS:.4g}, got {offset}"
+        )
+
+
+def check_pose_values(stream: PoseStream) -> None:
+    """Refuse a stream whose positions or orientations are NaN/inf or whose positions exceed
+    ``MAX_POSITION_M`` (their squares would overflow the statistics into inf or null).
+
+    PoseStream's own constructor checks shapes and stamps only; ``from_arrays`` and the log
+    readers already refuse NaN, but a stream built directly may hold anything.
+    """
+    pos, quat = stream.position, stream.orientation
+    if len(stream) == 0:
+        return
+    big = float(np.max(np.abs(pos)))  # NaN propagates
+    if not (big <= MAX_POSITION_M) or not bool(np.isfinite(quat).all()):
+        finite = np.isfinite(pos).all(axis=1) & np.isfinite(quat).all(axis=1)
+        if not finite.all():
+            bad = int(np.flatnonzero(~finite)[0])
+            raise PoseStreamError(
+                f"{stream.describe()}: sample {bad} (t={int(stream.t[bad])} ns) has a NaN or "
+                f"infinite value ({int((~finite).sum())} such samples)"
+            )
+        bad = int(np.argmax(np.abs(pos).max(axis=1)))
+        raise PoseStreamError(
+            f"{stream.describe()}: position of sample {bad} (t={int(stream.t[bad])} ns) is "
+            f"{float(np.abs(pos[bad]).max()):.6g} m from the origin, beyond "
+            f"{MAX_POSITION_M:.0e} m: not a vehicle position (wrong units or a corrupt value?)"
+        )
 
 
 def _repeats(idx: I64) -> int:

@@ -41,6 +41,7 @@ class OffsetEstimate:
     correlation: float  # normalised cross-correlation of the speed profiles at the peak
     signal: str  # "speed" or "angular_speed"
     grid_step: float  # s
+    note: str | None = None  # set when the estimate is doubtful (the search could not decide)
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -51,6 +52,7 @@ class OffsetEstimate:
             "signal": self.signal,
             "grid_step_s": self.grid_step,
             "method": f"{self.signal} cross-correlation + golden-section least squares",
+            "note": self.note,
         }
 
 
@@ -110,6 +112,10 @@ def estimate_offset(
     """
     if len(reference) < 4 or len(other) < 4:
         raise AlignmentError("offset estimation needs at least 4 poses in each stream")
+    if max_offset is not None and not max_offset > 0:  # NaN fails too
+        raise AlignmentError(
+            f"max_offset must be a positive number of seconds (or none), got {max_offset}"
+        )
     per_ref = float(np.median(np.diff(reference.t))) * 1e-9
     per_oth = float(np.median(np.diff(other.t))) * 1e-9
     dt = min(per_ref, per_oth)
@@ -120,18 +126,26 @@ def estimate_offset(
 
     # difference over ~4 periods of the slower stream: smooths sample-and-hold steps
     span = max(1, round(4 * max(per_ref, per_oth) / dt))
-    max_lag = None if max_offset is None else int(max_offset / dt) + 1
+    # a bound beyond int64 nanoseconds bounds nothing (and would overflow the lag arithmetic)
+    max_lag = None if max_offset is None or max_offset > 4.6e9 else int(max_offset / dt) + 1
     base = (t0_ref - t0_oth) * 1e-9 / dt
     va = _velocity_on_grid(reference, t0_ref, dt, n_ref, span)
     vb = _velocity_on_grid(other, t0_oth, dt, n_oth, span)
     moving = float(np.abs(va).max()) > 1e-9 and float(np.abs(vb).max()) > 1e-9
     if same_frame and moving:
-        lag, corr = _best_lag_mse(va, vb, max_lag, base)
+        lag, corr, rival = _best_lag_mse(va, vb, max_lag, base)
         coarse = (t0_ref - t0_oth) * 1e-9 + lag * dt
         overlap = min(reference.duration, other.duration)
         window = max(2 * max(dt, per_oth, per_ref) * span, 0.005 * overlap)
-        fine, sigma = _refine(reference, other, coarse, window)
-        return OffsetEstimate(fine, sigma, coarse, corr, "velocity", dt)
+        fine, sigma, note = _refine(reference, other, coarse, window)
+        if rival is not None:
+            other_s = (t0_ref - t0_oth) * 1e-9 + rival * dt
+            note = (
+                f"the motion repeats: offsets {coarse:.10g} s and {other_s:.10g} s fit almost "
+                "equally well, so the estimate may be wrong; give --offset S or bound the "
+                "search with --max-offset S" + (f" ({note})" if note else "")
+            )
+        return OffsetEstimate(fine, sigma, coarse, corr, "velocity", dt, note)
     signal = "speed"
     a = _speed_on_grid(reference, t0_ref, dt, n_ref, False, span)
     b = _speed_on_grid(other, t0_oth, dt, n_oth, False, span)
@@ -154,8 +168,8 @@ def estimate_offset(
     coarse = (t0_ref - t0_oth) * 1e-9 + lag * dt
     overlap = min(reference.duration, other.duration)
     window = max(2 * max(dt, per_oth, per_ref) * span, 0.02 * overlap)
-    fine, sigma = _refine(reference, other, coarse, window)
-    return OffsetEstimate(fine, sigma, coarse, corr, signal, dt)
+    fine, sigma, note = _refine(reference, other, coarse, window)
+    return OffsetEstimate(fine, sigma, coarse, corr, signal, dt, note)
 
 
 def _lag_axis(na: int, nb: int, size: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
@@ -165,11 +179,14 @@ def _lag_axis(na: int, nb: int, size: int) -> tuple[NDArray[np.int64], NDArray[n
     return lags, where
 
 
-def _best_lag_mse(a: F64, b: F64, max_lag: int | None, base: float) -> tuple[int, float]:
+def _best_lag_mse(
+    a: F64, b: F64, max_lag: int | None, base: float
+) -> tuple[int, float, int | None]:
     """Lag L minimising the mean of |a[k + L] - b[k]|^2 over the overlap (vector signals).
 
     Cross terms by FFT, squared norms over each overlap by cumulative sums: O(n log n).
-    Returns the lag and the correlation-like score 1 - mse / (mean|a|^2 + mean|b|^2).
+    Returns the lag, the correlation-like score 1 - mse / (mean|a|^2 + mean|b|^2) and a
+    rival lag that fits almost as well (see :func:`_rival_lag`), if any.
     """
     na, nb = a.shape[0], b.shape[0]
     size = 1 << math.ceil(math.log2(na + nb))
@@ -194,8 +211,31 @@ def _best_lag_mse(a: F64, b: F64, max_lag: int | None, base: float) -> tuple[int
     cnt = np.maximum(overlap, 1)
     mse = np.where(ok, (sa + sb - 2.0 * cross) / cnt, np.inf)
     j = int(np.argmin(mse))
-    score = 1.0 - float(mse[j]) / max(1e-300, float((sa[j] + sb[j]) / cnt[j]))
-    return int(lags[j]), score
+    scale = max(1e-300, float((sa[j] + sb[j]) / cnt[j]))
+    score = 1.0 - float(mse[j]) / scale
+    return int(lags[j]), score, _rival_lag(lags, mse, j, scale)
+
+
+def _rival_lag(lags: NDArray[np.int64], mse: F64, j: int, scale: float) -> int | None:
+    """Another lag that fits almost as well as lag ``j`` (the motion repeats), or None.
+
+    A rival is a lag whose mean squared difference is within 5 % of ``scale`` (the mean
+    squared velocity) of the best one and that is separated from it by a barrier at least
+    20 % of ``scale`` high: a second valley, not the shoulder of the best one.
+    """
+    order = np.argsort(lags)
+    m = mse[order]
+    jb = int(np.flatnonzero(order == j)[0])
+    best = float(m[jb])
+    right = np.maximum.accumulate(m[jb:])  # highest point between the best lag and each lag
+    left = np.maximum.accumulate(m[jb::-1])
+    barrier = np.concatenate((left[:0:-1], right))
+    with np.errstate(invalid="ignore"):  # inf - inf outside the allowed lags
+        near = (m - best <= 0.05 * scale) & (barrier - m >= 0.2 * scale) & np.isfinite(m)
+    if not near.any():
+        return None
+    k = int(np.flatnonzero(near)[np.argmin(m[near])])
+    return int(lags[order[k]])
 
 
 def _highpass(x: F64, width: int) -> F64:
@@ -247,42 +287,83 @@ def _position_cost(ref_t: F64, ref_p: F64, oth_t: F64, oth_p: F64, offset: float
     return float(np.einsum("ij,ij->", e, e)) / int(ok.sum())
 
 
+#: Golden-section steps at most (each shrinks the bracket by 0.618: 80 steps reach 1e-17 of
+#: the scan cell, far below any tolerance, so the cap only guards against a stalled bracket).
+_MAX_GOLDEN_STEPS = 80
+
+
 def _refine(
     reference: PoseStream, other: PoseStream, coarse: float, window: float
-) -> tuple[float, float]:
-    """Scan of the position cost on [coarse - window, coarse + window], then golden section."""
+) -> tuple[float, float, str | None]:
+    """Scan of the position cost on [coarse - window, coarse + window], then golden section.
+
+    Works on the residual ``delta = offset - coarse``: the other stream's stamps are moved by
+    the coarse offset in integer nanoseconds first, so an offset of any size (epoch against
+    monotonic clocks, ~1.8e9 s) keeps full float precision and the search ends in a bounded
+    number of steps. Returns (offset s, 1-sigma s, note or None when it cannot decide).
+    """
     t0 = int(reference.t[0])
+    coarse_ns = round(coarse * 1e9)
     step = max(1, len(reference) // _MAX_REFINE)
     ref_t = _rel_seconds(reference.t[::step], t0)
     ref_p = reference.position[::step]
-    oth_t = _rel_seconds(other.t, t0)
+    # other stamps on the reference clock at the coarse offset, relative to t0 (int64 first)
+    oth_t = np.asarray((other.t - np.int64(t0 - coarse_ns)).astype(np.float64) * 1e-9)
     oth_p = other.position
+    base = coarse - coarse_ns * 1e-9  # the part of coarse below a nanosecond
+
+    def cost(delta: float) -> float:
+        return _position_cost(ref_t, ref_p, oth_t, oth_p, delta + base)
+
     # scan (the coarse stage is only good to its smoothing span), then golden-section
     # inside the best scan cell
-    scan = coarse + np.linspace(-window, window, 121)
-    costs = [_position_cost(ref_t, ref_p, oth_t, oth_p, float(x)) for x in scan]
+    scan = np.linspace(-window, window, 121)
+    costs = np.array([cost(float(x)) for x in scan])
+    if not np.isfinite(costs).any():
+        return (
+            coarse,
+            window,
+            (
+                "the fine offset search found no overlap around the coarse estimate: "
+                f"offset {coarse:.9g} s is only good to +-{window:.3g} s"
+            ),
+        )
     j = int(np.argmin(costs))
-    cell = scan[1] - scan[0]
+    cell = float(scan[1] - scan[0])
     lo, hi = float(scan[j]) - cell, float(scan[j]) + cell
     g = (math.sqrt(5.0) - 1.0) / 2.0
     x1, x2 = hi - g * (hi - lo), lo + g * (hi - lo)
-    f1 = _position_cost(ref_t, ref_p, oth_t, oth_p, x1)
-    f2 = _position_cost(ref_t, ref_p, oth_t, oth_p, x2)
+    f1, f2 = cost(x1), cost(x2)
     tol = max(1e-9, 1e-6 * cell)
-    while hi - lo > tol:
+    for _ in range(_MAX_GOLDEN_STEPS):
+        if hi - lo <= tol:
+            break
         if f1 <= f2:
             hi, x2, f2 = x2, x1, f1
             x1 = hi - g * (hi - lo)
-            f1 = _position_cost(ref_t, ref_p, oth_t, oth_p, x1)
+            f1 = cost(x1)
         else:
             lo, x1, f1 = x1, x2, f2
             x2 = lo + g * (hi - lo)
-            f2 = _position_cost(ref_t, ref_p, oth_t, oth_p, x2)
-    best = 0.5 * (lo + hi)
-    if not math.isfinite(_position_cost(ref_t, ref_p, oth_t, oth_p, best)):
-        return coarse, window
+            f2 = cost(x2)
+    delta = 0.5 * (lo + hi)
+    best = coarse_ns * 1e-9 + (delta + base)
+    note = None
+    finite = costs[np.isfinite(costs)]
+    if j in (0, scan.size - 1):
+        note = (
+            f"the offset search ended at the edge of its window (+-{window:.3g} s around "
+            f"{coarse:.9g} s): the estimate {best:.9g} s may be wrong; give --offset S"
+        )
+    elif float(finite.max() - finite.min()) <= 1e-12 * max(1.0, float(finite.max())):
+        note = (
+            "the position error does not change with the offset near the estimate "
+            f"({best:.9g} s): the motion cannot tell the offset; give --offset S"
+        )
+    if not math.isfinite(cost(delta)):
+        return coarse, window, note
     # Gauss-Newton standard error: residual derivative wrt offset is -velocity of other
-    tq = ref_t - best
+    tq = ref_t - (delta + base)
     ok = (tq >= oth_t[0]) & (tq <= oth_t[-1])
     e = np.column_stack([np.interp(tq[ok], oth_t, oth_p[:, j]) for j in range(3)]) - ref_p[ok]
     e -= e.mean(axis=0)
@@ -293,8 +374,16 @@ def _refine(
     sigma2 = float(np.einsum("ij,ij->", e, e)) / max(1, 3 * m - 4)
     info = float(np.einsum("ij,ij->", v, v))
     if info <= 0.0:
-        return best, math.inf
-    return best, math.sqrt(sigma2 / info)
+        return (
+            best,
+            math.inf,
+            note
+            or (
+                "the other stream does not move where it overlaps: "
+                f"offset {best:.9g} s is undecided"
+            ),
+        )
+    return best, math.sqrt(sigma2 / info), note
 
 
 def latency_stats(other: PoseStream, offset_s: float = 0.0) -> dict[str, Any] | None:

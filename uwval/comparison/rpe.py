@@ -140,7 +140,8 @@ def _chain(cum: F64, delta: float) -> I64:
             jump = jump[jump]
             k += 1
         if pos[-1] == n or bound == n + 1:
-            return pos[pos < n]
+            kept: NDArray[np.int64] = pos[pos < n]
+            return kept
         bound = n + 1  # rounding made the estimate too short: take the safe bound
 
 
