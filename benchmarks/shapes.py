@@ -112,7 +112,7 @@ def _streams(duration_s: float) -> tuple[Any, Any, Any, Any]:
     """Gazebo vehicle and camera (100 Hz, ENU) and their Unity views (60 Hz, Unity axes)."""
     from uwval.comparison.synthetic import camera_motion, unity_view, vehicle_motion
 
-    n = int(round(duration_s * GAZEBO_HZ))
+    n = round(duration_s * GAZEBO_HZ)
     gv = vehicle_motion(n, rate_hz=GAZEBO_HZ, seed=0, t0_ns=T0_NS, topic=GAZEBO_VEHICLE)
     gc = camera_motion(gv, topic=GAZEBO_CAMERA)
     kw = {"rate_hz": UNITY_HZ, "latency": UNITY_LATENCY_S, "noise": UNITY_NOISE_M}
@@ -166,7 +166,7 @@ def _tf_source(encoding: str, duration_s: float) -> _Source:
     ros = 1 if encoding == "ros1" else 2
     ts = _ros1_store() if ros == 1 else typestore(2)
     types = ts.types
-    n = int(round(duration_s * TF_HZ))
+    n = round(duration_s * TF_HZ)
     motion = vehicle_motion(n, rate_hz=TF_HZ, seed=3, t0_ns=T0_NS)
     rng = np.random.default_rng(4)
     fixed = rng.normal(0.0, 0.3, (len(TF_CHILDREN), 3))
@@ -335,10 +335,7 @@ def generate(shape: Shape | str, directory: str | Path) -> ShapeFiles:
         n = int(marker.read_text().strip() or 0)
     else:
         marker.unlink(missing_ok=True)
-        if sh.fmt == "tum":
-            n = _write_tum_pair(sh, *paths)
-        else:
-            n = _write_container(sh, paths[0])
+        n = _write_tum_pair(sh, *paths) if sh.fmt == "tum" else _write_container(sh, paths[0])
         marker.write_text(f"{n}\n")
     return ShapeFiles(
         shape=sh,
