@@ -180,7 +180,7 @@ def test_rounded_quaternions_are_normalised_without_the_per_line_search(
 def test_badly_non_unit_quaternion_is_still_refused(tmp_path: Path) -> None:
     f = tmp_path / "s.tum"
     f.write_text("1 0 0 0 0 0 0 1\n2 0 0 0 0 0 0 0.9\n")
-    with pytest.raises(PoseStreamError, match="sample 1 has norm 0.9"):
+    with pytest.raises(PoseStreamError, match=r"sample 1 has norm 0\.9"):
         read_tum(f)
 
 
