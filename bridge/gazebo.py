@@ -9,7 +9,9 @@ world, FLU body) become PoseStamped bodies (``frame_id`` ``"world"``) published 
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+import time
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -62,6 +64,56 @@ class GazeboPublisher:
         """Publish every pose of a tick; returns clients reached per topic."""
         t_ns, poses = tick
         return {name: self.publish(name, t_ns, p, q) for name, (p, q) in poses.items()}
+
+
+class LiveSimulator(Protocol):
+    """What :func:`run_live` steps (``uwval.simulator.Simulator``; the bridge does not import
+    the simulator)."""
+
+    def advance_to(self, t_ns: int) -> list[tuple[int, F64, F64, F64, F64]]: ...
+
+
+def run_live(
+    sim: LiveSimulator,
+    publisher: GazeboPublisher,
+    *,
+    publish_rate: float,
+    duration_s: float = 0.0,
+    speed: float = 1.0,
+    control: Callable[[int], bool] | None = None,
+    writer: Any = None,
+    on_tick: Callable[[int, F64, F64], None] | None = None,
+) -> int:
+    """Drive a live simulator on the wall clock and publish its ticks (``uwval teleop``).
+
+    Every publish period (``1 / publish_rate`` s of sim time) ``control(t_ns)`` runs first
+    (keyboard input; False stops the run), then the simulator advances to ``t_ns`` and each
+    tick crossed is published (vehicle and camera, ENU/FLU), recorded on ``writer``
+    (``/gazebo/<topic>``, frame ``world``) when given, and handed to ``on_tick(t_ns,
+    position, quat)``. ``speed`` is sim seconds per wall second (0: as fast as possible);
+    ``duration_s`` 0 runs until ``control`` stops it. Returns the ticks published.
+    """
+    period_ns = round(1e9 / publish_rate)
+    t_wall0 = time.perf_counter()
+    sent = 0
+    t_ns = 0
+    while duration_s <= 0 or t_ns <= int(duration_s * 1e9):
+        if control is not None and not control(t_ns):
+            break
+        for tick_t, vp, vq, cp, cq in sim.advance_to(t_ns):
+            publisher.publish_tick((tick_t, {VEHICLE_TOPIC: (vp, vq), CAMERA_TOPIC: (cp, cq)}))
+            sent += 1
+            if writer is not None:
+                writer.write_pose(f"/gazebo/{VEHICLE_TOPIC}", tick_t, vp, vq, publisher.frame_id)
+                writer.write_pose(f"/gazebo/{CAMERA_TOPIC}", tick_t, cp, cq, publisher.frame_id)
+            if on_tick is not None:
+                on_tick(tick_t, vp, vq)
+        t_ns += period_ns
+        if speed > 0:  # pace sim time to the wall clock
+            lag = t_ns * 1e-9 / speed - (time.perf_counter() - t_wall0)
+            if lag > 0:
+                time.sleep(lag)
+    return sent
 
 
 def ticks_from_streams(*streams: PoseStream, names: Sequence[str] | None = None) -> Iterator[Tick]:
