@@ -9,6 +9,7 @@ world, FLU body) become PoseStamped bodies (``frame_id`` ``"world"``) published 
 
 from __future__ import annotations
 
+import struct
 import time
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any, Protocol
@@ -31,6 +32,47 @@ CAMERA_TOPIC = "gui_camera_pose"
 DEFAULT_TOPICS = (VEHICLE_TOPIC, CAMERA_TOPIC)
 
 
+_STAMP_CDR = struct.Struct("<4siII")  # encapsulation, sec, nanosec, len(frame_id + NUL)
+_STAMP_ROS1 = struct.Struct("<IIII")  # seq, secs, nsecs, len(frame_id)
+_POSE = struct.Struct("<7d")
+
+
+class PoseEncoder:
+    """PoseStamped bodies of one ``frame_id`` in one protocol, per message at little cost.
+
+    The bytes around the stamp and the pose are built once; each message packs its stamp
+    and seven doubles into them. Byte-identical to :func:`uwval.bridge.protocol.
+    encode_pose_stamped` (and so to rosbags' serializers; tests compare them).
+    """
+
+    def __init__(self, frame_id: str, protocol: wire.Protocol = "ROS2") -> None:
+        self.frame_id = frame_id
+        self.protocol = protocol
+        fid = frame_id.encode("utf-8")
+        self._len = len(fid) + 1 if protocol == "ROS2" else len(fid)
+        if protocol == "ROS2":
+            head = 12 + len(fid) + 1  # stamp, length, frame_id and its NUL
+            self._mid = fid + b"\x00" + b"\x00" * (-head % 8)
+        else:
+            self._mid = fid
+
+    def encode(self, t_ns: int, position: Any, quat: Any, seq: int = 0) -> bytes:
+        """One body: header stamp ``t_ns`` (ns), position (3,) m, quaternion (4,) x y z w."""
+        sec, nsec = divmod(int(t_ns), 1_000_000_000)
+        p = position.tolist() if hasattr(position, "tolist") else list(position)
+        q = quat.tolist() if hasattr(quat, "tolist") else list(quat)
+        if len(p) != 3 or len(q) != 4:
+            return wire.encode_pose_stamped(
+                t_ns, position, quat, self.frame_id, self.protocol, seq=seq
+            )  # shapes it does not take: the reference encoder says what is wrong
+        body = _POSE.pack(p[0], p[1], p[2], q[0], q[1], q[2], q[3])
+        if self.protocol == "ROS2":
+            return _STAMP_CDR.pack(wire.CDR_HEADER, sec, nsec, self._len) + self._mid + body
+        if sec < 0:
+            raise wire.ProtocolError(f"ROS 1 time cannot be negative (t_ns={t_ns})")
+        return _STAMP_ROS1.pack(seq & 0xFFFFFFFF, sec, nsec, self._len) + self._mid + body
+
+
 class GazeboPublisher:
     """Publish pose ticks into a :class:`BridgeServer` as ros_gz_bridge would."""
 
@@ -46,14 +88,13 @@ class GazeboPublisher:
         self.frame_id = frame_id
         self.topics = list(topics)
         self.seq = 0
+        self._encoder = PoseEncoder(frame_id, self.protocol)
         for t in self.topics:
             server.advertise(t, wire.POSE_STAMPED)
 
     def encode(self, t_ns: int, position: F64, quat: F64) -> bytes:
         """One PoseStamped body in the server's protocol."""
-        return wire.encode_pose_stamped(
-            t_ns, position, quat, self.frame_id, self.protocol, seq=self.seq
-        )
+        return self._encoder.encode(t_ns, position, quat, seq=self.seq)
 
     def publish(self, topic: str, t_ns: int, position: F64, quat: F64) -> int:
         """Publish one pose; returns how many clients it was queued to."""

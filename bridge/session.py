@@ -26,7 +26,13 @@ from typing import Any
 import numpy as np
 
 from uwval.bridge import protocol as wire
-from uwval.bridge.gazebo import DEFAULT_TOPICS, GazeboPublisher, Tick, ticks_from_streams
+from uwval.bridge.gazebo import (
+    DEFAULT_TOPICS,
+    GazeboPublisher,
+    PoseEncoder,
+    Tick,
+    ticks_from_streams,
+)
 from uwval.bridge.recorder import BridgeRecorder, PoseWriter
 from uwval.bridge.server import BridgeServer
 from uwval.bridge.unity_client import (
@@ -92,7 +98,7 @@ class SessionOptions:
     disconnects: tuple[float, ...] = ()
     reconnect_delay_s: float = RECONNECT_DELAY_S
     topics: tuple[str, ...] = DEFAULT_TOPICS
-    lookahead_s: float = 0.2
+    lookahead_s: float = 1.0
     flush_every: int = 1000
     host: str = wire.DEFAULT_HOST
     port: int = 0
@@ -225,6 +231,7 @@ class _StructEncoding:
         enc = getattr(writer, "encoding", "cdr")
         self.protocol: wire.Protocol = "ROS1" if enc == "ros1" else "ROS2"
         self._raw = writer.write_raw
+        self._encoders: dict[str, PoseEncoder] = {}
 
     def write_pose(
         self,
@@ -235,7 +242,10 @@ class _StructEncoding:
         frame_id: str,
         log_time: int | None = None,
     ) -> None:
-        data = wire.encode_pose_stamped(t_ns, position, quat, frame_id, self.protocol)
+        enc = self._encoders.get(frame_id)
+        if enc is None:
+            enc = self._encoders[frame_id] = PoseEncoder(frame_id, self.protocol)
+        data = enc.encode(t_ns, position, quat)
         self._raw(topic, POSE_STAMPED_ROS2, data, t_ns if log_time is None else log_time)
 
     def write_header(self, topic: str, stamp_ns: int, log_time: int, frame_id: str = "") -> None:
