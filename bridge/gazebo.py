@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from uwval.bridge import protocol as wire
+from uwval.bridge.options import CAMERA_TOPIC, DEFAULT_TOPICS, VEHICLE_TOPIC
 from uwval.bridge.server import BridgeServer
 from uwval.errors import BridgeError
 from uwval.frames import convert_arrays, get_convention
@@ -26,10 +27,6 @@ from uwval.posestream import PoseStream
 F64 = NDArray[np.float64]
 #: One publish tick: (sim time ns, {topic name: (position (3,), quaternion xyzw (4,))}).
 Tick = tuple[int, dict[str, tuple[F64, F64]]]
-
-VEHICLE_TOPIC = "model_rov_pose"
-CAMERA_TOPIC = "gui_camera_pose"
-DEFAULT_TOPICS = (VEHICLE_TOPIC, CAMERA_TOPIC)
 
 
 _STAMP_CDR = struct.Struct("<4siII")  # encapsulation, sec, nanosec, len(frame_id + NUL)

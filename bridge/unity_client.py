@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from uwval.bridge import protocol as wire
+from uwval.bridge.options import RECONNECT_DELAY_S
 from uwval.errors import BridgeError
 from uwval.frames import convert_arrays, get_convention
 
@@ -36,8 +37,6 @@ F64 = NDArray[np.float64]
 
 #: Unity's ROSConnection sends a keepalive after this long without sending anything.
 KEEPALIVE_INTERVAL_S = 1.0
-#: ROSConnection waits this long before reconnecting.
-RECONNECT_DELAY_S = 1.0
 
 
 @dataclass(frozen=True)

@@ -344,3 +344,20 @@ def test_lookahead_changes_nothing_recorded(tmp_path: Path, lookahead: float) ->
     for topic in ("/gazebo/model_rov_pose", "/unity/model_rov_pose"):
         x, y = read_stream(a, topic), read_stream(b, topic)
         assert np.array_equal(x.t, y.t) and np.array_equal(x.position, y.position)
+
+
+def test_options_module_stays_light_and_agrees_with_the_wire() -> None:
+    """The CLI imports the options at start-up: no numpy, no sockets; its defaults are the
+    bridge's."""
+    import subprocess
+    import sys
+
+    from uwval.bridge import protocol as wire
+    from uwval.bridge.options import DEFAULT_HOST
+
+    assert DEFAULT_HOST == wire.DEFAULT_HOST
+    code = (
+        "import sys, uwval.bridge.options; print('numpy' in sys.modules, 'socket' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["False", "False"]

@@ -13,7 +13,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from uwval.bridge.session import LOG_SUFFIX, SessionOptions
+from uwval.bridge.options import LOG_SUFFIX, SessionOptions
 from uwval.errors import ConfigError
 
 if TYPE_CHECKING:
