@@ -16,7 +16,7 @@ from pathlib import Path
 
 from benchmarks.common import BenchRow
 
-AREAS = ("compare", "decode", "sim", "bridge", "sweep", "reports", "demo")
+AREAS = ("shapes", "compare", "decode", "sim", "bridge", "sweep", "reports", "demo")
 
 
 def _machine() -> str:

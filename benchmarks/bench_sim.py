@@ -72,7 +72,51 @@ def run(quick: bool = False) -> list[BenchRow]:
             notes="physics only; the demo adds bridge, recording and comparison",
         )
     )
+    rows += whole_simulate(600.0 if quick else 3600.0, 1 if quick else 3)
     return rows
+
+
+#: ``uwval simulate --duration 3600`` before issue 15 (whole run held in memory), idle machine.
+SIMULATE_HOUR_BEFORE_S = 79.0
+
+
+def whole_simulate(duration_s: float, reps: int) -> list[BenchRow]:
+    """``uwval simulate --duration D`` as a user runs it: wall time and peak RSS (wait4's
+    figure: the largest process of the command's tree, the physics child included).
+    Targets for an hour: < 250 MiB, >= 5x faster than 79 s."""
+    import tempfile
+    from pathlib import Path
+
+    from benchmarks.bench_shapes import _exe
+    from benchmarks.common import run_command
+
+    with tempfile.TemporaryDirectory() as d:
+        out = Path(d) / "run.mcap"
+        cmd = [_exe("uwval"), "simulate", "--duration", f"{duration_s:g}", "-o", str(out)]
+        runs = [run_command(cmd) for _ in range(reps)]
+    t = median([r[0] for r in runs])
+    m = max(r[1] for r in runs)
+    hour = duration_s >= 3600
+    return [
+        BenchRow(
+            f"uwval simulate --duration {duration_s:g} (50 Hz, bridged, MCAP), wall",
+            t,
+            "s",
+            SIMULATE_HOUR_BEFORE_S if hour else None,
+            "before issue 15 (79 s, idle)" if hour else "",
+            ">= 5x faster than before" if hour else "",
+            (SIMULATE_HOUR_BEFORE_S / t >= 5.0) if hour else None,
+            notes=f"{reps} runs, median",
+        ),
+        BenchRow(
+            f"uwval simulate --duration {duration_s:g}, peak RSS",
+            m,
+            "MiB",
+            target="< 250 MiB",
+            met=m < 250.0,
+            notes="max over runs; physics streamed in chunks (a child process for long runs)",
+        ),
+    ]
 
 
 if __name__ == "__main__":

@@ -5,6 +5,8 @@
 - :mod:`uwval.bridge.gazebo`: the Gazebo-side publisher and pose ticks;
 - :mod:`uwval.bridge.unity_client`: the Unity-like client (connection, faults, render loop);
 - :mod:`uwval.bridge.recorder`: incremental, crash-tolerant logging of both sides;
-- :mod:`uwval.bridge.session`: ``run_session``, one bridged run on a virtual clock;
+- :mod:`uwval.bridge.options`: ``SessionOptions``, how one bridged run behaves (light import);
+- :mod:`uwval.bridge.session`: ``BridgeSession`` / ``run_session``, one bridged run on a virtual
+  clock;
 - :mod:`uwval.bridge.replay`: serve a recorded Gazebo-side log to Unity clients.
 """

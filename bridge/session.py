@@ -16,27 +16,39 @@ carries batches instead of one round trip per frame (never across a disconnect).
 
 from __future__ import annotations
 
+import struct
 import time
+from array import array
 from collections.abc import Iterable, Sequence
-from dataclasses import asdict, dataclass, field
-from typing import Any
+from dataclasses import asdict, dataclass, field, replace
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
 from uwval.bridge import protocol as wire
 from uwval.bridge.errors import BridgeError
-from uwval.bridge.gazebo import DEFAULT_TOPICS, GazeboPublisher, Tick, ticks_from_streams
+from uwval.bridge.gazebo import (
+    GazeboPublisher,
+    PoseEncoder,
+    Tick,
+    ticks_from_streams,
+)
+from uwval.bridge.options import LOG_SUFFIX, SessionOptions
 from uwval.bridge.recorder import BridgeRecorder, PoseWriter
 from uwval.bridge.server import BridgeServer
-from uwval.bridge.unity_client import (
-    RECONNECT_DELAY_S,
-    FaultModel,
-    RenderLoop,
-    UnityConnection,
-    decode_pose_frame,
-)
+from uwval.bridge.unity_client import UnityConnection, decode_pose_frame
 
-__all__ = ["SessionStats", "run_session", "ticks_from_streams"]
+if TYPE_CHECKING:
+    from uwval.io.writers import PoseLogWriter
+
+__all__ = [
+    "LOG_SUFFIX",
+    "BridgeSession",
+    "SessionOptions",
+    "SessionStats",
+    "run_session",
+    "ticks_from_streams",
+]
 
 _POLL_TIMEOUT_S = 10.0
 
@@ -83,238 +95,331 @@ class SessionStats:
         return asdict(self)
 
 
-@dataclass
 class _Flight:
-    """Bookkeeping of messages the client must receive (sent while subscribed)."""
+    """Bookkeeping of messages the client must receive (sent while subscribed).
 
-    stamps: list[int] = field(default_factory=list)  # header stamp of each, in send order
-    received: int = 0
+    Holds the header stamps of the messages sent but not yet received only (an hour-long
+    run does not keep every stamp it ever sent); ``sent`` and ``received`` count them all.
+    """
+
+    def __init__(self) -> None:
+        self._stamps = array("q")  # stamps of sent messages from index ``_base`` on
+        self._base = 0
+        self.sent = 0
+        self.received = 0
+
+    def add(self, t_ns: int) -> None:
+        self._stamps.append(t_ns)
+        self.sent += 1
+
+    def got(self, n: int) -> None:
+        """``n`` more messages were received (in send order)."""
+        self.received += n
+        drop = self.received - self._base
+        if drop > 4096 and drop * 2 > len(self._stamps):
+            del self._stamps[:drop]
+            self._base = self.received
 
     def needed_by(self, t_ns: int) -> int:
         """How many of the sent messages have a stamp <= t_ns (stamps are sorted)."""
-        return (
-            int(
-                np.searchsorted(
-                    np.asarray(self.stamps[self.received :], dtype=np.int64), t_ns, side="right"
-                )
-            )
-            + self.received
+        pending = np.frombuffer(self._stamps, dtype=np.int64)[self.received - self._base :]
+        return int(np.searchsorted(pending, t_ns, side="right")) + self.received
+
+
+_HEADER_CDR = struct.Struct("<4siII")  # encapsulation, sec, nanosec, len(frame_id + NUL)
+_HEADER_ROS1 = struct.Struct("<IIII")  # seq, secs, nsecs, len(frame_id)
+
+
+class _StructEncoding:
+    """A log writer whose ``write_pose``/``write_header`` encode with ``struct`` templates.
+
+    The recorder calls these per message; the writers' own versions build a rosbags
+    message object and serialize it (~10x slower). The bytes are the same (the bridge's
+    wire encoder is byte-identical to rosbags' serializers, and the tests compare logs),
+    and everything else is the wrapped writer's.
+    """
+
+    def __init__(self, writer: PoseLogWriter) -> None:
+        self.writer = writer
+        enc = getattr(writer, "encoding", "cdr")
+        self.protocol: wire.Protocol = "ROS1" if enc == "ros1" else "ROS2"
+        self._raw = writer.write_raw
+        self._encoders: dict[str, PoseEncoder] = {}
+
+    def write_pose(
+        self,
+        topic: str,
+        t_ns: int,
+        position: Any,
+        quat: Any,
+        frame_id: str,
+        log_time: int | None = None,
+    ) -> None:
+        enc = self._encoders.get(frame_id)
+        if enc is None:
+            enc = self._encoders[frame_id] = PoseEncoder(frame_id, self.protocol)
+        data = enc.encode(t_ns, position, quat)
+        self._raw(topic, POSE_STAMPED_ROS2, data, t_ns if log_time is None else log_time)
+
+    def write_header(self, topic: str, stamp_ns: int, log_time: int, frame_id: str = "") -> None:
+        sec, nsec = divmod(int(stamp_ns), 1_000_000_000)
+        fid = frame_id.encode("utf-8")
+        if self.protocol == "ROS2":
+            data = _HEADER_CDR.pack(wire.CDR_HEADER, sec, nsec, len(fid) + 1) + fid + b"\x00"
+        else:
+            data = _HEADER_ROS1.pack(0, sec, nsec, len(fid)) + fid
+        self._raw(topic, HEADER_ROS2, data, log_time)
+
+    def flush(self) -> None:
+        flush = getattr(self.writer, "flush", None)
+        if flush is not None:
+            flush()
+
+    def close(self) -> None:
+        self.writer.close()
+
+
+POSE_STAMPED_ROS2 = "geometry_msgs/msg/PoseStamped"
+HEADER_ROS2 = "std_msgs/msg/Header"
+
+
+class BridgeSession:
+    """One bridged run on the virtual clock: publish ticks, carry them over TCP, render, record.
+
+    ``BridgeSession(writer, options, seed=...).run(ticks)`` publishes the Gazebo side's
+    ticks into a real :class:`BridgeServer`, reads them back through a Unity-like
+    :class:`UnityConnection` on a loopback socket, renders frames with a :class:`RenderLoop`
+    and records both sides through a :class:`BridgeRecorder` on ``writer`` (flushed, not
+    closed). Memory does not grow with the run's length: ticks are consumed as they come
+    (any iterable: a streamed simulation), statistics are kept as 8-byte stamps.
+    """
+
+    def __init__(self, writer: PoseWriter, options: SessionOptions | None = None, *, seed: int = 0):
+        self.options = opts = options if options is not None else SessionOptions()
+        self.protocol = wire.check_protocol(opts.protocol)
+        self.seed = int(seed)
+        self.faults = opts.fault_model(self.seed)
+        self.scene = opts.render_loop(self.seed)
+        # uwval's own writers take raw bytes (write_raw); any other PoseWriter is used as is
+        fast = (
+            _StructEncoding(cast("PoseLogWriter", writer))
+            if hasattr(writer, "write_raw")
+            else writer
         )
+        self.recorder = BridgeRecorder(
+            fast, unity_map=self.scene.unity_map, flush_every=opts.flush_every
+        )
+        self.stats = SessionStats(protocol=self.protocol, unity_map=self.scene.unity_map)
+        self._latencies = array("q")
+        self._lags = array("q")
+        self._applied: dict[str, int] = {t: 0 for t in opts.topics}
+        self._flight = _Flight()
+        self._t0 = 0
+        self._wall0 = 0.0
+        self._last_tick_ns = 0
+        self._pending: Tick | None = None
+        self._ticks: Any = iter(())
+
+    # ------------------------------------------------------------------ the run
+    def run(self, ticks: Iterable[Tick]) -> SessionStats:
+        """Publish every tick (ENU/FLU poses, increasing sim time ns) and render until the
+        last message could have arrived; return the run's statistics."""
+        opts, stats, scene = self.options, self.stats, self.scene
+        self._wall0 = time.perf_counter()
+        self._ticks = iter(ticks)
+        first = next(self._ticks, None)
+        if first is None:
+            raise BridgeError("run_session: no ticks to publish")
+        self._t0 = self._last_tick_ns = int(first[0])
+        self._pending = first
+        lookahead_ns = 0 if opts.realtime else int(opts.lookahead_s * 1e9)
+        max_delay_ns = round((opts.latency_s + opts.latency_jitter_s) * 1e9)
+        # Virtual times (ns) when the link drops and when it is back.
+        drops = sorted(self._t0 + int(d * 1e9) for d in opts.disconnects)
+        down_until: int | None = None  # while disconnected: reconnect time
+        with BridgeServer(
+            opts.host, opts.port, protocol=self.protocol, queue_size=1 << 16
+        ) as server:
+            self.server = server
+            self.gazebo = GazeboPublisher(server, topics=opts.topics)
+            self.conn = UnityConnection(
+                opts.host,
+                server.port,
+                subscriptions={t: wire.POSE_STAMPED for t in opts.topics},
+                protocol=self.protocol,
+            )
+            self._connect()
+            frames = scene.frame_times(self._t0, 2**62)
+            frame_ns = next(frames)
+            while True:
+                # Link events due before this frame happen first, at their own virtual time.
+                while drops and drops[0] <= frame_ns and down_until is None:
+                    down_until = self._disconnect(drops.pop(0))
+                if down_until is not None and down_until <= frame_ns:
+                    self._reconnect(down_until)
+                    down_until = None
+                horizon = frame_ns + lookahead_ns
+                if drops and down_until is None:
+                    horizon = min(horizon, drops[0] - 1)
+                if down_until is not None:
+                    horizon = min(horizon, down_until - 1)
+                self._publish_through(horizon)
+                # Render until the first frame after the last message could have arrived.
+                last_frame = self._pending is None and frame_ns > self._last_tick_ns + max_delay_ns
+                if self.conn.connected:
+                    self._receive_until(self._flight.needed_by(frame_ns))
+                self._pace(frame_ns)
+                self._render(frame_ns)
+                if last_frame:
+                    break
+                frame_ns = next(frames)
+            if self.conn.connected:
+                self._receive_until(self._flight.sent)
+            self.conn.close()
+            stats.server_dropped = sum(c.dropped for c in server.clients()) + sum(
+                c.dropped for c in server.closed_clients()
+            )
+        self.recorder.flush()
+        return self._finish()
+
+    # ------------------------------------------------------------------ steps of a run
+    def _connect(self) -> None:
+        self.conn.connect()
+        _wait_registered(self.server, self.conn, self.options.topics)
+
+    def _pace(self, v_ns: int) -> None:
+        if self.options.realtime:
+            lag = (v_ns - self._t0) * 1e-9 - (time.perf_counter() - self._wall0)
+            if lag > 0:
+                time.sleep(lag)
+
+    def _publish_through(self, horizon_ns: int) -> None:
+        """Publish the pending ticks stamped <= ``horizon_ns``."""
+        while self._pending is not None and int(self._pending[0]) <= horizon_ns:
+            self._publish(self._pending)
+            self._last_tick_ns = int(self._pending[0])
+            self._pending = next(self._ticks, None)
+
+    def _publish(self, tick: Tick) -> None:
+        t_ns, poses = int(tick[0]), tick[1]
+        stats = self.stats
+        self._pace(t_ns)
+        stats.ticks += 1
+        linked = self.conn.connected
+        for name, (pos, quat) in poses.items():
+            self.recorder.gazebo_pose(name, t_ns, pos, quat)
+            stats.sent += 1
+            # Other clients (a live Unity on the same endpoint) get it too; what counts
+            # here is whether our Unity-like client is linked.
+            self.gazebo.publish(name, t_ns, pos, quat)
+            if linked:
+                self._flight.add(t_ns)
+            else:
+                stats.lost_disconnected += 1
+
+    def _receive_until(self, count: int) -> None:
+        """Read from the socket until ``count`` of the sent messages were received."""
+        flight, stats, faults = self._flight, self.stats, self.faults
+        while flight.received < count:
+            frames = self.conn.poll(_POLL_TIMEOUT_S)
+            if not frames and not self.conn.has_pending and flight.received < count:
+                raise BridgeError(
+                    f"Unity client waited {_POLL_TIMEOUT_S} s for message "
+                    f"{flight.received + 1} of {count}; the endpoint sent nothing"
+                )
+            batch, arrivals = [], []
+            for f in frames:
+                pose = decode_pose_frame(f, self.protocol)
+                arrival = faults.arrival_ns(pose.stamp_ns)
+                if arrival is None:
+                    stats.dropped += 1
+                    continue
+                stats.delivered += 1
+                self._latencies.append(arrival - pose.stamp_ns)
+                batch.append(pose)
+                arrivals.append(arrival)
+            flight.got(len(frames))
+            stats.received += len(frames)
+            self.scene.arrive_many(batch, arrivals)
+
+    def _render(self, frame_ns: int) -> None:
+        self.stats.frames += 1
+        for tr in self.scene.render(frame_ns):
+            self.recorder.unity_pose(
+                tr.topic, tr.unity_t_ns, tr.position, tr.orientation, tr.applied_stamp_ns
+            )
+            self._applied[tr.topic] = self._applied.get(tr.topic, 0) + 1
+            self._lags.append(frame_ns - tr.applied_stamp_ns)
+
+    def _disconnect(self, td: int) -> int:
+        """The link drops at virtual time ``td``; returns when Unity is back."""
+        stats = self.stats
+        while self._pending is not None and int(self._pending[0]) < td:
+            self._publish(self._pending)
+            self._last_tick_ns = int(self._pending[0])
+            self._pending = next(self._ticks, None)
+        self._receive_until(self._flight.sent)
+        in_flight = self.scene.discard_after(td)  # read from the socket, not yet arrived
+        stats.delivered -= in_flight
+        stats.lost_disconnected += in_flight
+        me = _local_address(self.conn)
+        self.conn.close()
+        _wait_gone(self.server, me)  # the endpoint noticed the closed socket
+        stats.disconnects += 1
+        return td + int(self.faults.reconnect_delay_s * 1e9)
+
+    def _reconnect(self, at_ns: int) -> None:
+        """Unity comes back at ``at_ns``; ticks until then reach nobody (Unity offline)."""
+        while self._pending is not None and int(self._pending[0]) < at_ns:
+            self._publish(self._pending)
+            self._last_tick_ns = int(self._pending[0])
+            self._pending = next(self._ticks, None)
+        self._pace(at_ns)
+        self._connect()
+        self.faults.reset_connection()
+        self._flight = _Flight()
+        self.stats.reconnects += 1
+
+    def _finish(self) -> SessionStats:
+        stats = self.stats
+        stats.applied = sum(self._applied.values())
+        stats.per_topic_applied = dict(self._applied)
+        stats.sim_duration_s = (self._last_tick_ns - self._t0) * 1e-9
+        if self._latencies:
+            lat = np.frombuffer(self._latencies, dtype=np.int64).astype(np.float64) * 1e-9
+            stats.latency_mean_s = float(lat.mean())
+            stats.latency_max_s = float(lat.max())
+        if self._lags:
+            lag = np.frombuffer(self._lags, dtype=np.int64).astype(np.float64) * 1e-9
+            stats.render_lag_mean_s = float(lag.mean())
+            stats.render_lag_p99_s = float(np.percentile(lag, 99))
+            stats.render_lag_max_s = float(lag.max())
+        stats.wall_time_s = time.perf_counter() - self._wall0
+        return stats
 
 
 def run_session(
     ticks: Iterable[Tick],
     writer: PoseWriter,
+    options: SessionOptions | None = None,
     *,
-    unity_map: str = "unity-flu",
-    frame_rate: float = 60.0,
-    latency_s: float = 0.0,
-    jitter_s: float = 0.0,
-    drop_prob: float = 0.0,
-    unity_clock_offset_s: float = 0.0,
     seed: int = 0,
-    realtime: bool = False,
-    protocol: str = "ROS2",
-    host: str = wire.DEFAULT_HOST,
-    port: int = 0,
-    latency_jitter_s: float = 0.0,
-    disconnects: Sequence[float] = (),
-    reconnect_delay_s: float = RECONNECT_DELAY_S,
-    topics: Sequence[str] = DEFAULT_TOPICS,
-    lookahead_s: float = 0.2,
-    flush_every: int = 1000,
+    **overrides: Any,
 ) -> SessionStats:
-    """Run one bridged session and record both sides through ``writer``.
+    """Run one bridged session and record both sides through ``writer`` (flushed, not closed).
 
-    Args:
-        ticks: (sim time ns, {topic: (position (3,), quat xyzw (4,))}) in ENU/FLU, in
-            increasing time; any iterable (simulator output or synthetic motion).
-        writer: log writer with McapPoseWriter's interface (not closed here; flushed).
-        unity_map: ROS-TCP-Connector map, ``unity-flu`` or ``unity-enu``.
-        frame_rate: Unity render rate, Hz.
-        latency_s: one-way latency added to each message, s.
-        jitter_s: std of the render-frame time jitter, s.
-        drop_prob: probability that Unity loses a message.
-        unity_clock_offset_s: Unity clock minus sim clock, s (Unity topics' stamps).
-        seed: seeds jitter, latency jitter and drops.
-        realtime: pace the virtual clock to the wall clock.
-        protocol: ``ROS2`` (CDR) or ``ROS1``.
-        host, port: where the endpoint listens (port 0: a free port).
-        latency_jitter_s: extra uniform [0, x) per-message delay, s.
-        disconnects: virtual times (s after the first tick) when Unity's connection drops;
-            it reconnects and re-registers after ``reconnect_delay_s``.
-        topics: topics the Unity client subscribes to and renders.
-        lookahead_s: how far ahead of the render clock ticks may be sent (0 in realtime).
+    ``ticks``: (sim time ns, {topic: (position (3,), quat xyzw (4,))}) in ENU/FLU, in
+    increasing time; any iterable (a streamed simulation, synthetic motion). ``options``
+    (default :class:`SessionOptions`) with any of its fields overridden by keyword
+    (``latency_s=0.02``); ``seed`` seeds jitter, latency jitter and drops.
     """
-    proto = wire.check_protocol(protocol)
-    wall0 = time.perf_counter()
-    stats = SessionStats(protocol=proto, unity_map=unity_map)
-    faults = FaultModel(
-        latency_s=latency_s,
-        latency_jitter_s=latency_jitter_s,
-        drop_prob=drop_prob,
-        disconnects=tuple(disconnects),
-        reconnect_delay_s=reconnect_delay_s,
-        seed=seed,
-    )
-    scene = RenderLoop(
-        topics,
-        unity_map=unity_map,
-        frame_rate=frame_rate,
-        frame_jitter_s=jitter_s,
-        clock_offset_s=unity_clock_offset_s,
-        seed=seed,
-    )
-    recorder = BridgeRecorder(writer, unity_map=scene.unity_map, flush_every=flush_every)
-    stats.unity_map = scene.unity_map
-    lookahead_ns = 0 if realtime else int(lookahead_s * 1e9)
-    max_delay_ns = round((latency_s + latency_jitter_s) * 1e9)
-    latencies: list[int] = []
-    lags: list[int] = []
-    applied_per_topic: dict[str, int] = {t: 0 for t in topics}
-
-    it = iter(ticks)
-    first = next(it, None)
-    if first is None:
-        raise BridgeError("run_session: no ticks to publish")
-    t0 = int(first[0])
-    with BridgeServer(host, port, protocol=proto, queue_size=1 << 16) as server:
-        gazebo = GazeboPublisher(server, topics=topics)
-        conn = UnityConnection(
-            host, server.port, subscriptions={t: wire.POSE_STAMPED for t in topics}, protocol=proto
-        )
-
-        def connect() -> None:
-            conn.connect()
-            _wait_registered(server, conn, topics)
-
-        connect()
-        flight = _Flight()
-        # Virtual times (ns) when the link drops and when it is back.
-        drops = sorted(t0 + int(d * 1e9) for d in disconnects)
-        down_until: int | None = None  # while disconnected: reconnect time
-
-        def pace(v_ns: int) -> None:
-            if realtime:
-                lag = (v_ns - t0) * 1e-9 - (time.perf_counter() - wall0)
-                if lag > 0:
-                    time.sleep(lag)
-
-        def receive_until(count: int) -> None:
-            while flight.received < count:
-                frames = conn.poll(_POLL_TIMEOUT_S)
-                if not frames and not conn.has_pending and flight.received < count:
-                    raise BridgeError(
-                        f"Unity client waited {_POLL_TIMEOUT_S} s for message "
-                        f"{flight.received + 1} of {count}; the endpoint sent nothing"
-                    )
-                batch, arrivals = [], []
-                for f in frames:
-                    pose = decode_pose_frame(f, proto)
-                    flight.received += 1
-                    stats.received += 1
-                    arrival = faults.arrival_ns(pose.stamp_ns)
-                    if arrival is None:
-                        stats.dropped += 1
-                        continue
-                    stats.delivered += 1
-                    latencies.append(arrival - pose.stamp_ns)
-                    batch.append(pose)
-                    arrivals.append(arrival)
-                scene.arrive_many(batch, arrivals)
-
-        def publish(tick: Tick) -> None:
-            t_ns, poses = int(tick[0]), tick[1]
-            pace(t_ns)
-            stats.ticks += 1
-            for name, (pos, quat) in poses.items():
-                recorder.gazebo_pose(name, t_ns, pos, quat)
-                stats.sent += 1
-                # Other clients (a live Unity on the same endpoint) get it too; what
-                # counts here is whether our Unity-like client is linked.
-                gazebo.publish(name, t_ns, pos, quat)
-                if conn.connected:
-                    flight.stamps.append(t_ns)
-                else:
-                    stats.lost_disconnected += 1
-
-        pending: Tick | None = first
-        last_tick_ns = t0
-        frames = scene.frame_times(t0, 2**62)
-        frame_ns = next(frames)
-        while True:
-            # Link events due before this frame happen first, at their own virtual time.
-            while drops and drops[0] <= frame_ns and down_until is None:
-                td = drops.pop(0)
-                while pending is not None and int(pending[0]) < td:
-                    publish(pending)
-                    last_tick_ns = int(pending[0])
-                    pending = next(it, None)
-                receive_until(len(flight.stamps))
-                in_flight = scene.discard_after(td)  # read from the socket, not yet arrived
-                stats.delivered -= in_flight
-                stats.lost_disconnected += in_flight
-                me = _local_address(conn)
-                conn.close()
-                _wait_gone(server, me)  # the endpoint noticed the closed socket
-                stats.disconnects += 1
-                down_until = td + int(faults.reconnect_delay_s * 1e9)
-            if down_until is not None and down_until <= frame_ns:
-                while pending is not None and int(pending[0]) < down_until:
-                    publish(pending)  # nobody subscribed: lost, as with Unity offline
-                    last_tick_ns = int(pending[0])
-                    pending = next(it, None)
-                pace(down_until)
-                connect()
-                faults.reset_connection()
-                flight = _Flight()
-                stats.reconnects += 1
-                down_until = None
-            horizon = frame_ns + lookahead_ns
-            if drops and down_until is None:
-                horizon = min(horizon, drops[0] - 1)
-            if down_until is not None:
-                horizon = min(horizon, down_until - 1)
-            while pending is not None and int(pending[0]) <= horizon:
-                publish(pending)
-                last_tick_ns = int(pending[0])
-                pending = next(it, None)
-            # Render until the first frame after the last message could have arrived.
-            last_frame = pending is None and frame_ns > last_tick_ns + max_delay_ns
-            if conn.connected:
-                receive_until(flight.needed_by(frame_ns))
-            pace(frame_ns)
-            stats.frames += 1
-            for tr in scene.render(frame_ns):
-                recorder.unity_pose(
-                    tr.topic, tr.unity_t_ns, tr.position, tr.orientation, tr.applied_stamp_ns
-                )
-                applied_per_topic[tr.topic] = applied_per_topic.get(tr.topic, 0) + 1
-                lags.append(frame_ns - tr.applied_stamp_ns)
-            if last_frame:
-                break
-            frame_ns = next(frames)
-        if conn.connected:
-            receive_until(len(flight.stamps))
-        conn.close()
-        stats.server_dropped = sum(c.dropped for c in server.clients()) + sum(
-            c.dropped for c in server.closed_clients()
-        )
-    recorder.flush()
-    stats.applied = sum(applied_per_topic.values())
-    stats.per_topic_applied = applied_per_topic
-    stats.sim_duration_s = (last_tick_ns - t0) * 1e-9
-    if latencies:
-        lat = np.asarray(latencies, dtype=np.float64) * 1e-9
-        stats.latency_mean_s = float(lat.mean())
-        stats.latency_max_s = float(lat.max())
-    if lags:
-        lag = np.asarray(lags, dtype=np.float64) * 1e-9
-        stats.render_lag_mean_s = float(lag.mean())
-        stats.render_lag_p99_s = float(np.percentile(lag, 99))
-        stats.render_lag_max_s = float(lag.max())
-    stats.wall_time_s = time.perf_counter() - wall0
-    return stats
+    opts = options if options is not None else SessionOptions()
+    if overrides:
+        unknown = set(overrides) - set(SessionOptions.__dataclass_fields__)
+        if unknown:
+            raise TypeError(f"run_session: unknown option(s) {', '.join(sorted(unknown))}")
+        opts = replace(opts, **overrides)
+    return BridgeSession(writer, opts, seed=seed).run(ticks)
 
 
 def _local_address(conn: UnityConnection) -> str:

@@ -30,14 +30,13 @@ from numpy.typing import NDArray
 
 from uwval.bridge import protocol as wire
 from uwval.bridge.errors import BridgeError
+from uwval.bridge.options import RECONNECT_DELAY_S
 from uwval.frames import convert_arrays, get_convention
 
 F64 = NDArray[np.float64]
 
 #: Unity's ROSConnection sends a keepalive after this long without sending anything.
 KEEPALIVE_INTERVAL_S = 1.0
-#: ROSConnection waits this long before reconnecting.
-RECONNECT_DELAY_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -249,6 +248,10 @@ class UnityConnection:
         return out
 
 
+#: Messages' random numbers drawn at once by :class:`FaultModel` (same sequence as one by one).
+_DRAW_BLOCK = 1024
+
+
 @dataclass
 class FaultModel:
     """Faults injected on the Unity side, on the virtual clock, seeded.
@@ -269,6 +272,8 @@ class FaultModel:
     seed: int = 0
     _rng: np.random.Generator = field(init=False, repr=False)
     _last_arrival_ns: int = field(default=-(2**62), init=False, repr=False)
+    _draws: list[float] = field(default_factory=list, init=False, repr=False)
+    _next: int = field(default=0, init=False, repr=False)
 
     def __post_init__(self) -> None:
         # ``not x >= 0`` also rejects NaN (which compares false with everything).
@@ -294,8 +299,13 @@ class FaultModel:
     def arrival_ns(self, send_ns: int) -> int | None:
         """Virtual arrival time of a message sent at ``send_ns``, or None when dropped."""
         # Draw both numbers for every message so a change of drop_prob keeps latencies.
-        u_drop, u_jit = self._rng.random(2)
-        delay = self.latency_s + self.latency_jitter_s * float(u_jit)
+        # Drawn in blocks: the generator's sequence is the same as two draws per message.
+        if self._next >= len(self._draws):
+            self._draws = self._rng.random(2 * _DRAW_BLOCK).tolist()
+            self._next = 0
+        u_drop, u_jit = self._draws[self._next], self._draws[self._next + 1]
+        self._next += 2
+        delay = self.latency_s + self.latency_jitter_s * u_jit
         arrival = max(self._last_arrival_ns, int(send_ns + round(delay * 1e9)))
         self._last_arrival_ns = arrival
         if u_drop < self.drop_prob:

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -383,6 +383,217 @@ def simulate(
     return _result_from_records(records, sim.dt_ns * sim.publish_every, camera_offset, info)
 
 
+@dataclass
+class TickChunk:
+    """Consecutive publish ticks of a streamed run (arrays of one chunk; ENU world, FLU body).
+
+    ``t`` int64 ns of sim time; ``position``/``orientation`` the vehicle (m, x y z w),
+    ``camera_position``/``camera_orientation`` the following camera, ``velocity`` (N, 6)
+    body twist (m/s, rad/s, FLU). Values are those :func:`simulate` returns for these ticks.
+    """
+
+    t: NDArray[np.int64]
+    position: F64
+    orientation: F64
+    camera_position: F64
+    camera_orientation: F64
+    velocity: F64
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+
+class SimulationStream:
+    """One vehicle's run, stepped and handed out chunk by chunk (bounded memory).
+
+    Iterating yields :class:`TickChunk` s of at most ``chunk_ticks`` publish ticks, in time
+    order, from the initial pose at t = 0 to the last whole publish period within
+    ``duration_s``: the same ticks and the same numbers as :func:`simulate` (same stepping,
+    same camera and quaternion arithmetic, row by row), but only one chunk is held at a
+    time, so an hour at 100 Hz costs a few MB instead of hundreds. ``info`` is filled as
+    :func:`simulate` fills it (``steps``, ``wall_time_s`` of the physics, ``warnings``) once
+    the iteration has finished. Takes :func:`simulate`'s keyword arguments.
+    """
+
+    def __init__(
+        self,
+        vehicle: Vehicle,
+        inputs: InputProfile | None,
+        duration_s: float,
+        *,
+        chunk_ticks: int = 1000,
+        background: bool | None = None,
+        dt: float = 1e-3,
+        publish_rate: float = 50.0,
+        seed: int = 0,
+        implicit_added_mass: bool = False,
+        legacy_coriolis: bool = False,
+        camera_offset: Sequence[float] = DEFAULT_CAMERA_OFFSET,
+        initial_position: Sequence[float] = (0.0, 0.0, 0.0),
+        initial_orientation: Sequence[float] = (0.0, 0.0, 0.0, 1.0),
+        initial_velocity: Sequence[float] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+        fossen_coriolis: bool = False,
+    ) -> None:
+        if not (duration_s >= 0 and math.isfinite(duration_s)):
+            raise SimulationError(f"duration must be >= 0 s, got {duration_s}")
+        if chunk_ticks < 1:
+            raise SimulationError(f"chunk_ticks must be >= 1, got {chunk_ticks}")
+        self.sim = Simulator(
+            vehicle,
+            inputs,
+            dt=dt,
+            publish_rate=publish_rate,
+            implicit_added_mass=implicit_added_mass,
+            legacy_coriolis=legacy_coriolis,
+            camera_offset=camera_offset,
+            initial_position=initial_position,
+            initial_orientation=initial_orientation,
+            initial_velocity=initial_velocity,
+            fossen_coriolis=fossen_coriolis,
+        )
+        self.chunk_ticks = int(chunk_ticks)
+        self.camera_offset = tuple(float(x) for x in camera_offset)
+        self.period_ns = self.sim.dt_ns * self.sim.publish_every
+        self.n_ticks = round(duration_s * 1e9) // self.period_ns
+        self.info = _info(
+            vehicle, self.sim.dt, publish_rate, seed, implicit_added_mass, legacy_coriolis
+        )
+        self.info["fossen_coriolis"] = fossen_coriolis
+        self.info["warnings"] = list(self.sim.warnings)
+        self._started = False
+        self._spec = (vehicle, inputs, duration_s)
+        self._kwargs: dict[str, Any] = {
+            "chunk_ticks": chunk_ticks,
+            "dt": dt,
+            "publish_rate": publish_rate,
+            "seed": seed,
+            "implicit_added_mass": implicit_added_mass,
+            "legacy_coriolis": legacy_coriolis,
+            "camera_offset": tuple(camera_offset),
+            "initial_position": tuple(initial_position),
+            "initial_orientation": tuple(initial_orientation),
+            "initial_velocity": tuple(initial_velocity),
+            "fossen_coriolis": fossen_coriolis,
+        }
+        steps = self.n_ticks * self.sim.publish_every
+        self.background = _can_step_elsewhere() and (
+            background if background is not None else steps >= BACKGROUND_MIN_STEPS
+        )
+
+    def __iter__(self) -> Iterator[TickChunk]:
+        if self._started:
+            raise SimulationError("a SimulationStream can be iterated once")
+        self._started = True
+        if self.background:
+            return self._iter_elsewhere()
+        return self._iter_here()
+
+    def _iter_elsewhere(self) -> Iterator[TickChunk]:
+        """Step the physics in a child process that runs ahead of the consumer (the bridge
+        and the recorder use the other core); chunks come back through a pipe, whose
+        fixed capacity holds the child back when it is far ahead (bounded memory)."""
+        import multiprocessing as mp
+
+        ctx = mp.get_context("spawn")  # no fork of a process that may run threads
+        parent, child = ctx.Pipe(duplex=False)
+        proc = ctx.Process(
+            target=_stream_worker,
+            args=(child, self._spec, self._kwargs),
+            name="uwval-physics",
+            daemon=True,
+        )
+        proc.start()
+        child.close()
+        try:
+            while True:
+                try:
+                    kind, payload = parent.recv()
+                except EOFError:
+                    raise SimulationError(
+                        f"the physics process of {self.sim.vehicle.name} died "
+                        f"(exit code {proc.exitcode})"
+                    ) from None
+                if kind == "chunk":
+                    yield payload
+                elif kind == "done":
+                    self.info.update(payload)
+                    return
+                else:
+                    raise payload
+        finally:
+            parent.close()
+            if proc.is_alive():
+                proc.kill()
+            proc.join()
+
+    def _iter_here(self) -> Iterator[TickChunk]:
+        sim, pe = self.sim, self.sim.publish_every
+        done = 0  # ticks stepped after the initial one
+        first_tick = 0
+        wall = 0.0
+        while True:
+            records: list[tuple[Any, ...]] = []
+            k = min(
+                self.chunk_ticks - (1 if done == 0 and first_tick == 0 else 0), self.n_ticks - done
+            )
+            t0 = time.perf_counter()
+            sim.advance_steps(k * pe, records)
+            wall += time.perf_counter() - t0
+            done += k
+            if records:
+                yield self._chunk(records, first_tick)
+                first_tick += len(records)
+            if done >= self.n_ticks:
+                break
+        self.info.update(steps=sim.step, wall_time_s=wall, warnings=list(sim.warnings))
+
+    def _chunk(self, records: list[tuple[Any, ...]], first_tick: int) -> TickChunk:
+        """The arithmetic of :func:`_result_from_records`, on this chunk's rows."""
+        arr = np.asarray(records, dtype=np.float64).reshape(-1, N_STATE)
+        n = arr.shape[0]
+        t = (first_tick + np.arange(n, dtype=np.int64)) * self.period_ns
+        pos = np.ascontiguousarray(arr[:, 0:3])
+        quat = _unit_rows(np.ascontiguousarray(arr[:, 3:7]))
+        vel = np.ascontiguousarray(arr[:, 7:13])
+        cam_p, cam_q = camera_poses(pos, quat, self.camera_offset)
+        return TickChunk(t, pos, quat, cam_p, _unit_rows(cam_q), vel)
+
+
+#: Runs of at least this many physics steps are stepped in a child process by default
+#: (starting one costs ~0.3 s; an hour at 1 ms is 3.6M steps, ~9 s of physics).
+BACKGROUND_MIN_STEPS = 1_000_000
+
+
+def _can_step_elsewhere() -> bool:
+    """A child process can be started here (not inside a daemonic pool worker)."""
+    import multiprocessing as mp
+
+    return not mp.current_process().daemon
+
+
+def _stream_worker(conn: Any, spec: tuple[Any, ...], kwargs: dict[str, Any]) -> None:
+    """Child process of :meth:`SimulationStream._iter_elsewhere`: the same stream, inline."""
+    try:
+        stream = SimulationStream(*spec, background=False, **kwargs)
+        for chunk in stream:
+            conn.send(("chunk", chunk))
+        conn.send(("done", stream.info))
+    except Exception as exc:  # re-raised by the consumer, at the same tick
+        conn.send(("error", exc))
+    finally:
+        conn.close()
+
+
+def _unit_rows(quat: F64) -> F64:
+    """``PoseStream.from_arrays``' normalisation of (N, 4) quaternions: every row divided by
+    its norm when one is more than 1e-9 from unit (the kernel keeps them unit, so in practice
+    nothing changes; the rule is the same row arithmetic per chunk)."""
+    norms = np.linalg.norm(quat, axis=1)
+    if quat.shape[0] and bool((np.abs(norms - 1.0) > 1e-9).any()):
+        return np.asarray(quat / norms[:, None])
+    return quat
+
+
 def _info(
     vehicle: Vehicle,
     dt: float,
@@ -527,7 +738,9 @@ __all__ = [
     "VEHICLE_TOPIC",
     "Constant",
     "SimResult",
+    "SimulationStream",
     "Simulator",
+    "TickChunk",
     "camera_poses",
     "simulate",
     "simulate_batch",

@@ -191,6 +191,88 @@ TELEOP_KEYS: dict[str, tuple[int, int, float]] = {
 }
 
 
+class HeldKeys:
+    """Wrench from keys held down on a live keyboard: each key stays active ``hold_s``
+    seconds after its last (auto-)repeat, as a terminal reports a held key.
+
+    ``force_step`` N and ``torque_step`` N m per held key on its :data:`TELEOP_KEYS` axis
+    (body FLU); held keys add up.
+    """
+
+    def __init__(self, force_step: float, torque_step: float, hold_s: float) -> None:
+        self.keys = TELEOP_KEYS
+        self.force_step = force_step
+        self.torque_step = torque_step
+        self.hold_s = hold_s
+        self.last_seen: dict[str, float] = {}
+
+    def press(self, key: str, now: float) -> bool:
+        """Record a key press at ``now`` (s); False when the key is not a teleop key."""
+        if key not in self.keys:
+            return False
+        self.last_seen[key] = now
+        return True
+
+    def clear(self) -> None:
+        """Release every key (the stop key)."""
+        self.last_seen.clear()
+
+    def wrench(self, now: float) -> tuple[F64, F64]:
+        """(force N, torque N m) in the body frame from the keys held at ``now`` (s)."""
+        force, torque = np.zeros(3), np.zeros(3)
+        for key, seen in self.last_seen.items():
+            if now - seen <= self.hold_s:
+                ch, axis, sign = self.keys[key]
+                if ch == 0:
+                    force[axis] += sign * self.force_step
+                else:
+                    torque[axis] += sign * self.torque_step
+        return force, torque
+
+
+class LiveVehicle(Protocol):
+    """What :class:`KeyboardTeleop` drives (``uwval.simulator.Simulator``'s overrides)."""
+
+    def set_wrench(self, force: ArrayLike, torque: ArrayLike) -> None: ...
+
+    def set_current(self, current: ArrayLike) -> None: ...
+
+
+#: Step of the current towards north per ``+``/``-`` key, m/s.
+CURRENT_KEY_STEP = 0.1
+
+
+class KeyboardTeleop:
+    """teleop_wrench_keyboard's behaviour on a live simulator: typed keys -> wrench, current.
+
+    Teleop keys (:data:`TELEOP_KEYS`) are held (:class:`HeldKeys`); ``+``/``-`` change the
+    current towards north (ENU y) by :data:`CURRENT_KEY_STEP`; ``k`` or space releases every
+    key; ``q`` quits. ``current`` is the initial world ENU current, m/s.
+    """
+
+    def __init__(
+        self, force_step: float, torque_step: float, hold_s: float, current: ArrayLike = (0, 0, 0)
+    ) -> None:
+        self.held = HeldKeys(force_step, torque_step, hold_s)
+        self.current = _vec3(current, "current").copy()
+
+    def handle(self, keys: str, now: float, vehicle: LiveVehicle) -> bool:
+        """Apply the keys typed since the last call at sim time ``now`` (s), then hold the
+        resulting wrench on ``vehicle``. Returns False when ``q`` asked to quit."""
+        for ch in keys:
+            if ch == "q":
+                return False
+            if ch in " k":
+                self.held.clear()
+            elif ch in "+-":
+                self.current[1] += CURRENT_KEY_STEP if ch == "+" else -CURRENT_KEY_STEP
+                vehicle.set_current(self.current)
+            else:
+                self.held.press(ch, now)
+        vehicle.set_wrench(*self.held.wrench(now))
+        return True
+
+
 @dataclass(frozen=True)
 class KeyPress:
     """One key held from ``t_start`` to ``t_end`` (s)."""

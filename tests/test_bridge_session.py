@@ -244,3 +244,120 @@ def test_live_peer_on_the_session_endpoint_gets_the_poses_too(tmp_path: Path) ->
     t, _, _ = motion(75)
     assert set(got) <= set(t.tolist())
     assert got == sorted(got)
+
+
+@pytest.mark.parametrize("fmt", ["mcap", "rosbag2", "rosbag1"])
+def test_recorded_bytes_equal_the_writers_own_rosbags_encoding(tmp_path: Path, fmt: str) -> None:
+    """The session's struct encoding of PoseStamped/Header records the same bytes as the
+    writers' rosbags-serialized write_pose/write_header."""
+    from uwval.bridge.session import _StructEncoding
+    from uwval.io import open_writer
+
+    t, pos, quat = motion(50)
+    logs = {}
+    for how in ("rosbags", "struct"):
+        path = tmp_path / f"{how}{'.bag' if fmt == 'rosbag1' else '.mcap' if fmt == 'mcap' else ''}"
+        with open_writer(path, fmt) as w:
+            out = w if how == "rosbags" else _StructEncoding(w)
+            for k in range(len(t)):
+                out.write_pose("/p", int(t[k]), pos[k], quat[k], "unity-flu", int(t[k]) + 5)
+                out.write_header("/h", int(t[k]) - 7, int(t[k]) + 5, "world")
+        logs[how] = path
+    a, b = (_payloads(logs[h]) for h in ("rosbags", "struct"))
+    assert a == b
+    assert len(a["/p"]) == len(a["/h"]) == 50
+
+
+def _payloads(path: Path) -> dict[str, list[tuple[int, bytes]]]:
+    """(log time, raw bytes) per topic, read by the mcap library or rosbags' AnyReader."""
+    out: dict[str, list[tuple[int, bytes]]] = {}
+    if path.suffix == ".mcap":
+        from mcap.reader import make_reader
+
+        with open(path, "rb") as fh:
+            for _, ch, m in make_reader(fh).iter_messages():
+                out.setdefault(ch.topic, []).append((m.log_time, bytes(m.data)))
+        return out
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([path]) as reader:
+        for conn, t, raw in reader.messages():
+            out.setdefault(conn.topic, []).append((t, bytes(raw)))
+    return out
+
+
+def test_session_options_are_checked_once_and_overridable(tmp_path: Path) -> None:
+    from uwval.bridge.session import BridgeSession, SessionOptions
+    from uwval.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="--format"):
+        SessionOptions(log_format="zip")
+    with pytest.raises(BridgeError):
+        SessionOptions(unity_map="ned")
+    with pytest.raises(TypeError, match="unknown option"):
+        run_session(ticks(5), open_mcap_writer(tmp_path / "x.mcap"), frame_rat=30.0)
+    opts = SessionOptions(latency_s=0.02, drop_prob=0.1, disconnects=[1.0])
+    assert opts.disconnects == (1.0,)
+    w1, w2 = open_mcap_writer(tmp_path / "a.mcap"), open_mcap_writer(tmp_path / "b.mcap")
+    try:
+        s1 = BridgeSession(w1, opts, seed=3).run(ticks(200))
+        s2 = run_session(ticks(200), w2, seed=3, latency_s=0.02, drop_prob=0.1, disconnects=[1.0])
+    finally:
+        w1.close()
+        w2.close()
+    d1, d2 = s1.as_dict(), s2.as_dict()
+    d1.pop("wall_time_s")
+    d2.pop("wall_time_s")
+    assert d1 == d2 and s1.dropped > 0 and s1.disconnects == 1
+
+
+def test_pose_encoder_is_byte_identical_to_the_wire_encoder() -> None:
+    from uwval.bridge import protocol as wire
+    from uwval.bridge.gazebo import PoseEncoder
+
+    rng = np.random.default_rng(0)
+    for proto in ("ROS2", "ROS1"):
+        for fid in ("", "w", "world", "unity-flu", "abcdefgh", "abcdefghi"):
+            enc = PoseEncoder(fid, proto)  # type: ignore[arg-type]
+            for _ in range(50):
+                t = int(rng.integers(0, 2**40))
+                p, q = rng.normal(size=3), rng.normal(size=4)
+                seq = int(rng.integers(0, 2**33))
+                want = wire.encode_pose_stamped(t, p, q, fid, proto, seq=seq)  # type: ignore[arg-type]
+                assert enc.encode(t, p, q, seq) == want
+                assert enc.encode(t, list(p), tuple(q), seq) == want
+
+
+@pytest.mark.parametrize("lookahead", [0.05, 3.0])
+def test_lookahead_changes_nothing_recorded(tmp_path: Path, lookahead: float) -> None:
+    """Virtual arrivals depend on stamps and the seeded faults only: how far ahead ticks are
+    sent (socket batching) leaves the log and the statistics as they are."""
+    kw: dict[str, Any] = dict(
+        latency_s=0.03, latency_jitter_s=0.02, drop_prob=0.1, jitter_s=0.003, disconnects=[1.3]
+    )
+    a, sa = session(tmp_path, "a.mcap", 300, lookahead_s=1.0, seed=4, **kw)
+    b, sb = session(tmp_path, "b.mcap", 300, lookahead_s=lookahead, seed=4, **kw)
+    da, db = sa.as_dict(), sb.as_dict()
+    da.pop("wall_time_s")
+    db.pop("wall_time_s")
+    assert da == db and sa.dropped > 0
+    for topic in ("/gazebo/model_rov_pose", "/unity/model_rov_pose"):
+        x, y = read_stream(a, topic), read_stream(b, topic)
+        assert np.array_equal(x.t, y.t) and np.array_equal(x.position, y.position)
+
+
+def test_options_module_stays_light_and_agrees_with_the_wire() -> None:
+    """The CLI imports the options at start-up: no numpy, no sockets; its defaults are the
+    bridge's."""
+    import subprocess
+    import sys
+
+    from uwval.bridge import protocol as wire
+    from uwval.bridge.options import DEFAULT_HOST
+
+    assert DEFAULT_HOST == wire.DEFAULT_HOST
+    code = (
+        "import sys, uwval.bridge.options; print('numpy' in sys.modules, 'socket' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["False", "False"]

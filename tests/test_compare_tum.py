@@ -126,6 +126,64 @@ def test_seven_plus_nine_numbers_is_not_silently_misparsed(tmp_path: Path) -> No
         read_tum(f)
 
 
+def test_seven_plus_nine_with_comments_further_down_is_named_too(tmp_path: Path) -> None:
+    f = tmp_path / "s.tum"
+    f.write_text(
+        "1 0 0 0 0 0 0 1\n# a comment mid-file\n2 0 0 0 0 0 1\n3 0 0 0 0 0 0 1 0\n4 0 0 0 0 0 0 1\n"
+    )
+    with pytest.raises(LogReadError, match="line 3"):
+        read_tum(f)
+
+
+def _rounded_tum(path: Path, n: int, decimals: int, comment_mid: bool = False) -> PoseStream:
+    """A TUM file whose quaternions are rounded to ``decimals`` places (not unit to 1e-9)."""
+    rng = np.random.default_rng(7)
+    q = quat_from_rpy(rng.uniform(-3, 3, (n, 3)))
+    t = 1_700_000_000 + np.arange(n) * 0.01
+    pos = rng.normal(0, 5, (n, 3))
+    fmt = f"%.4f %.{decimals}f %.{decimals}f %.{decimals}f " + " ".join([f"%.{decimals}f"] * 4)
+    lines = [fmt % (t[i], *pos[i], *q[i]) for i in range(n)]
+    if comment_mid:
+        lines.insert(n // 2, "# resumed")
+    path.write_text("# timestamp tx ty tz qx qy qz qw\n" + "\n".join(lines) + "\n")
+    table = np.loadtxt(path, comments="#")
+    return PoseStream.from_arrays(
+        ns_from_seconds(table[:, 0]), table[:, 1:4], table[:, 4:8], topic="tum", source=str(path)
+    )
+
+
+@pytest.mark.parametrize("comment_mid", [False, True])
+@pytest.mark.parametrize("decimals", [4, 6])
+def test_rounded_quaternions_are_normalised_without_the_per_line_search(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, decimals: int, comment_mid: bool
+) -> None:
+    """Real TUM files (4-6 decimal quaternions) stay on the vectorised path: same numbers and
+    the same ``repairs`` count as PoseStream.from_arrays, and the per-line Python search for
+    a bad line never runs (it would raise here)."""
+    f = tmp_path / "gt.tum"
+    want = _rounded_tum(f, 3000, decimals, comment_mid)
+    assert want.repairs.get("renormalized", 0) > 0
+
+    def forbidden(*args: object, **kwargs: object) -> str:
+        raise AssertionError("_first_bad_line ran on a well-formed file")
+
+    monkeypatch.setattr(tum_module, "_first_bad_line", forbidden)
+    got = read_tum(f)
+    assert got.repairs == want.repairs
+    assert np.array_equal(got.t, want.t)
+    assert np.array_equal(got.position, want.position)
+    assert np.array_equal(got.orientation, want.orientation)  # bit for bit
+    norms = np.linalg.norm(got.orientation, axis=1)
+    assert np.abs(norms - 1.0).max() < 1e-12
+
+
+def test_badly_non_unit_quaternion_is_still_refused(tmp_path: Path) -> None:
+    f = tmp_path / "s.tum"
+    f.write_text("1 0 0 0 0 0 0 1\n2 0 0 0 0 0 0 0.9\n")
+    with pytest.raises(PoseStreamError, match=r"sample 1 has norm 0\.9"):
+        read_tum(f)
+
+
 def test_large_file_is_parsed_in_chunks(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     import uwval.io.tum as tum
 

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from cli_runner import run_uwval as _uwval
 
-from uwval.cli.teleop_cmd import HeldKeys
 from uwval.io import read_stream
 from uwval.rotations import rpy_from_quat
+from uwval.simulator.inputs import HeldKeys
 
 
 def _free_port() -> int:
@@ -150,3 +150,23 @@ def test_bad_input_is_one_clean_line(
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert len(lines) == 1 and lines[0].startswith("error:"), err
     assert needle in lines[0]
+
+
+def test_keyboard_teleop_drives_a_live_simulator() -> None:
+    """Typed keys -> held wrench and current on a real Simulator (the domain code the CLI
+    only feeds with terminal input)."""
+    from uwval.simulator import Simulator, load_vehicle
+    from uwval.simulator.inputs import KeyboardTeleop
+
+    sim = Simulator(load_vehicle("tethys"))
+    kb = KeyboardTeleop(force_step=10.0, torque_step=1.0, hold_s=0.5, current=(0, 0, 0))
+    assert kb.handle("i+", 0.0, sim)
+    np.testing.assert_allclose(kb.current, [0, 0.1, 0])
+    assert sim._force_override is not None and sim._current_override is not None
+    np.testing.assert_allclose(sim._force_override, [10.0, 0, 0])
+    np.testing.assert_allclose(sim._current_override, [0, 0.1, 0])
+    sim.advance_to(int(1e9))
+    assert sim.state[7] > 0  # surging forward
+    assert kb.handle(" ", 0.1, sim)  # space releases every key
+    np.testing.assert_allclose(sim._force_override, 0.0)
+    assert not kb.handle("iq", 0.2, sim)  # q quits

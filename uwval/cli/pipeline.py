@@ -8,68 +8,43 @@ executor of :mod:`uwval.executors` (process pool or Dask) with identical logs.
 from __future__ import annotations
 
 import json
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
+from uwval.bridge.options import LOG_SUFFIX, SessionOptions
 from uwval.errors import ConfigError
 
-#: Log file suffix for each --format.
-FORMAT_SUFFIX = {
-    "mcap": ".mcap",
-    "rosbag2": "",
-    "rosbag2-sqlite3": "",
-    "rosbag2-mcap": "",
-    "rosbag1": ".bag",
-}
+if TYPE_CHECKING:
+    from uwval.bridge.gazebo import Tick
+    from uwval.simulator import RunSpec, SimResult, TickChunk
 
+__all__ = [
+    "FORMAT_SUFFIX",
+    "RunJob",
+    "SessionOptions",
+    "batch_physics",
+    "ensure_parent_dir",
+    "log_path_for",
+    "run_one",
+]
 
-@dataclass(frozen=True)
-class SessionOptions:
-    """How the bridge and the Unity-like client behave in a run (seconds, Hz)."""
-
-    unity_map: str = "unity-flu"
-    frame_rate: float = 60.0
-    latency_s: float = 0.0
-    jitter_s: float = 0.0
-    drop_prob: float = 0.0
-    unity_clock_offset_s: float = 0.0
-    realtime: bool = False
-    protocol: str = "ROS2"
-    log_format: str = "mcap"
-
-    def __post_init__(self) -> None:
-        """Check every option now, before any simulation runs (one clean error, not one
-        failed run per experiment run). The bridge's own classes own the rules."""
-        from uwval.bridge import protocol as wire
-        from uwval.bridge.unity_client import FaultModel, RenderLoop
-
-        if self.log_format not in FORMAT_SUFFIX:
-            raise ConfigError(
-                f"--format {self.log_format!r}: choose one of {', '.join(FORMAT_SUFFIX)}"
-            )
-        wire.check_protocol(self.protocol)
-        FaultModel(latency_s=self.latency_s, drop_prob=self.drop_prob)
-        RenderLoop(
-            [],
-            unity_map=self.unity_map,
-            frame_rate=self.frame_rate,
-            frame_jitter_s=self.jitter_s,
-            clock_offset_s=self.unity_clock_offset_s,
-        )
+#: Log file suffix for each --format (the bridge's table).
+FORMAT_SUFFIX = LOG_SUFFIX
 
 
 @dataclass(frozen=True)
 class RunJob:
     """One run to execute: the simulator's RunSpec, where to write, how to bridge."""
 
-    spec: Any  # simulator.RunSpec (kept Any: the core does not import the simulator)
+    spec: RunSpec
     log_path: str
     session: SessionOptions = field(default_factory=SessionOptions)
-    sim: Any = None  # a precomputed simulator.SimResult (batched physics), else None
+    sim: SimResult | None = None  # precomputed (batched physics), else streamed by run_one
 
 
-def batch_physics(specs: list[Any], progress: bool = True) -> list[Any]:
+def batch_physics(specs: list[RunSpec], progress: bool = True) -> list[SimResult]:
     """Every run's physics stepped together, one vectorised state per group of runs that
     share duration, step, publish rate, switches and wrench frame (``simulate_batch``).
 
@@ -137,42 +112,38 @@ def ensure_parent_dir(path: Path) -> None:
 def run_one(job: RunJob) -> dict[str, Any]:
     """Simulate one run, stream it through the bridge, record both sides; return its record.
 
-    Module-level so that process pools and Dask workers can run it.
+    Without a precomputed ``job.sim`` the physics is streamed: chunks of publish ticks go
+    to the bridge as they are stepped (:class:`uwval.simulator.SimulationStream`), so memory
+    stays bounded however long the run. Module-level so that process pools and Dask
+    workers can run it.
     """
-    from uwval.bridge.session import run_session, ticks_from_streams
+    from uwval.bridge.session import BridgeSession, ticks_from_streams
     from uwval.io import open_writer
-    from uwval.simulator import simulate
+    from uwval.simulator import SimulationStream
 
     spec = job.spec
     opts = job.session
-    sim = (
-        job.sim
-        if job.sim is not None
-        else simulate(spec.vehicle, spec.inputs, spec.duration_s, **spec.simulate_kwargs())
-    )
     path = Path(job.log_path)
     ensure_parent_dir(path)
+    stream: SimulationStream | None = None
+    if job.sim is not None:
+        info = job.sim.info
+        ticks: Iterator[Tick] = ticks_from_streams(job.sim.vehicle, job.sim.camera)
+    else:
+        stream = SimulationStream(
+            spec.vehicle, spec.inputs, spec.duration_s, **spec.simulate_kwargs()
+        )
+        info = stream.info
+        ticks = _ticks_of(stream)
     metadata = {
         "run": spec.name,
         "factors": json.dumps(spec.factors),
         "unity_map": opts.unity_map,
         "seed": str(spec.seed),
-        "vehicle": str(sim.info.get("vehicle", "")),
+        "vehicle": str(info.get("vehicle", "")),
     }
     with open_writer(path, format=opts.log_format, metadata=metadata) as writer:
-        stats = run_session(
-            ticks_from_streams(sim.vehicle, sim.camera),
-            writer,
-            unity_map=opts.unity_map,
-            frame_rate=opts.frame_rate,
-            latency_s=opts.latency_s,
-            jitter_s=opts.jitter_s,
-            drop_prob=opts.drop_prob,
-            unity_clock_offset_s=opts.unity_clock_offset_s,
-            seed=spec.seed,
-            realtime=opts.realtime,
-            protocol=opts.protocol,
-        )
+        stats = BridgeSession(writer, opts, seed=spec.seed).run(ticks)
     return {
         "name": spec.name,
         "log": str(path),
@@ -180,9 +151,26 @@ def run_one(job: RunJob) -> dict[str, Any]:
         "seed": int(spec.seed),
         "duration_s": float(spec.duration_s),
         "bridge": _as_dict(stats),
-        "sim": {k: v for k, v in sim.info.items() if _jsonable(v)},
+        "sim": {k: v for k, v in info.items() if _jsonable(v)},
         "session": asdict(opts),
     }
+
+
+def _ticks_of(chunks: Iterator[TickChunk] | Any) -> Iterator[Tick]:
+    """Publish ticks of streamed simulator chunks: the vehicle and its following camera
+    (``model_rov_pose``, ``gui_camera_pose``, ENU/FLU), as ``ticks_from_streams`` makes them
+    from whole streams."""
+    from uwval.bridge.gazebo import CAMERA_TOPIC, VEHICLE_TOPIC
+
+    for c in chunks:
+        for k, t in enumerate(c.t.tolist()):
+            yield (
+                t,
+                {
+                    VEHICLE_TOPIC: (c.position[k], c.orientation[k]),
+                    CAMERA_TOPIC: (c.camera_position[k], c.camera_orientation[k]),
+                },
+            )
 
 
 def _as_dict(obj: Any) -> dict[str, Any]:

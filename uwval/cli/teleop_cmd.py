@@ -16,7 +16,6 @@ import math
 import os
 import select
 import sys
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Annotated, Any
@@ -61,41 +60,6 @@ def _read_keys() -> str:
     return out
 
 
-class HeldKeys:
-    """Wrench from keys held down: each key stays active ``hold_s`` after its last repeat."""
-
-    def __init__(self, force_step: float, torque_step: float, hold_s: float) -> None:
-        from uwval.simulator.inputs import TELEOP_KEYS
-
-        self.keys = TELEOP_KEYS
-        self.force_step = force_step
-        self.torque_step = torque_step
-        self.hold_s = hold_s
-        self.last_seen: dict[str, float] = {}
-
-    def press(self, key: str, now: float) -> bool:
-        """Record a key press; False when the key is not a teleop key."""
-        if key not in self.keys:
-            return False
-        self.last_seen[key] = now
-        return True
-
-    def clear(self) -> None:
-        self.last_seen.clear()
-
-    def wrench(self, now: float) -> tuple[np.ndarray, np.ndarray]:
-        """(force N, torque N m) in the body frame from the keys held at ``now``."""
-        force, torque = np.zeros(3), np.zeros(3)
-        for key, seen in self.last_seen.items():
-            if now - seen <= self.hold_s:
-                ch, axis, sign = self.keys[key]
-                if ch == 0:
-                    force[axis] += sign * self.force_step
-                else:
-                    torque[axis] += sign * self.torque_step
-        return force, torque
-
-
 @app.command()
 def teleop(
     vehicle: Annotated[
@@ -121,9 +85,10 @@ def teleop(
     ] = None,
 ) -> None:
     """Drive the simulated vehicle live from the keyboard through the TCP bridge."""
-    from uwval.bridge.gazebo import GazeboPublisher
+    from uwval.bridge.gazebo import GazeboPublisher, run_live
     from uwval.bridge.server import BridgeServer
     from uwval.simulator import InputProfile, Simulator, constant_inputs, load_vehicle
+    from uwval.simulator.inputs import KeyboardTeleop
 
     interactive = keys is None
     # Checked before anything starts: ``not (x >= 0)`` is also true for NaN.
@@ -146,7 +111,7 @@ def teleop(
         else constant_inputs((0, 0, 0), (0, 0, 0), cur)
     )
     sim = Simulator(load_vehicle(vehicle), inputs, publish_rate=publish_rate)
-    held = HeldKeys(force_step, torque_step, hold)
+    keyboard = KeyboardTeleop(force_step, torque_step, hold, cur)
     writer: Any = None
     if record is not None:
         from uwval.io import open_writer
@@ -158,46 +123,35 @@ def teleop(
     console.print(f"endpoint listening on {h}:{p} (connect Unity's ROS-TCP-Connector here)")
     if interactive:
         console.print("keys: i , J L t b j l u o y n | +/- current | k/space stop | q quit")
-    period_ns = round(1e9 / publish_rate)
-    t_wall0 = time.perf_counter()
+    every = max(1, round(publish_rate))
     sent = 0
+
+    def control(t_ns: int) -> bool:
+        return keyboard.handle(_read_keys(), t_ns * 1e-9, sim)
+
+    def status(t_ns: int, pos: np.ndarray, _quat: np.ndarray) -> None:
+        nonlocal sent
+        sent += 1
+        if sent % every == 0:  # ~1 Hz
+            f, tq = keyboard.held.wrench(t_ns * 1e-9)
+            console.print(
+                f"t {t_ns * 1e-9:7.2f} s  pos {np.round(pos, 2)}  force {f} N  "
+                f"torque {tq} N m  current {np.round(keyboard.current, 2)} m/s",
+                highlight=False,
+            )
+
     try:
         with _cbreak(interactive):
-            t_ns = 0
-            while duration <= 0 or t_ns <= int(duration * 1e9):
-                if interactive:
-                    now = t_ns * 1e-9
-                    for ch in _read_keys():
-                        if ch == "q":
-                            raise KeyboardInterrupt
-                        if ch in " k":
-                            held.clear()
-                        elif ch in "+-":
-                            cur[1] += 0.1 if ch == "+" else -0.1
-                            sim.set_current(cur)
-                        else:
-                            held.press(ch, now)
-                    sim.set_wrench(*held.wrench(now))
-                for tick_t, vp, vq, cp, cq in sim.advance_to(t_ns):
-                    publisher.publish_tick(
-                        (tick_t, {"model_rov_pose": (vp, vq), "gui_camera_pose": (cp, cq)})
-                    )
-                    sent += 1
-                    if writer is not None:
-                        writer.write_pose("/gazebo/model_rov_pose", tick_t, vp, vq, "world")
-                        writer.write_pose("/gazebo/gui_camera_pose", tick_t, cp, cq, "world")
-                    if interactive and sent % max(1, round(publish_rate)) == 0:  # ~1 Hz
-                        f, tq = held.wrench(tick_t * 1e-9)
-                        console.print(
-                            f"t {tick_t * 1e-9:7.2f} s  pos {np.round(vp, 2)}  "
-                            f"force {f} N  torque {tq} N m  current {np.round(cur, 2)} m/s",
-                            highlight=False,
-                        )
-                t_ns += period_ns
-                if speed > 0:  # pace sim time to the wall clock
-                    lag = t_ns * 1e-9 / speed - (time.perf_counter() - t_wall0)
-                    if lag > 0:
-                        time.sleep(lag)
+            run_live(
+                sim,
+                publisher,
+                publish_rate=publish_rate,
+                duration_s=duration,
+                speed=speed,
+                control=control if interactive else None,
+                writer=writer,
+                on_tick=status if interactive else None,
+            )
     except KeyboardInterrupt:
         pass
     finally:
@@ -205,6 +159,6 @@ def teleop(
         if writer is not None:
             writer.close()
     console.print(
-        f"published {sent} ticks ({sent * 2} poses)"
+        f"published {publisher.seq // 2} ticks ({publisher.seq} poses)"
         + (f"; Gazebo side recorded to {record}" if record else "")
     )

@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from uwval.errors import LogReadError, LogWriteError, PoseStreamError
-from uwval.posestream import PoseStream
+from uwval.posestream import QUAT_NORM_TOLERANCE, PoseStream
 
 try:  # the optional C accelerator (uwval/io/_tumparse.c), built when a compiler is present
     from uwval.io import _tumparse
@@ -322,12 +322,31 @@ def _parse_whole(data: bytes, source: str) -> NDArray[np.float64]:
     n_tokens = len(body.split())
     if values.size % 8 or n_tokens != values.size:
         raise LogReadError(f"{source}: {_first_bad_line(data)}")
-    bad = _first_bad_line(data, strict=True) if values.size else None
-    if bad:
-        raise LogReadError(f"{source}: {bad}")
+    if values.size and not _lines_of_eight(body):  # e.g. a line of 7 next to one of 9
+        raise LogReadError(f"{source}: {_first_bad_line(data)}")
     if values.size == 0:
         raise LogReadError(f"{source}: no poses (empty TUM file)")
     return values.reshape(-1, 8)
+
+
+_SPACE = np.zeros(256, dtype=bool)
+_SPACE[list(b" \t\r\n\v\f")] = True
+
+
+def _lines_of_eight(body: bytes) -> bool:
+    """True when every non-blank line of ``body`` (comments removed) holds exactly 8 tokens.
+
+    Vectorised: a token starts at a non-space byte after a space (or at the start); tokens
+    are counted per line with one ``bincount``. The per-line loop :func:`_first_bad_line`
+    runs only when this is False, to name the line.
+    """
+    b = np.frombuffer(body, dtype=np.uint8)
+    space = _SPACE[b]
+    starts = ~space
+    starts[1:] &= space[:-1]
+    line = np.cumsum(b == 10)
+    per_line = np.bincount(line[starts], minlength=int(line[-1]) + 1)
+    return bool(((per_line == 0) | (per_line == 8)).all())
 
 
 def read_tum(path: str | Path, *, frame: str = "enu", topic: str = "") -> PoseStream:
@@ -498,32 +517,58 @@ def _load(p: Path, out: tuple[I64, F64] | None = None) -> tuple[I64, F64]:
 
 
 def _stream(p: Path, t: I64, pose: F64, frame: str, topic: str) -> PoseStream:
-    """A PoseStream of views into ``pose`` when the data are clean, else a repaired one."""
+    """A PoseStream of views into ``pose``, repaired when needed.
+
+    Every parse path has already checked that each line holds 8 numbers (the C parser and
+    ``loadtxt`` per line, :func:`_parse_whole` by a vectorised token count), so no column can
+    be scrambled here. Quaternions rounded to a few decimals (TUM RGB-D ground truths have 4)
+    are normalised in place, vectorised, and counted in ``repairs['renormalized']`` as
+    :meth:`PoseStream.from_arrays` counts them; only unsorted or duplicate stamps, NaN or badly
+    non-unit quaternions go through ``from_arrays`` (which repairs or names the sample).
+    """
     pos, quat = pose[:, 0:3], pose[:, 3:7]
     name = topic or "tum"
-    if _clean(t, pose, quat):
+    renormalized = _normalize_in_place(t, pose, quat)
+    if renormalized is not None:
         return PoseStream(
-            t=t, position=pos, orientation=quat, frame=frame, topic=name, source=str(p)
+            t=t,
+            position=pos,
+            orientation=quat,
+            frame=frame,
+            topic=name,
+            source=str(p),
+            repairs={"renormalized": renormalized} if renormalized else {},
         )
-    # something needs repair: first make sure it is not a misparse (a line of 7 numbers next
-    # to one of 9 keeps the token count a multiple of 8 but scrambles columns)
-    bad = _first_bad_line(p.read_bytes(), strict=True)
-    if bad:
-        raise LogReadError(f"{p}: {bad}")
     try:
         return PoseStream.from_arrays(t, pos, quat, frame=frame, topic=name, source=str(p))
     except PoseStreamError as exc:
         raise PoseStreamError(f"{exc} (TUM file: sample k is on the k-th pose line)") from None
 
 
-def _clean(t: I64, pose: F64, quat: F64) -> bool:
-    """True when nothing needs repairing: finite, strictly increasing, unit quaternions."""
+def _normalize_in_place(t: I64, pose: F64, quat: F64) -> int | None:
+    """Normalise ``quat`` (a view into ``pose``) in place when that is the only repair needed.
+
+    Returns how many quaternions were more than 1e-9 from unit norm (0: none, nothing
+    touched), or None when the data need :meth:`PoseStream.from_arrays` (non-finite values,
+    stamps not strictly increasing, a quaternion beyond ``QUAT_NORM_TOLERANCE``). The
+    arithmetic is ``from_arrays``'s (every row divided by its ``np.linalg.norm``), so the
+    numbers are the same bits as before this fast path existed.
+    """
     if not bool(np.isfinite(pose).all()):
-        return False
+        return None
     if t.size > 1 and not bool((np.diff(t) > 0).all()):
-        return False
+        return None
     norm2 = np.einsum("ij,ij->i", quat, quat)
-    return bool(np.abs(norm2 - 1.0).max() <= 2e-9)
+    if quat.shape[0] == 0 or bool(np.abs(norm2 - 1.0).max() <= 2e-9):
+        return 0
+    norms = np.linalg.norm(quat, axis=1)
+    off = np.abs(norms - 1.0)
+    if float(off.max()) > QUAT_NORM_TOLERANCE:
+        return None  # from_arrays names the sample
+    renorm = int((off > 1e-9).sum())
+    if renorm:
+        quat /= norms[:, None]
+    return renorm
 
 
 def write_tum(path: str | Path, stream: PoseStream, *, precision: int = 9) -> None:

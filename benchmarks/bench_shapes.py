@@ -1,0 +1,240 @@
+"""Headline rows (issue 15): uwval vs evo 1.38.1 on the log shapes users really record.
+
+Inputs come from :mod:`benchmarks.shapes` (many topics interleaved in every chunk, /tf with
+five children, an optional 15 Hz 40 kB image topic, hour-long and 10-15 minute logs, each
+container format, TUM pairs with 4/6-decimal quaternions). They are generated once into
+``$UWVAL_SHAPES_DIR`` (default ``/tmp/uwval-shapes``) and reused by later runs.
+
+Rows, per shape:
+
+- whole command, one topic pair: ``uwval compare LOG --gazebo-topic /gazebo/model_rov_pose
+  --unity-topic /unity/model_rov_pose --sync nearest`` (TUM: ``uwval compare REF EST --sync
+  nearest``) vs ``evo_ape bag|bag2|tum`` on the same pair; medians of ``reps`` alternating
+  runs (uwval, evo, uwval, evo, ...), speed ratio (target >= 10x) and peak RSS ratio
+  (target: uwval's peak no more than evo's); peak RSS is each command's own (wait4);
+- the APE translation RMSE of both tools on that pair, read from their outputs, must agree
+  (evo compares the raw numbers, so uwval is run with ``--frame enu`` on containers, whose
+  Unity side is in Unity axes: both then compare the same numbers);
+- decode of the two selected PoseStamped topics (with their applied-stamp companions) from
+  the interleaved container, in process (target >= 2M msg/s);
+- ``uwval compare`` of the one-hour MCAP as a user runs it (both pairs, defaults; target < 1 s);
+- memory of the image log vs the same log without images (target: no more).
+
+``python -m benchmarks --only shapes`` runs just these (about 10-15 minutes on an idle
+2-core machine the first time, of which ~3 minutes generate the logs; ~8-10 minutes after).
+``--quick`` uses 30 s versions of every shape and 3 repetitions.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import sys
+import time
+from pathlib import Path
+
+from benchmarks.common import BenchRow, median, run_command
+from benchmarks.shapes import SHAPES, Shape, ShapeFiles, generate
+
+#: The shapes measured, in table order; ``--quick`` runs 30 s versions of them.
+ROWS = (
+    "tum-1h",
+    "mcap-1h",
+    "mcap-10min-images",
+    "mcap-10min",
+    "rosbag1-15min",
+    "rosbag2-sqlite3-15min",
+    "rosbag2-mcap-15min",
+)
+
+
+def shapes_dir() -> Path:
+    """Where generated shapes are kept between runs."""
+    return Path(os.environ.get("UWVAL_SHAPES_DIR", "/tmp/uwval-shapes"))
+
+
+def _exe(name: str) -> str:
+    here = Path(sys.executable).parent / name
+    return str(here) if here.exists() else (shutil.which(name) or name)
+
+
+def _uwval_cmd(f: ShapeFiles, *extra: str) -> list[str]:
+    if f.shape.fmt == "tum":
+        return [_exe("uwval"), "compare", *map(str, f.paths), "--sync", "nearest", *extra]
+    return [
+        _exe("uwval"),
+        "compare",
+        str(f.paths[0]),
+        "--gazebo-topic",
+        f.gazebo_topic,
+        "--unity-topic",
+        f.unity_topic,
+        "--sync",
+        "nearest",
+        *extra,
+    ]
+
+
+def _evo_cmd(f: ShapeFiles) -> list[str]:
+    sub = {"tum": "tum", "rosbag1": "bag"}.get(f.shape.fmt, "bag2")
+    if sub == "tum":
+        return [_exe("evo_ape"), "tum", *map(str, f.paths)]
+    return [_exe("evo_ape"), sub, str(f.paths[0]), f.gazebo_topic, f.unity_topic]
+
+
+def _rmse_evo(cmd: list[str]) -> float:
+    import subprocess
+
+    out = subprocess.run(cmd, capture_output=True, text=True, check=True).stdout
+    m = re.search(r"rmse\s+([0-9.eE+-]+)", out)
+    if m is None:
+        raise RuntimeError(f"no rmse in evo's output: {out[-500:]}")
+    return float(m.group(1))
+
+
+def _rmse_uwval(cmd: list[str]) -> float:
+    """uwval's APE translation RMSE (the position error norm's RMSE, evo's APE)."""
+    import json
+    import subprocess
+
+    out = subprocess.run([*cmd, "--json"], capture_output=True, text=True, check=True).stdout
+    return float(json.loads(out)["position_error_norm"]["rmse"])
+
+
+def _decode_rate(f: ShapeFiles, reps: int) -> tuple[float, int]:
+    """Selected PoseStamped messages per second, reading the topic pair in one pass."""
+    from uwval.io import read_streams
+
+    times = []
+    n = 0
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        got = read_streams(f.paths[0], [f.gazebo_topic, f.unity_topic])
+        times.append(time.perf_counter() - t0)
+        n = sum(len(s) for s in got.values())
+        n += sum(0 if s.applied_stamp is None else len(s) for s in got.values())
+        del got
+    return n / median(times), n
+
+
+def _shape_rows(f: ShapeFiles, reps: int) -> list[BenchRow]:
+    uw, evo = _uwval_cmd(f), _evo_cmd(f)
+    runs: dict[str, list[tuple[float, float]]] = {"uwval": [], "evo": []}
+    for _ in range(reps):  # alternate: both see the same machine load
+        runs["uwval"].append(run_command(uw))
+        runs["evo"].append(run_command(evo))
+    t_uw, t_evo = (median([r[0] for r in runs[k]]) for k in ("uwval", "evo"))
+    m_uw, m_evo = (median([r[1] for r in runs[k]]) for k in ("uwval", "evo"))
+    label = f"{f.shape.name} ({f.messages:,} msgs, {f.bytes / 2**20:.0f} MiB)"
+    sub = evo[1]
+    note = f"{reps} alternating runs, medians; evo_ape {sub}, one topic pair"
+    rows = [
+        BenchRow(
+            f"shape {label}: whole command",
+            t_uw,
+            "s",
+            t_evo,
+            f"evo_ape {sub}",
+            ">= 10x faster",
+            t_evo / t_uw >= 10.0,
+            notes=note,
+        ),
+        BenchRow(
+            f"shape {f.shape.name}: peak RSS",
+            m_uw,
+            "MiB",
+            m_evo,
+            f"evo_ape {sub}",
+            "<= evo's",
+            m_uw <= m_evo,
+            notes=f"ratio = evo / uwval (>= 1 met); {note}",
+        ),
+    ]
+    # exactness: the same APE translation RMSE (evo compares raw numbers: uwval --frame enu)
+    try:
+        extra = () if f.shape.fmt == "tum" else ("--frame", "enu")
+        r_uw, r_evo = _rmse_uwval(_uwval_cmd(f, *extra)), _rmse_evo(evo)
+        same = abs(r_uw - r_evo) <= 5.1e-7  # evo prints 6 decimals
+        rows.append(
+            BenchRow(
+                f"shape {f.shape.name}: APE translation RMSE",
+                r_uw,
+                "m",
+                r_evo,
+                f"evo_ape {sub}",
+                "equal to evo's (printed digits)",
+                same,
+                notes="uwval --sync nearest" + (" --frame enu" if extra else ""),
+            )
+        )
+    except Exception as exc:  # reported, not hidden
+        rows.append(
+            BenchRow(
+                f"shape {f.shape.name}: APE translation RMSE",
+                float("nan"),
+                "m",
+                target="equal to evo's",
+                met=False,
+                notes=f"could not compare: {exc}"[:200],
+            )
+        )
+    if f.shape.fmt != "tum":
+        rate, n = _decode_rate(f, reps)
+        rows.append(
+            BenchRow(
+                f"shape {f.shape.name}: decode selected PoseStamped (+ applied stamps)",
+                rate,
+                "msg/s",
+                target=">= 2M msg/s",
+                met=rate >= 2e6,
+                notes=f"{n:,} selected msgs of {f.messages:,}, read_streams in process, median",
+            )
+        )
+    return rows
+
+
+def run(quick: bool = False) -> list[BenchRow]:
+    reps = 3 if quick else 5
+    d = shapes_dir()
+    rows: list[BenchRow] = []
+    files: dict[str, ShapeFiles] = {}
+    for name in ROWS:
+        sh = SHAPES[name]
+        if quick:
+            sh = Shape(f"{sh.name}-30s", sh.fmt, 30.0, sh.images)
+        print(f"[shapes] {sh.name}: generating/reusing in {d}", file=sys.stderr, flush=True)
+        files[name] = f = generate(sh, d)
+        rows.extend(_shape_rows(f, reps))
+    # memory bounded by the selected topics: the image log costs no more than without images
+    img, plain = files["mcap-10min-images"], files["mcap-10min"]
+    m_img = median([run_command(_uwval_cmd(img))[1] for _ in range(reps)])
+    m_plain = median([run_command(_uwval_cmd(plain))[1] for _ in range(reps)])
+    rows.append(
+        BenchRow(
+            "shape mcap-10min with vs without the image topic: uwval peak RSS",
+            m_img,
+            "MiB",
+            m_plain,
+            "same log without images (uwval)",
+            "no more than without images (+5 %)",
+            m_img <= m_plain * 1.05,
+            notes=f"{reps} runs each, medians",
+        )
+    )
+    # a user's whole compare of its own one-hour log (both pairs, defaults)
+    own = files["mcap-1h"]
+    cmd = [_exe("uwval"), "compare", str(own.paths[0])]
+    own_runs = [run_command(cmd) for _ in range(reps)]
+    t_own = median([r[0] for r in own_runs])
+    rows.append(
+        BenchRow(
+            f"shape {own.shape.name}: uwval compare LOG (both pairs, defaults)",
+            t_own,
+            "s",
+            target="< 1 s",
+            met=t_own < 1.0,
+            notes=f"peak RSS {median([r[1] for r in own_runs]):.0f} MiB; {reps} runs, median",
+        )
+    )
+    return rows

@@ -1,0 +1,130 @@
+"""Options of one bridged run (:class:`SessionOptions`) and the constants they default to.
+
+Kept free of heavy imports (no numpy, no sockets) so that the command line can build and
+check options when it starts; the bridge's classes that own the rules are imported when an
+option is checked.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from uwval.errors import ConfigError
+
+if TYPE_CHECKING:
+    from uwval.bridge.unity_client import FaultModel, RenderLoop
+
+#: Topics of uwval's Gazebo side (``/gazebo/<name>``) and of the Unity client's scene.
+VEHICLE_TOPIC = "model_rov_pose"
+CAMERA_TOPIC = "gui_camera_pose"
+DEFAULT_TOPICS = (VEHICLE_TOPIC, CAMERA_TOPIC)
+#: Unity's ROS-TCP-Connector reconnects this long after a lost connection, s.
+RECONNECT_DELAY_S = 1.0
+#: Where the endpoint listens by default (ROS-TCP-Endpoint's loopback address).
+DEFAULT_HOST = "127.0.0.1"
+
+__all__ = [
+    "CAMERA_TOPIC",
+    "DEFAULT_HOST",
+    "DEFAULT_TOPICS",
+    "LOG_SUFFIX",
+    "RECONNECT_DELAY_S",
+    "VEHICLE_TOPIC",
+    "SessionOptions",
+]
+
+#: Log file suffix of each log format a session can record into (``uwval simulate --format``).
+LOG_SUFFIX = {
+    "mcap": ".mcap",
+    "rosbag2": "",
+    "rosbag2-sqlite3": "",
+    "rosbag2-mcap": "",
+    "rosbag1": ".bag",
+}
+
+
+@dataclass(frozen=True)
+class SessionOptions:
+    """How one bridged run behaves: the link, the Unity-like client and the recording.
+
+    Times in seconds, rates in Hz. Every option is checked when the options are made (one
+    clean :class:`ConfigError`/:class:`BridgeError` before any simulation runs); the
+    bridge's own classes (:class:`FaultModel`, :class:`RenderLoop`) own the rules.
+
+    Attributes:
+        unity_map: ROS-TCP-Connector map, ``unity-flu`` or ``unity-enu``.
+        frame_rate: Unity render rate.
+        latency_s: one-way latency added to each message.
+        jitter_s: std of the render-frame time jitter.
+        drop_prob: probability that Unity loses a message.
+        unity_clock_offset_s: Unity clock minus sim clock (Unity topics' stamps).
+        realtime: pace the virtual clock to the wall clock.
+        protocol: ``ROS2`` (CDR) or ``ROS1``.
+        log_format: ``mcap``, ``rosbag2``/``rosbag2-sqlite3`` or ``rosbag1`` (the recording).
+        latency_jitter_s: extra uniform [0, x) per-message delay.
+        disconnects: virtual times (s after the first tick) when Unity's connection drops;
+            it reconnects and re-registers after ``reconnect_delay_s``.
+        reconnect_delay_s: how long Unity stays away after a drop.
+        topics: topics the Unity client subscribes to and renders.
+        lookahead_s: how far ahead of the render clock ticks may be sent (0 in realtime).
+        flush_every: the recorder flushes after this many messages.
+        host, port: where the endpoint listens (port 0: a free port).
+    """
+
+    unity_map: str = "unity-flu"
+    frame_rate: float = 60.0
+    latency_s: float = 0.0
+    jitter_s: float = 0.0
+    drop_prob: float = 0.0
+    unity_clock_offset_s: float = 0.0
+    realtime: bool = False
+    protocol: str = "ROS2"
+    log_format: str = "mcap"
+    latency_jitter_s: float = 0.0
+    disconnects: tuple[float, ...] = ()
+    reconnect_delay_s: float = RECONNECT_DELAY_S
+    topics: tuple[str, ...] = DEFAULT_TOPICS
+    lookahead_s: float = 1.0
+    flush_every: int = 1000
+    host: str = DEFAULT_HOST
+    port: int = 0
+
+    def __post_init__(self) -> None:
+        from uwval.bridge import protocol as wire
+
+        object.__setattr__(self, "disconnects", tuple(float(d) for d in self.disconnects))
+        object.__setattr__(self, "topics", tuple(self.topics))
+        if self.log_format not in LOG_SUFFIX:
+            raise ConfigError(
+                f"--format {self.log_format!r}: choose one of {', '.join(LOG_SUFFIX)}"
+            )
+        wire.check_protocol(self.protocol)
+        self.fault_model(0)
+        self.render_loop(0)
+
+    def fault_model(self, seed: int) -> FaultModel:
+        """The Unity side's link faults for a run seeded ``seed``."""
+        from uwval.bridge.unity_client import FaultModel
+
+        return FaultModel(
+            latency_s=self.latency_s,
+            latency_jitter_s=self.latency_jitter_s,
+            drop_prob=self.drop_prob,
+            disconnects=self.disconnects,
+            reconnect_delay_s=self.reconnect_delay_s,
+            seed=seed,
+        )
+
+    def render_loop(self, seed: int) -> RenderLoop:
+        """The Unity-like scene for a run seeded ``seed``."""
+        from uwval.bridge.unity_client import RenderLoop
+
+        return RenderLoop(
+            self.topics,
+            unity_map=self.unity_map,
+            frame_rate=self.frame_rate,
+            frame_jitter_s=self.jitter_s,
+            clock_offset_s=self.unity_clock_offset_s,
+            seed=seed,
+        )
