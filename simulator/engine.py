@@ -114,7 +114,8 @@ def _warnings_for(vehicles: Sequence[Vehicle], implicit: bool) -> list[str]:
             out.append(
                 f"explicit added mass unstable for {v.name}: {'; '.join(axes)}. Gazebo's "
                 "backward-difference added mass diverges when |X_dot| >= m per axis; use "
-                "implicit_added_mass=True or a Gazebo-stable variant"
+                "implicit_added_mass=True (uwval simulate --added-mass implicit; an experiment's "
+                "implicit_added_mass = true) or a Gazebo-stable variant"
             )
     return out
 

@@ -119,6 +119,7 @@ def run_one(job: RunJob) -> dict[str, Any]:
     """
     from uwval.bridge.session import BridgeSession, ticks_from_streams
     from uwval.io import open_writer
+    from uwval.io.atomic import atomic_output
     from uwval.simulator import SimulationStream
 
     spec = job.spec
@@ -142,7 +143,12 @@ def run_one(job: RunJob) -> dict[str, Any]:
         "seed": str(spec.seed),
         "vehicle": str(info.get("vehicle", "")),
     }
-    with open_writer(path, format=opts.log_format, metadata=metadata) as writer:
+    # Written under a temporary name and renamed when complete: a reader never sees half a
+    # log, two runs never write one file, a failed run leaves <stem>.partial<suffix>.
+    with (
+        atomic_output(path) as tmp,
+        open_writer(tmp, format=opts.log_format, metadata=metadata) as writer,
+    ):
         stats = BridgeSession(writer, opts, seed=spec.seed).run(ticks)
     return {
         "name": spec.name,

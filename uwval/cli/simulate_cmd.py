@@ -154,6 +154,17 @@ def simulate(
     vehicle: Annotated[
         str, typer.Option(help="Preset name, MODEL.sdf or VEHICLE.toml.")
     ] = "tethys",
+    added_mass: Annotated[
+        str,
+        typer.Option(
+            help="One run: explicit (as Gazebo: lagged, diverges when |X_dot| >= m, e.g. the "
+            "published bluerov2_heavy) or implicit (added mass in the mass matrix).",
+        ),
+    ] = "explicit",
+    legacy_coriolis: Annotated[
+        bool,
+        typer.Option(help="One run: gz-sim 8.0-8.11 / 9.x / 10.0-10.1 Coriolis entries."),
+    ] = False,
     log_format: Annotated[
         str, typer.Option("--format", help="mcap, rosbag2 (sqlite3), rosbag2-mcap or rosbag1.")
     ] = "mcap",
@@ -231,6 +242,8 @@ def simulate(
 
     if not 0 < duration < float("inf"):
         raise ConfigError(f"--duration must be a positive number of seconds, got {duration}")
+    if added_mass not in ("explicit", "implicit"):
+        raise ConfigError(f"--added-mass {added_mass!r}: choose explicit or implicit")
     check_output_suffix(output, log_format)
     f, tq, c = (
         parse_vector(force, "force"),
@@ -245,6 +258,8 @@ def simulate(
         duration_s=duration,
         seed=seed,
         publish_rate=publish_rate,
+        implicit_added_mass=added_mass == "implicit",
+        legacy_coriolis=legacy_coriolis,
     )
     t0 = time.perf_counter()
     with console.status(f"simulating {duration:g} s and bridging over TCP..."):
