@@ -187,14 +187,19 @@ def _to_stream(
     tf_static: bool,
     fast: bool,
 ) -> PoseStream:
+    dropped = dict(raw.dropped)
     if raw.msgtype in TF_TYPES:
-        stamps, pose, frame_id = _tf_pose(p, raw, log, child, parent, tf_static)
+        stamps, pose, frame_id, bad = _tf_pose(p, raw, log, child, parent, tf_static)
+        if bad:
+            dropped["decode_error"] = dropped.get("decode_error", 0) + bad
         log_time = None
     else:
-        dec = decode_poses(raw, fast=fast)
+        dec = decode_poses(raw, fast=fast, errors="drop")
         if raw.msgtype.endswith("/Header"):
             raise LogReadError(f"{p}: topic {raw.name!r} is std_msgs/Header: it has no pose")
-        keep = np.ones(len(raw), dtype=bool)
+        keep = dec.handled.copy()
+        if not keep.all():
+            dropped["decode_error"] = dropped.get("decode_error", 0) + int((~keep).sum())
         if child is not None and (dec.child_code >= 0).any():
             keep &= _code_is(dec, dec.child_code, child)
         if parent is not None and (dec.frame_code >= 0).any():
@@ -218,7 +223,7 @@ def _to_stream(
     comp = log.raw.get(raw.name + APPLIED_SUFFIX)
     if comp is not None and len(comp) and log_time is not None:
         applied = _applied(comp, log_time)
-    return PoseStream.from_arrays(
+    s = PoseStream.from_arrays(
         stamps,
         pose[:, :3],
         pose[:, 3:],
@@ -227,6 +232,15 @@ def _to_stream(
         source=str(p),
         applied_stamp=applied,
     )
+    warns = log.all_warnings()
+    if s.repairs.get("duplicates_dropped"):
+        dropped["duplicate_stamp"] = s.repairs["duplicates_dropped"]
+    if s.repairs.get("sorted"):
+        warns.append(
+            f"{p} [{raw.name}]: stamps are not in order ({s.repairs['sorted']} step(s) back "
+            "in time); the samples were sorted by stamp"
+        )
+    return s.with_(dropped=dropped, warnings=tuple(warns))
 
 
 def _applied(comp: RawTopic, log_time: I64) -> I64 | None:
@@ -295,9 +309,10 @@ def _compose(a_pose: F64, b_pose: F64) -> F64:
 
 def _tf_pose(
     p: Path, raw: RawTopic, log: RawLog, child: str | None, parent: str | None, tf_static: bool
-) -> tuple[I64, F64, list[str]]:
-    """Pose of ``child`` in ``parent`` from a TFMessage topic (+ /tf_static when asked)."""
-    dec = decode_tf(raw)
+) -> tuple[I64, F64, list[str], int]:
+    """Pose of ``child`` in ``parent`` from a TFMessage topic (+ /tf_static when asked), and
+    the number of messages that could not be decoded."""
+    dec, bad = decode_tf(raw, errors="drop")
     if len(dec.stamp) == 0:
         raise LogReadError(f"{p}: topic {raw.name!r} holds no transforms")
     edges = _edges(dec)
@@ -306,7 +321,7 @@ def _tf_pose(
         st = log.raw.get("/tf_static")
         if st is None or len(st) == 0:
             raise LogReadError(f"{p}: tf_static=True but the log has no /tf_static messages")
-        sd = decode_tf(st)
+        sd, _bad_static = decode_tf(st)
         for a, b, pose in zip(sd.frame_code, sd.child_code, sd.pose, strict=True):
             static[sd.names[int(b)]] = (sd.names[int(a)], pose)
     child_n = child.strip("/") if child else None
@@ -364,4 +379,4 @@ def _tf_pose(
             )
     if child_n != dyn_child or top != dyn_parent:
         pose = _compose(_compose(prefix, pose), suffix)
-    return stamps, pose, [top]
+    return stamps, pose, [top], bad
