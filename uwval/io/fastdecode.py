@@ -189,6 +189,12 @@ def _walk(
                 nbytes = int(s) - (1 if cdr else 0)
                 if nbytes < 0 or int(s) > 1 << 20:
                     continue
+                sub = sub[length[sub] >= base + pos + int(s)]
+                if cdr and sub.size:
+                    # rosbags rejects a CDR string without its NUL: so does the fast path
+                    sub = sub[buf[offset[sub] + base + pos + nbytes] == 0]
+                if sub.size == 0:
+                    continue
                 nxt = _Leaf(**leaf.__dict__)
                 nxt.rows = sub
                 if f == "header":

@@ -220,9 +220,10 @@ def _to_stream(
     if frame is None:
         frame = next((f for f in frame_id if f in CONVENTIONS), "enu")
     applied = None
+    applied_warning = ""
     comp = log.raw.get(raw.name + APPLIED_SUFFIX)
     if comp is not None and len(comp) and log_time is not None:
-        applied = _applied(comp, log_time)
+        applied, applied_warning = _applied(p, comp, log_time)
     s = PoseStream.from_arrays(
         stamps,
         pose[:, :3],
@@ -233,6 +234,8 @@ def _to_stream(
         applied_stamp=applied,
     )
     warns = log.all_warnings()
+    if applied_warning:
+        warns.append(applied_warning)
     if s.repairs.get("duplicates_dropped"):
         dropped["duplicate_stamp"] = s.repairs["duplicates_dropped"]
     if s.repairs.get("sorted"):
@@ -243,19 +246,27 @@ def _to_stream(
     return s.with_(dropped=dropped, warnings=tuple(warns))
 
 
-def _applied(comp: RawTopic, log_time: I64) -> I64 | None:
-    """Applied Gazebo stamps for each pose, matched on the log (receive) time."""
-    hdr = decode_poses(comp)
-    order = np.argsort(comp.log_time, kind="stable")
-    ct = comp.log_time[order]
-    cs = hdr.stamp[order]
-    idx = np.searchsorted(ct, log_time)
-    idx_c = np.minimum(idx, len(ct) - 1)
-    if (ct[idx_c] == log_time).all():
-        return cs[idx_c]
-    if len(ct) == len(log_time):
-        return cs[np.argsort(np.argsort(log_time, kind="stable"), kind="stable")]
-    return None
+def _applied(p: Path, comp: RawTopic, log_time: I64) -> tuple[I64 | None, str]:
+    """Applied Gazebo stamps for each pose, matched on the log (receive) time; and a warning
+    when they cannot be matched one to one (then no stamps: latency is not measured)."""
+    hdr = decode_poses(comp, errors="drop")
+    ok = hdr.handled
+    order = np.argsort(comp.log_time[ok], kind="stable")
+    ct = comp.log_time[ok][order]
+    cs = hdr.stamp[ok][order]
+    if ct.size == 0:
+        return None, f"{p} [{comp.name}]: no applied stamp could be decoded"
+    idx = np.minimum(np.searchsorted(ct, log_time), len(ct) - 1)
+    hit = ct[idx] == log_time
+    if hit.all():
+        return cs[idx], ""
+    if not hit.any() and len(ct) == len(log_time) and ok.all():
+        # a recorder that logged the two topics at different receive times: pair by rank
+        return cs[np.argsort(np.argsort(log_time, kind="stable"), kind="stable")], ""
+    return None, (
+        f"{p} [{comp.name}]: {int((~hit).sum())} of {len(log_time)} poses have no applied "
+        "stamp logged at the same time; applied stamps (latency) not used"
+    )
 
 
 def _code_is(dec: Decoded, codes: I64, name: str) -> NDArray[np.bool_]:
