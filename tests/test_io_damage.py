@@ -85,9 +85,9 @@ def test_bit_flip_in_a_zstd_chunk_fails_the_crc_and_is_counted(
     data[pos + 9 + ln - 40] ^= 0x10  # inside the compressed records
     bad = tmp_path / "flip.mcap"
     bad.write_bytes(bytes(data))
-    with pytest.raises(Exception):  # the mcap library refuses the file (CRC or zstd error)
-        with open(bad, "rb") as fh:
-            list(make_reader(fh, validate_crcs=True).iter_messages())
+    # the mcap library refuses the file (its CRC error or zstd's error: any of its types)
+    with pytest.raises(Exception), open(bad, "rb") as fh:  # noqa: B017
+        list(make_reader(fh, validate_crcs=True).iter_messages())
     got = _read(bad)
     for t in gen.POSE_TOPICS:
         s = got[t]
@@ -134,7 +134,7 @@ def test_cut_inside_the_only_chunk_recovers_its_prefix(tmp_path: Path) -> None:
         np.testing.assert_array_equal(got[t].t, intact[t].t[:n])
         np.testing.assert_array_equal(got[t].position, intact[t].position[:n])
     # the mcap library's reader sees the same file as cut (it has no recover in Python)
-    with pytest.raises(Exception), open(cut, "rb") as fh:
+    with pytest.raises(Exception), open(cut, "rb") as fh:  # noqa: B017
         list(make_reader(fh).iter_messages())
 
 
@@ -180,7 +180,7 @@ def _bag_chunks(data: bytes) -> list[tuple[int, dict[str, bytes], int, int]]:
 
     out = []
     pos = 13
-    hdr, _ds, _dl, pos = _record(data, pos, len(data))
+    _hdr, _ds, _dl, pos = _record(data, pos, len(data))
     while pos < len(data):
         h, ds, dl, nxt = _record(data, pos, len(data))
         if h["op"][0] == 0x05:
@@ -227,7 +227,7 @@ def test_zeroed_region_of_a_ros1_bag_is_counted(tmp_path: Path) -> None:
     p = gen.write_log(tmp_path / "z.bag", "bag", compression="none", seconds=3.0)
     intact = _read(p)
     data = bytearray(p.read_bytes())
-    _pos, _h, ds, dl = _bag_chunks(bytes(data))[1]
+    _pos, _h, ds, _dl = _bag_chunks(bytes(data))[1]
     data[ds + 1000 : ds + 1400] = bytes(400)  # inside the chunk's records
     bad = tmp_path / "zeroed.bag"
     bad.write_bytes(bytes(data))
@@ -256,10 +256,13 @@ def test_zeroed_ros1_index_data_never_asserts(tmp_path: Path) -> None:
         np.testing.assert_array_equal(got[t].position, intact[t].position)
         assert any(f"chunk at byte {pos}" in w for w in got[t].warnings)
     # rosbags itself asserts on such a bag; uwval's fallback turns that into one line
+    message = ""
     try:
         _scan_bag1_rosbags(bad, None, False)
     except LogReadError as exc:
-        assert "\n" not in str(exc) and "zeroed_index.bag" in str(exc)
+        message = str(exc)
+    assert "\n" not in message
+    assert not message or "zeroed_index.bag" in message
 
 
 # ---------------------------------------------------------------- rosbag2
