@@ -11,6 +11,8 @@ its storage file, reads the pose topics (``read_streams``) and the inspect view
 * ``faithful``: they differ silently, but exactly as the reference library (rosbags / mcap)
   reads the mutated file: the bytes of a number changed in a format without a checksum
   (uncompressed ROS 1 chunk, sqlite row); no reader can tell;
+* ``unverified``: they differ silently and the reference library cannot read the mutated
+  file at all, so there is nothing to check them against (listed, to be read by hand);
 * ``silent``: they differ from the intact file with no warning and from the reference: a bug;
 * ``traceback``: any other exception: a bug;
 * ``hang``: no answer within the per-case timeout: a bug.
@@ -256,7 +258,11 @@ def run_case(base: Path, intact: dict[str, Any], seed: int, work: Path) -> tuple
     if not unsaid:
         return "warned", detail
     ref = reference(target)
-    if ref is not None and _same(got, ref, topics=unsaid):
+    if ref is None:
+        # the reference library cannot read the mutated file at all (e.g. rosbags refuses a
+        # bag whose index section is damaged): nothing to check the numbers against
+        return "unverified", f"{detail} (differs silently: {', '.join(unsaid)})"
+    if _same(got, ref, topics=unsaid):
         return "faithful", detail
     return "silent", f"{detail} (differs silently: {', '.join(unsaid)})"
 
@@ -318,7 +324,7 @@ def fuzz(
                         done += 1
                         break
                     counts[name][outcome] += 1
-                    if outcome in ("traceback", "silent"):
+                    if outcome in ("traceback", "silent", "unverified"):
                         print(f"[{name}] {outcome}: {detail}", flush=True)
                     done += 1
                 todo = todo[done:]

@@ -10,7 +10,8 @@ and :mod:`uwval.io.decode` decodes those messages with rosbags, the correctness 
 Layouts (CDR: 4-byte encapsulation header, then fields aligned to their size relative to the
 end of that header; ROS 1: packed, little-endian, strings without NUL, header with ``seq``):
 
-* ``header``: stamp (sec int32/uint32, nanosec uint32) + ``frame_id`` string
+* ``header``: stamp (sec int32, nanosec uint32; ROS 1's uint32 seconds are read as int32
+  too, as rosbags does, so both paths agree bit for bit) + ``frame_id`` string
 * ``string``: uint32 length + bytes (CDR counts and stores the NUL terminator)
 * ``f64 x n``: n float64 values
 """
@@ -121,12 +122,12 @@ def gather(buf: U8, starts: I64, width: int) -> U8:
 
 
 def _fancy(buf: U8, starts: I64, width: int) -> U8:
-    n = starts.shape[0]
-    out = np.empty((n, width), dtype=np.uint8)
-    cols = np.arange(width, dtype=np.int64)
-    for a in range(0, n, BATCH):
-        out[a : a + BATCH] = buf[starts[a : a + BATCH, None] + cols]
-    return out
+    """Rows at arbitrary starts: one fancy index on a sliding-window view of ``buf`` (a row
+    copy each, no (N, width) index array)."""
+    if buf.shape[0] < width:
+        return np.empty((0, width), dtype=np.uint8)
+    view = np.lib.stride_tricks.sliding_window_view(buf, width)
+    return view[starts]
 
 
 def _u32(buf: U8, starts: I64) -> I64:
@@ -246,7 +247,7 @@ def fast_decode(msgtype: str, encoding: str, buf: U8, offset: I64, length: I64) 
         starts = offset[lf.rows]
         if lf.stamp_at >= 0:
             st = gather(buf, starts + lf.stamp_at, 8)
-            sec = st[:, :4].copy().view("<i4" if cdr else "<u4").reshape(-1).astype(np.int64)
+            sec = st[:, :4].copy().view("<i4").reshape(-1).astype(np.int64)
             nsec = st[:, 4:].copy().view("<u4").reshape(-1).astype(np.int64)
             dec.stamp[lf.rows] = sec * 1_000_000_000 + nsec
         if lf.pose_at >= 0:
