@@ -252,26 +252,40 @@ def fast_decode(msgtype: str, encoding: str, buf: U8, offset: I64, length: I64) 
             dec.stamp[lf.rows] = sec * 1_000_000_000 + nsec
         if lf.pose_at >= 0:
             dec.pose[lf.rows] = gather(buf, starts + lf.pose_at, 56).view("<f8")
+        ok = np.ones(lf.rows.shape[0], dtype=bool)
         if lf.frame_at >= 0:
-            _names(dec, dec.frame_code, lf.rows, buf, starts + lf.frame_at, lf.frame_len)
+            ok &= _names(dec, dec.frame_code, lf.rows, buf, starts + lf.frame_at, lf.frame_len)
         if lf.child_at >= 0:
-            _names(dec, dec.child_code, lf.rows, buf, starts + lf.child_at, lf.child_len)
-        dec.handled[lf.rows] = True
+            ok &= _names(dec, dec.child_code, lf.rows, buf, starts + lf.child_at, lf.child_len)
+        dec.handled[lf.rows[ok]] = True
     return dec
 
 
-def _names(dec: Decoded, codes: I64, rows: I64, buf: U8, starts: I64, width: int) -> None:
-    """Fill ``codes[rows]`` with name indices for the ``width``-byte strings at ``starts``."""
+def _names(
+    dec: Decoded, codes: I64, rows: I64, buf: U8, starts: I64, width: int
+) -> NDArray[np.bool_]:
+    """Fill ``codes[rows]`` with name indices for the ``width``-byte strings at ``starts``;
+    returns which rows hold valid UTF-8 (the others are left to rosbags, which rejects them,
+    so that both paths agree)."""
+    n = rows.shape[0]
     if width == 0:
         codes[rows] = dec.code("")
-        return
+        return np.ones(n, dtype=bool)
     raw = gather(buf, starts, width)
     if raw.shape[0] and bool((raw == raw[0]).all()):  # one name for the topic (usual): no sort
-        codes[rows] = dec.code(bytes(raw[0]).decode("utf-8", errors="replace"))
-        return
+        try:
+            codes[rows] = dec.code(bytes(raw[0]).decode("utf-8"))
+        except UnicodeDecodeError:
+            return np.zeros(n, dtype=bool)
+        return np.ones(n, dtype=bool)
     keys = np.ascontiguousarray(raw).view(np.dtype((np.void, width))).reshape(-1)
     uniq, inverse = np.unique(keys, return_inverse=True)
-    mapping = np.array(
-        [dec.code(bytes(u).decode("utf-8", errors="replace")) for u in uniq], dtype=np.int64
-    )
-    codes[rows] = mapping[inverse.reshape(-1)]
+    mapping = np.empty(len(uniq), dtype=np.int64)
+    for k, u in enumerate(uniq):
+        try:
+            mapping[k] = dec.code(bytes(u).decode("utf-8"))
+        except UnicodeDecodeError:
+            mapping[k] = -2
+    got = mapping[inverse.reshape(-1)]
+    codes[rows] = np.where(got == -2, -1, got)
+    return np.asarray(got != -2)
