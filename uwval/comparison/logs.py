@@ -9,7 +9,8 @@ from pathlib import Path
 from typing import Any
 
 from uwval.comparison.engine import ComparisonResult, compare
-from uwval.errors import ConfigError, LogReadError
+from uwval.errors import LogReadError
+from uwval.io.formats import INPUT_FORMATS, is_tum  # noqa: F401 - INPUT_FORMATS re-exported
 from uwval.posestream import PoseStream
 
 VEHICLE = "model_rov_pose"
@@ -39,25 +40,6 @@ class LogComparison:
         top["sources"] = list(self.sources)
         top["topics"] = {name: res.to_json() for name, res in self.results.items()}
         return top
-
-
-#: Values of ``--format``: ``tum`` selects the TUM text reader; the others name formats the
-#: log readers recognise by suffix anyway (accepted for clarity, checked for typos).
-INPUT_FORMATS = ("tum", "mcap", "bag", "rosbag2", "db3", "csv")
-
-
-def is_tum(path: str | Path, fmt: str | None = None) -> bool:
-    """TUM text when ``fmt == 'tum'`` or, with no format given, by suffix .tum/.txt."""
-    if fmt is not None:
-        if fmt.lower() not in INPUT_FORMATS:
-            raise ConfigError(
-                f"--format {fmt!r}: choose one of {', '.join(INPUT_FORMATS)} "
-                "(default: by the file's suffix)"
-            )
-        return fmt.lower() == "tum"
-    from uwval.io.tum import TUM_SUFFIXES
-
-    return Path(path).suffix.lower() in TUM_SUFFIXES
 
 
 def read_pose_stream(

@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 
 from uwval.errors import LogReadError
 from uwval.io.fastdecode import gather
+from uwval.io.mcap_chunk import Buffer
 from uwval.io.raw import RawLog, TopicBuilder, TopicInfo, merge_infos, merge_topics, norm_topic
 from uwval.io.ros import normalize_type_name
 
@@ -51,7 +52,7 @@ class _Conn:
     msgdef: str
 
 
-def _fields(b: bytes | mmap.mmap, pos: int, end: int) -> dict[str, bytes]:
+def _fields(b: Buffer, pos: int, end: int) -> dict[str, bytes]:
     out: dict[str, bytes] = {}
     while pos + 4 <= end:
         (n,) = _U32.unpack_from(b, pos)
@@ -64,7 +65,7 @@ def _fields(b: bytes | mmap.mmap, pos: int, end: int) -> dict[str, bytes]:
     return out
 
 
-def _record(b: bytes | mmap.mmap, pos: int, size: int) -> tuple[dict[str, bytes], int, int, int]:
+def _record(b: Buffer, pos: int, size: int) -> tuple[dict[str, bytes], int, int, int]:
     """(header fields, data start, data length, next record position) of the record at pos."""
     if pos + 4 > size:
         raise BagFormatError(f"record at byte {pos} is cut off")
@@ -79,9 +80,7 @@ def _record(b: bytes | mmap.mmap, pos: int, size: int) -> tuple[dict[str, bytes]
     return hdr, ds, dl, ds + dl
 
 
-def _records(
-    b: bytes | mmap.mmap, start: int, end: int
-) -> Iterator[tuple[dict[str, bytes], int, int, int]]:
+def _records(b: Buffer, start: int, end: int) -> Iterator[tuple[dict[str, bytes], int, int, int]]:
     """(header fields, op code, data start, data length) of each record in [start, end)."""
     pos = start
     while pos < end:
@@ -89,7 +88,7 @@ def _records(
         yield hdr, hdr["op"][0], ds, dl
 
 
-def _connection(b: bytes | mmap.mmap, hdr: dict[str, bytes], ds: int, dl: int) -> _Conn:
+def _connection(b: Buffer, hdr: dict[str, bytes], ds: int, dl: int) -> _Conn:
     """A connection record: id and topic from its header, type and definition from its data."""
     d = _fields(b, ds, ds + dl)
     cid = _u32(hdr["conn"])
@@ -256,9 +255,10 @@ def _chunk(
     if h["op"][0] != OP_CHUNK:
         raise BagFormatError(f"no chunk record at byte {cp}")
     # IndexData records follow the chunk: per connection, (time, offset) of its messages.
-    entries: dict[int, NDArray[np.uint32]] | None = {}
+    found_ix: dict[int, NDArray[np.uint32]] = {}
+    entries: dict[int, NDArray[np.uint32]] | None = found_ix
     try:
-        while pos + 4 <= size and len(entries) < len(expected):
+        while pos + 4 <= size and len(found_ix) < len(expected):
             ih, ids, idl, nxt = _record(mm, pos, size)
             if ih["op"][0] != OP_INDEX_DATA:
                 break
@@ -266,9 +266,9 @@ def _chunk(
             count = _u32(ih["count"])
             if idl != 12 * count:
                 raise BagFormatError(f"index data at byte {pos} has the wrong size")
-            entries[cid] = np.frombuffer(mm[ids : ids + idl], dtype="<u4").reshape(-1, 3)
+            found_ix[cid] = np.frombuffer(mm[ids : ids + idl], dtype="<u4").reshape(-1, 3)
             pos = nxt
-        if {c: len(e) for c, e in entries.items()} != expected:
+        if {c: len(e) for c, e in found_ix.items()} != expected:
             raise BagFormatError("its IndexData records disagree with the chunk info")
     except (BagFormatError, KeyError, ValueError, struct.error) as exc:
         warns.append(
@@ -320,8 +320,8 @@ def _chunk(
             stop = f"record at byte {q} of the chunk is damaged ({_why(exc)})"
             break
         q = nq
-    for cid, (o, ln, t) in found.items():
-        tt = np.asarray(t, dtype=np.int64)
+    for cid, (o, ln, stamps) in found.items():
+        tt = np.asarray(stamps, dtype=np.int64)
         times.setdefault(cid, []).append(tt)
         if cid in builders:
             builders[cid].add(buf, np.asarray(o, np.int64), np.asarray(ln, np.int64), tt)

@@ -1,4 +1,4 @@
-"""Container readers: pick the format from the path and return a :class:`RawLog`.
+"""Container readers: return a :class:`RawLog` for the format :func:`log_kind` names.
 
 * ``.mcap`` (ROS 2 or ROS 1 encoded): :mod:`uwval.io.mcap_raw` (fast chunk scanner).
 * ``.bag`` (ROS 1): rosbags' rosbag1 reader (uncompressed / bz2 / lz4 chunks, unsorted
@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from uwval.errors import LogReadError
+from uwval.io.formats import log_kind
 from uwval.io.mcap_raw import scan_mcap
 from uwval.io.raw import (
     RawLog,
@@ -32,46 +33,6 @@ from uwval.io.raw import (
     one_line,
 )
 from uwval.io.ros import normalize_type_name
-
-
-def log_kind(path: Path) -> str:
-    """``mcap``, ``bag``, ``rosbag2``, ``db3``, ``csv`` or ``tum`` for a log path."""
-    if not path.exists():
-        raise LogReadError(f"{path}: no such file or directory")
-    if not path.is_dir() and not path.is_file():
-        raise LogReadError(
-            f"{path}: not a regular file (a FIFO, socket or device); copy the log to a file first"
-        )
-    if path.is_dir():
-        if (path / "metadata.yaml").exists() or any(path.glob("*.mcap")) or any(path.glob("*.db3")):
-            return "rosbag2"
-        raise LogReadError(f"{path}: directory holds no metadata.yaml, .mcap or .db3 files")
-    suffix = path.suffix.lower()
-    kinds = {
-        ".mcap": "mcap",
-        ".bag": "bag",
-        ".db3": "db3",
-        ".csv": "csv",
-        ".tum": "tum",
-        ".txt": "tum",
-        ".yaml": "rosbag2",
-    }
-    if suffix in kinds:
-        if kinds[suffix] == "rosbag2":
-            return "rosbag2" if path.name == "metadata.yaml" else "unknown"
-        return kinds[suffix]
-    with open(path, "rb") as fh:
-        head = fh.read(16)
-    if head.startswith(b"\x89MCAP"):
-        return "mcap"
-    if head.startswith(b"#ROSBAG"):
-        return "bag"
-    if head.startswith(b"SQLite format 3"):
-        return "db3"
-    raise LogReadError(
-        f"{path}: unknown log format (expected .mcap, .bag, .db3, a rosbag2 directory, "
-        ".csv or TUM .txt/.tum)"
-    )
 
 
 def scan_log(path: Path, topics: Iterable[str] | None, *, times_only: bool = False) -> RawLog:

@@ -6,10 +6,9 @@ string or a :class:`ValueError`, never a wrong offset.
 
 from __future__ import annotations
 
-import mmap
 import struct
 from dataclasses import dataclass, field
-from typing import Union
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,8 +27,9 @@ U64 = struct.Struct("<Q")
 _CHUNK = struct.Struct("<QQQI")
 _MSG = struct.Struct("<HIQQ")
 
-#: Anything the struct module can read from.
-Buffer = Union[bytes, memoryview, mmap.mmap, NDArray[np.uint8]]  # noqa: UP007
+#: bytes, memoryview, mmap or a uint8 ndarray: whatever struct reads and slicing copies
+#: (typeshed's ReadableBuffer cannot be sliced, and numpy's stubs do not make arrays one).
+Buffer = Any
 
 
 def string_at(b: Buffer, pos: int, end: int) -> tuple[str, int]:
@@ -121,7 +121,7 @@ def parse_chunk_header(b: Buffer, c: int, end: int, *, partial: bool = False) ->
 
 def decompress(comp: str, b: Buffer, at: int, n: int, usize: int) -> bytes:
     """A chunk's records, decompressed; :class:`LogReadError` when that fails."""
-    data = memoryview(b)[at : at + n] if not isinstance(b, memoryview) else b[at : at + n]
+    data = memoryview(b)[at : at + n]
     try:
         if comp == "":
             return bytes(data)

@@ -20,9 +20,10 @@ from numpy.typing import NDArray
 
 from uwval.errors import LogReadError, PoseStreamError
 from uwval.frames import CONVENTIONS
-from uwval.io.containers import log_kind, scan_log
+from uwval.io.containers import scan_log
 from uwval.io.decode import TF_TYPES, decode_poses, decode_tf
 from uwval.io.fastdecode import Decoded
+from uwval.io.formats import TEXT_KINDS, log_kind
 from uwval.io.raw import RawLog, RawTopic, TopicInfo, norm_topic
 from uwval.io.ros import APPLIED_SUFFIX
 from uwval.posestream import PoseStream
@@ -32,8 +33,6 @@ __all__ = ["TopicInfo", "list_topics", "read_stream", "read_streams"]
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
-
-_TEXT_KINDS = ("csv", "tum")
 
 
 def _check_path(path: Path) -> None:
@@ -47,7 +46,7 @@ def list_topics(path: str | Path) -> list[TopicInfo]:
     """Topics of a ROS log (MCAP, ROS 1 bag, rosbag2, .db3): name, type, count, span (ns)."""
     p = Path(path)
     _check_path(p)
-    if log_kind(p) in _TEXT_KINDS:
+    if log_kind(p) in TEXT_KINDS:
         s = read_stream(p, "")
         return [
             TopicInfo(s.topic or p.stem, "text/" + log_kind(p), len(s), int(s.t[0]), int(s.t[-1]))
