@@ -154,7 +154,7 @@ def write_log(
         from rosbags.rosbag1 import Writer as Bag1Writer
 
         w1 = Bag1Writer(path)
-        if compression != "none":
+        if compression in ("bz2", "lz4"):
             w1.set_compression(
                 {"bz2": Bag1Writer.CompressionFormat.BZ2, "lz4": Bag1Writer.CompressionFormat.LZ4}[
                     compression

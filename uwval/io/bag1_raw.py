@@ -23,7 +23,15 @@ from numpy.typing import NDArray
 from uwval.errors import LogReadError
 from uwval.io.fastdecode import gather
 from uwval.io.mcap_chunk import Buffer
-from uwval.io.raw import RawLog, TopicBuilder, TopicInfo, merge_infos, merge_topics, norm_topic
+from uwval.io.raw import (
+    RawLog,
+    TopicBuilder,
+    TopicInfo,
+    merge_infos,
+    merge_topics,
+    norm_topic,
+    release_pages,
+)
 from uwval.io.ros import normalize_type_name
 
 MAGIC = b"#ROSBAG V2.0\n"
@@ -193,7 +201,9 @@ def _scan(
             builders[cid] = TopicBuilder(name, normalize_type_name(c.msgtype), "ros1", c.msgdef)
     times: dict[int, list[I64]] = {cid: [] for cid in conns}
     warns: list[str] = []
+    released = 0
     for cp in sorted(chunk_info):
+        released = release_pages(mm, released, cp)
         expected = chunk_info[cp]
         try:
             _chunk(mm, size, cp, expected, builders, times, times_only, warns, path)

@@ -171,6 +171,8 @@ class WalkResult:
     tables: list[tuple[int, int, int]] = field(default_factory=list)
     stop: int = 0
     reason: str = ""
+    #: filled by :func:`check_index`: per channel, each indexed Message record's length
+    record_lengths: dict[int, NDArray[np.int64]] = field(default_factory=dict)
 
 
 def walk_records(data: Buffer, start: int, end: int) -> WalkResult:
@@ -242,6 +244,7 @@ def check_index(
             return f"channel {cid}: a Message record runs past the chunk", gaps
         starts.append(rec)
         ends.append(stop)
+        gaps.record_lengths[cid] = rl.astype(np.int64)
     if not starts:
         return "the index lists no messages", gaps
     s = np.concatenate(starts)

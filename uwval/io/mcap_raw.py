@@ -61,6 +61,7 @@ from uwval.io.raw import (
     merge_topics,
     norm_topic,
     one_line,
+    release_pages,
 )
 
 _MSG = struct.Struct("<HIQQ")
@@ -169,6 +170,7 @@ class _Scanner:
         self.tables = self.summary.tables if self.summary is not None else Tables()
         self.builders: dict[int, TopicBuilder | None] = {}
         self.lost = 0
+        self.released = 0  # file map pages below this offset were dropped from RSS
 
     def builder(self, cid: int) -> TopicBuilder | None:
         """The builder of channel ``cid`` when its topic is wanted (``None`` otherwise)."""
@@ -201,6 +203,7 @@ class _Scanner:
             if op != OP_MESSAGE_INDEX and pending is not None:
                 self.chunk(*pending, indexes)
                 pending, indexes = None, {}
+                self.released = release_pages(mm, self.released, pos)
             if op == OP_CHUNK and c + ln > size and self.summary is None:
                 self.partial_chunk(pos, c)
                 self.lost = size - pos
@@ -334,7 +337,7 @@ class _Scanner:
             if not reason:
                 for op, a, b in gaps.tables:
                     self.record_table(op, buf, a, b, rec)
-                self._from_index(buf, ents)
+                self._from_index(buf, ents, gaps.record_lengths)
                 return
             self.warnings.append(
                 f"{where}: its MessageIndex disagrees with its records ({reason}); "
@@ -353,7 +356,9 @@ class _Scanner:
                 f"({walk.reason}); the chunk's last {len(data) - walk.stop} bytes were not read"
             )
 
-    def _from_index(self, buf: np.ndarray, ents: dict[int, np.ndarray]) -> None:
+    def _from_index(
+        self, buf: np.ndarray, ents: dict[int, np.ndarray], rlens: dict[int, np.ndarray]
+    ) -> None:
         """Add the wanted channels' messages located by a checked index."""
         for cid, e in ents.items():
             log_time = e[:, 0].astype(np.int64)
@@ -366,10 +371,7 @@ class _Scanner:
                 z = np.zeros(len(rec), np.int64)
                 b.add(buf[:0], z, z, log_time, copy=False)
                 continue
-            from uwval.io.fastdecode import gather
-
-            rlen = gather(buf, rec + 1, 8).view("<u8").reshape(-1).astype(np.int64)
-            b.add(buf, rec + 31, rlen - 22, log_time)
+            b.add(buf, rec + 31, rlens[cid] - 22, log_time)
 
     def _from_walk(self, buf: np.ndarray, walk: WalkResult, rec: int) -> None:
         """Add messages found by walking a chunk's records (Schema/Channel records too)."""

@@ -6,6 +6,7 @@ decoders in :mod:`uwval.io.fastdecode` / :mod:`uwval.io.decode` then work on who
 
 from __future__ import annotations
 
+import contextlib
 import warnings
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -315,6 +316,26 @@ class RawLog:
             warnings.warn(t, TruncatedLogWarning, stacklevel=3)
         for w in self.warnings:
             warnings.warn(w, LogWarning, stacklevel=3)
+
+
+def release_pages(mm: Any, mark: int, upto: int, *, every: int = 8 << 20) -> int:
+    """Drop the pages of a read-only file map below ``upto`` from this process's resident
+    set once ``every`` bytes have accumulated (read-ahead of unselected topics, e.g. images,
+    must not count as the reader's memory); ``mark`` is where the last release stopped;
+    returns the new mark.
+
+    Only the mapping goes: the bytes stay in the page cache and fault back in if read again.
+    """
+    if upto - mark < every or not hasattr(mm, "madvise"):
+        return mark
+    import mmap as _mmap
+
+    start = mark - mark % _mmap.PAGESIZE
+    stop = upto - upto % _mmap.PAGESIZE
+    if stop > start:
+        with contextlib.suppress(OSError, ValueError):
+            mm.madvise(_mmap.MADV_DONTNEED, start, stop - start)
+    return stop
 
 
 def one_line(exc: BaseException) -> str:
