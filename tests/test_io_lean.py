@@ -9,17 +9,18 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import io_loggen as gen  # noqa: E402
+import io_loggen as gen
 
-from uwval.io import read_streams  # noqa: E402
-from uwval.io.containers import scan_log  # noqa: E402
-from uwval.io.decode import decode_poses  # noqa: E402
+from uwval.io import read_streams
+from uwval.io.containers import scan_log
+from uwval.io.decode import decode_poses
 
 FORMATS = [("mcap", ".mcap"), ("bag", ".bag"), ("rosbag2-sqlite3", ""), ("rosbag2-mcap", "")]
 
@@ -54,3 +55,23 @@ def test_an_image_topic_changes_nothing_read(tmp_path: Path, fmt: str, suffix: s
         np.testing.assert_array_equal(a[t].orientation, b[t].orientation)
         np.testing.assert_array_equal(a[t].applied_stamp, b[t].applied_stamp)
         assert not a[t].warnings and not a[t].dropped
+
+
+def test_compare_of_one_log_scans_it_once(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 15: the topic list and the read were two scans; now one (the real scanner runs,
+    wrapped only to count its calls)."""
+    import uwval.io.reader as reader
+    from uwval.comparison.logs import compare_logs
+
+    p = gen.write_log(tmp_path / "run.mcap", "mcap", seconds=2.0, image_bytes=5000)
+    calls: list[object] = []
+    real = reader.scan_log
+
+    def counting(*args: Any, **kwargs: Any) -> Any:
+        calls.append(args[0])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(reader, "scan_log", counting)
+    res = compare_logs(p)
+    assert list(res.results) == ["model_rov_pose"]
+    assert len(calls) == 1

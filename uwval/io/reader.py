@@ -118,12 +118,17 @@ def read_streams(
     parent_frame: str | None = None,
     **opts: Any,
 ) -> dict[str, PoseStream]:
-    """Read several topics in one pass over the log; keys are the names as given."""
+    """Read several topics in one pass over the log; keys are the names as given.
+
+    ``skip_missing=True`` leaves out topics the log does not have (instead of raising), so
+    a caller can ask for every candidate topic in the same single pass.
+    """
     p = Path(path)
     _check_path(p)
     time_src = str(opts.pop("time", "header"))
     tf_static = bool(opts.pop("tf_static", False))
     fast = bool(opts.pop("fast", True))
+    skip_missing = bool(opts.pop("skip_missing", False))
     if opts:
         raise LogReadError(f"{p}: unknown read option(s): {', '.join(sorted(opts))}")
     if time_src not in ("header", "log"):
@@ -139,6 +144,8 @@ def read_streams(
         name = norm_topic(t)
         raw = log.raw.get(name)
         if raw is None:
+            if skip_missing and not any(i.name == name for i in log.topics):
+                continue
             raise LogReadError(_missing(p, t, log))
         if len(raw) == 0:
             raise LogReadError(f"{p}: topic {name!r} ({raw.msgtype}) has no messages")
