@@ -47,7 +47,10 @@ FORMATS: dict[str, list[tuple[str, str]]] = {
     "bag": [("bag", "none"), ("bag", "bz2"), ("bag", "lz4")],
     "rosbag2-sqlite3": [("rosbag2-sqlite3", "")],
     "rosbag2-mcap": [("rosbag2-mcap", "")],
+    "tum": [("tum", "")],
+    "csv": [("csv", "")],
 }
+TEXT = "trajectory"  # the one stream of a text file
 TOPICS = [gen.GAZEBO, gen.UNITY]
 CASE_TIMEOUT = 30.0
 
@@ -59,11 +62,43 @@ def make_bases(root: Path) -> dict[str, list[Path]]:
     for name, variants in FORMATS.items():
         out[name] = []
         for k, (fmt, comp) in enumerate(variants):
-            suffix = {"mcap": ".mcap", "bag": ".bag"}.get(fmt, "")
+            suffix = {"mcap": ".mcap", "bag": ".bag", "tum": ".txt", "csv": ".csv"}.get(fmt, "")
             p = root / f"{name}-{comp or 'x'}{suffix}"
-            gen.write_log(p, fmt, compression=comp or "zstd", seed=k, seconds=1.5)
+            if fmt in ("tum", "csv"):
+                _write_text(p, fmt, seed=k)
+            else:
+                gen.write_log(p, fmt, compression=comp or "zstd", seed=k, seconds=1.5)
             out[name].append(p)
     return out
+
+
+def _write_text(path: Path, fmt: str, seed: int, n: int = 300) -> None:
+    """A TUM (quaternions rounded to 6 decimals, as real ground truths) or CSV trajectory."""
+    rng = np.random.default_rng(seed)
+    t = 1_700_000_000.0 + np.arange(n) * 0.01
+    p = np.cumsum(rng.normal(size=(n, 3)) * 0.01, axis=0)
+    q = rng.normal(size=(n, 4))
+    q /= np.linalg.norm(q, axis=1)[:, None]
+    lines = []
+    if fmt == "tum":
+        lines.append("# timestamp tx ty tz qx qy qz qw")
+        for i in range(n):
+            lines.append(
+                f"{t[i]:.4f} {p[i, 0]:.6f} {p[i, 1]:.6f} {p[i, 2]:.6f} "
+                + " ".join(f"{v:.6f}" for v in q[i])
+            )
+    else:
+        lines.append("time,x,y,z,qx,qy,qz,qw")
+        for i in range(n):
+            lines.append(
+                f"{t[i]:.4f},{p[i, 0]:.6f},{p[i, 1]:.6f},{p[i, 2]:.6f},"
+                + ",".join(f"{v:.6f}" for v in q[i])
+            )
+    path.write_text("\n".join(lines) + "\n")
+
+
+def _topics(path: Path) -> list[str]:
+    return [TEXT] if path.suffix in (".txt", ".csv") else TOPICS
 
 
 def mutate(data: bytes, rng: np.random.Generator) -> tuple[bytes, str]:
@@ -96,12 +131,15 @@ def mutate(data: bytes, rng: np.random.Generator) -> tuple[bytes, str]:
 
 def read_all(path: Path) -> dict[str, Any]:
     """What uwval reads: per pose topic (t, position, orientation, applied), warnings."""
-    from uwval.io import read_streams, topic_times
+    from uwval.io import read_stream, read_streams, topic_times
 
     with warnings.catch_warnings(record=True):
         warnings.simplefilter("always")
-        streams = read_streams(path, TOPICS)
-        topic_times(path)
+        if path.suffix in (".txt", ".csv"):
+            streams = {TEXT: read_stream(path, "")}
+        else:
+            streams = read_streams(path, TOPICS)
+            topic_times(path)
     out: dict[str, Any] = {"warned": {}, "streams": {}}
     for t, s in streams.items():
         out["streams"][t] = (s.t, s.position, s.orientation, s.applied_stamp)
@@ -110,9 +148,9 @@ def read_all(path: Path) -> dict[str, Any]:
 
 
 def _same(
-    a: dict[str, Any], b: dict[str, Any], with_applied: bool = True, topics: Any = TOPICS
+    a: dict[str, Any], b: dict[str, Any], with_applied: bool = True, topics: Any = None
 ) -> bool:
-    for t in topics:
+    for t in topics if topics is not None else list(a["streams"]):
         x, y = a["streams"][t], b["streams"][t]
         for k in range(4 if with_applied else 3):
             u, v = x[k], y[k]
@@ -127,6 +165,8 @@ def reference(path: Path) -> dict[str, Any] | None:
     """The pose topics as the reference libraries read the (mutated) file; None if they fail."""
     from uwval.posestream import PoseStream
 
+    if path.suffix in (".txt", ".csv"):
+        return _text_reference(path)
     try:
         rows: dict[str, list[tuple[int, tuple[float, ...]]]] = {t: [] for t in TOPICS}
         applied: dict[int, int] = {}
@@ -167,6 +207,29 @@ def reference(path: Path) -> dict[str, Any] | None:
         if os.environ.get("UWVAL_FUZZ_DEBUG"):
             traceback.print_exception(exc)
         return None
+
+
+def _text_reference(path: Path) -> dict[str, Any] | None:
+    """A text trajectory as numpy's loadtxt (TUM) or pandas (CSV) reads it."""
+    from uwval.posestream import PoseStream
+
+    try:
+        if path.suffix == ".txt":
+            a = np.loadtxt(path, comments="#", ndmin=2)
+        else:
+            import pandas as pd
+
+            a = pd.read_csv(path).to_numpy(dtype=np.float64)
+        if a.shape[1] != 8:
+            return None
+        from uwval.io.stamps import ns_from_seconds
+
+        s = PoseStream.from_arrays(ns_from_seconds(a[:, 0]), a[:, 1:4], a[:, 4:8])
+    except Exception as exc:
+        if os.environ.get("UWVAL_FUZZ_DEBUG"):
+            traceback.print_exception(exc)
+        return None
+    return {"warned": {}, "streams": {TEXT: (s.t, s.position, s.orientation, None)}}
 
 
 def _ref_messages(path: Path) -> Any:
@@ -253,7 +316,7 @@ def run_case(base: Path, intact: dict[str, Any], seed: int, work: Path) -> tuple
     if _same(got, intact):
         return "same", detail
     # every stream whose numbers differ must say so itself
-    differ = [t for t in TOPICS if not _same(got, intact, topics=[t])]
+    differ = [t for t in _topics(target) if not _same(got, intact, topics=[t])]
     unsaid = [t for t in differ if not got["warned"][t]]
     if not unsaid:
         return "warned", detail
