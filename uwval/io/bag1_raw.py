@@ -97,14 +97,17 @@ def _records(b: Buffer, start: int, end: int) -> Iterator[tuple[dict[str, bytes]
 
 
 def _connection(b: Buffer, hdr: dict[str, bytes], ds: int, dl: int) -> _Conn:
-    """A connection record: id and topic from its header, type and definition from its data."""
+    """A connection record: id and topic from its header, type and definition from its data.
+
+    Text that is not UTF-8 is damage (rosbags refuses it too): :class:`UnicodeDecodeError`.
+    """
     d = _fields(b, ds, ds + dl)
     cid = _u32(hdr["conn"])
     return _Conn(
         cid,
         hdr["topic"].decode(),
         d["type"].decode(),
-        d.get("message_definition", b"").decode(errors="replace"),
+        d.get("message_definition", b"").decode(),
     )
 
 
@@ -160,8 +163,8 @@ def _index_section(
             conns[conn.id] = conn
         elif op == OP_CHUNK_INFO:
             cp = struct.unpack("<Q", h["chunk_pos"][:8])[0]
-            if dl % 8:
-                raise BagFormatError(f"chunk info at byte {ds} has the wrong size")
+            if dl % 8 or _u32(h["count"]) * 8 != dl or not {"start_time", "end_time"} <= set(h):
+                raise BagFormatError(f"chunk info at byte {ds} is malformed")
             pairs = np.frombuffer(mm[ds : ds + dl], dtype="<u4").reshape(-1, 2)
             chunks[cp] = {int(a): int(b) for a, b in pairs}
     return conns, chunks
