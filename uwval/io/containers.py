@@ -306,6 +306,7 @@ def _merge_logs(path: Path, logs: list[RawLog]) -> RawLog:
         [x for lg in logs for x in lg.notes],
         [x for lg in logs for x in lg.warnings],
         next((lg.unclean for lg in logs if lg.unclean), ""),
+        "; ".join(lg.cut_detail for lg in logs if lg.cut_detail),
     )
 
 

@@ -171,6 +171,7 @@ class _Scanner:
         self.builders: dict[int, TopicBuilder | None] = {}
         self.lost = 0
         self.released = 0  # file map pages below this offset were dropped from RSS
+        self.cut_detail = ""
 
     def builder(self, cid: int) -> TopicBuilder | None:
         """The builder of channel ``cid`` when its topic is wanted (``None`` otherwise)."""
@@ -400,8 +401,8 @@ class _Scanner:
         buf = np.frombuffer(data, dtype=np.uint8)
         self._from_walk(buf, walk, rec)
         n = sum(len(m[2]) for m in walk.messages.values())
-        self.warnings.append(
-            f"{self.path}: the last chunk (byte {rec}) is cut off; recovered {n} message(s) "
+        self.cut_detail = (
+            f"the last chunk, at byte {rec}, is cut off; recovered {n} message(s) "
             "from its decompressible prefix"
         )
 
@@ -430,6 +431,7 @@ class _Scanner:
         built = [b.build() for b in self.builders.values() if b is not None]
         log = RawLog(self.path, merge_infos(infos), merge_topics(built), lost_bytes=self.lost)
         log.warnings = self.warnings
+        log.cut_detail = self.cut_detail
         if self.summary is None:
             log.unclean = "no summary or footer: the writer did not finish"
         return log

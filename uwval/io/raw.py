@@ -288,6 +288,7 @@ class RawLog:
     notes: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     unclean: str = ""
+    cut_detail: str = ""  # what was recovered from a record cut by the end of the file
 
     def truncation(self) -> str:
         """The one-line truncation / unclean-close message, or ``""``."""
@@ -296,6 +297,7 @@ class RawLog:
             return (
                 f"{self.path}: log is truncated (not closed cleanly); recovered the intact "
                 f"messages ({n} messages), {self.lost_bytes} bytes at the end were lost"
+                + (f" ({self.cut_detail})" if self.cut_detail else "")
             )
         if self.unclean:
             return (
