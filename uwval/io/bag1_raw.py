@@ -103,11 +103,12 @@ def _connection(b: Buffer, hdr: dict[str, bytes], ds: int, dl: int) -> _Conn:
     """
     d = _fields(b, ds, ds + dl)
     cid = _u32(hdr["conn"])
+    d["md5sum"].decode()  # required, as rosbags requires it (KeyError / decode error: damage)
     return _Conn(
         cid,
         hdr["topic"].decode(),
         d["type"].decode(),
-        d.get("message_definition", b"").decode(),
+        d["message_definition"].decode(),
     )
 
 
