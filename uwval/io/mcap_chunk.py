@@ -37,7 +37,8 @@ def string_at(b: Buffer, pos: int, end: int) -> tuple[str, int]:
     (n,) = U32.unpack_from(b, pos)
     if pos + 4 + n > end:
         raise ValueError(f"a string of {n} bytes at byte {pos} runs past its record")
-    return bytes(b[pos + 4 : pos + 4 + n]).decode("utf-8", errors="replace"), pos + 4 + n
+    # text that is not UTF-8 is damage (the mcap library refuses it too): ValueError
+    return bytes(b[pos + 4 : pos + 4 + n]).decode("utf-8"), pos + 4 + n
 
 
 @dataclass
