@@ -143,30 +143,20 @@ class BridgeRecorder:
 def open_mcap_writer(
     path: str | Path, *, metadata: dict[str, str] | None = None, chunk_size: int = 64 * 1024
 ) -> Any:
-    """An :class:`~uwval.io.mcap_io.McapPoseWriter` whose ``flush()`` really flushes.
-
-    McapPoseWriter.flush pushes closed chunks only; a crash-safe recorder needs the open
-    chunk finished too, which the mcap library's ``Writer.flush`` does (mcap >= 1.2).
-    """
+    """An :class:`~uwval.io.mcap_io.McapPoseWriter` for a recorder (64 KiB chunks, so that
+    a crash loses little; its ``flush()`` finishes the open chunk)."""
     from uwval.io.mcap_io import McapPoseWriter
 
-    class _FlushingWriter(McapPoseWriter):
-        def flush(self) -> None:
-            inner = getattr(self, "_writer", None)
-            if inner is not None and hasattr(inner, "flush"):
-                inner.flush()
-            super().flush()
-
-    return _FlushingWriter(path, metadata=metadata, chunk_size=chunk_size)
+    return McapPoseWriter(path, metadata=metadata, chunk_size=chunk_size)
 
 
 @dataclass(frozen=True)
 class RecoveryReport:
-    """What a (possibly truncated) MCAP log still holds.
+    """What a (possibly truncated or damaged) MCAP log still holds.
 
-    ``messages`` per topic readable in complete records; ``complete`` is True when the
-    file ends with its footer (a clean stop); ``lost_bytes`` are the trailing bytes of a
-    record cut off by a crash; ``error`` says why reading stopped early.
+    ``messages`` per topic readable; ``complete`` is True when the file ends with its footer
+    (a clean stop) and every chunk passed its checks (CRC, index); ``lost_bytes`` are the
+    trailing bytes cut off by a crash; ``error`` says what was found wrong.
     """
 
     path: str
@@ -175,53 +165,46 @@ class RecoveryReport:
     valid_bytes: int
     total_bytes: int
     error: str = ""
+    closed: bool = True  # False: no summary/footer (the writer was stopped before close)
 
     @property
     def lost_bytes(self) -> int:
         return self.total_bytes - self.valid_bytes
 
     def describe(self) -> str:
-        """One line for users: what survived and what was cut off."""
+        """One line for users: what survived and what was cut off or damaged."""
         n = sum(self.messages.values())
         if self.complete:
             return f"{self.path}: complete, {n} messages"
-        return (
-            f"{self.path}: truncated after byte {self.valid_bytes} of {self.total_bytes}"
-            f" ({self.lost_bytes} bytes of an unfinished record lost); {n} messages "
-            f"recovered ({self.error})"
-        )
+        if self.lost_bytes or not self.closed:
+            return (
+                f"{self.path}: truncated after byte {self.valid_bytes} of {self.total_bytes}"
+                f" ({self.lost_bytes} bytes of an unfinished record lost); {n} messages "
+                f"recovered ({self.error})"
+            )
+        return f"{self.path}: not complete, {n} messages readable ({self.error})"
 
 
 def scan_mcap(path: str | Path) -> RecoveryReport:
-    """Scan an MCAP record by record, counting messages per topic, tolerating truncation.
+    """Scan an MCAP with uwval's log reader (every chunk decompressed and checked: CRC, index
+    against records), counting messages per topic and tolerating truncation and damage.
 
     A recorder killed with SIGKILL leaves complete chunks up to its last flush followed by
     a partial record; this reports what is readable and how many bytes were cut off.
     """
-    from mcap.records import Channel, Footer, Message
-    from mcap.stream_reader import StreamReader
+    from uwval.io.mcap_raw import scan_mcap as scan_raw
 
     p = Path(path)
     total = p.stat().st_size
-    topics: dict[int, str] = {}
-    counts: dict[str, int] = {}
-    complete = False
-    error = ""
-    with open(p, "rb") as fh:
-        valid = 0
-        try:
-            # emit_chunks=False expands each complete chunk into its records.
-            for record in StreamReader(fh, emit_chunks=False).records:
-                if isinstance(record, Channel):
-                    topics[record.id] = record.topic
-                elif isinstance(record, Message):
-                    topic = topics.get(record.channel_id, f"<channel {record.channel_id}>")
-                    counts[topic] = counts.get(topic, 0) + 1
-                elif isinstance(record, Footer):
-                    complete = True
-                valid = fh.tell()  # a record is yielded only once fully read
-        except Exception as exc:  # truncated or corrupt tail: report, do not fail
-            error = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
-    if complete:
-        valid = total
-    return RecoveryReport(str(p), counts, complete, min(valid, total), total, error)
+    log = scan_raw(p, None, times_only=True)
+    problems = log.all_warnings()
+    counts = {i.name: i.count for i in log.topics if i.count}
+    return RecoveryReport(
+        str(p),
+        counts,
+        not problems,
+        total - log.lost_bytes,
+        total,
+        "; ".join(problems),
+        not log.unclean,
+    )

@@ -142,3 +142,31 @@ def test_scan_cli_reports_complete_and_truncated_logs(tmp_path: Path) -> None:
     assert res.exit_code == 1
     assert "truncated" in res.output
     assert "/gazebo/model_rov_pose: 30" in res.output
+
+
+def test_scan_of_a_damaged_index_is_not_complete(tmp_path: Path) -> None:
+    """Issue 14: `bridge scan` called a file with a zeroed MessageIndex complete."""
+    import struct
+
+    path = tmp_path / "run.mcap"
+    rec = BridgeRecorder(open_mcap_writer(path), unity_map="unity-flu", flush_every=50)
+    q = np.array([0.0, 0.0, 0.0, 1.0])
+    for k in range(600):
+        rec.gazebo_pose("model_rov_pose", k * 10_000_000, np.array([k * 0.01, 0.0, 0.0]), q)
+        rec.unity_pose("model_rov_pose", k * 10_000_000 + 1, np.zeros(3), q, k * 10_000_000)
+    rec.close()
+    assert scan_mcap(path).complete
+    data = bytearray(path.read_bytes())
+    pos = 8
+    while True:  # find a MessageIndex record with entries
+        op, ln = struct.unpack_from("<BQ", data, pos)
+        if op == 7 and ln > 80:
+            break
+        pos += 9 + ln
+    data[pos + 15 : pos + 15 + 64] = bytes(64)
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    report = scan_mcap(bad)
+    assert not report.complete
+    assert "MessageIndex disagrees" in report.error
+    assert report.messages == scan_mcap(path).messages  # read by walking: nothing lost

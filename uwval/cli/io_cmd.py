@@ -44,13 +44,13 @@ class LogSummary:
 
 def summarize(path: Path, n_gaps: int = 3) -> LogSummary:
     """Summarise a log (ROS formats by log time; CSV/TUM by their stamps)."""
-    from uwval.io.containers import log_kind
+    from uwval.io.formats import TEXT_KINDS, log_kind
     from uwval.io.reader import read_stream, topic_times
 
     notes: list[str] = []
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        if log_kind(path) in ("csv", "tum"):
+        if log_kind(path) in TEXT_KINDS:
             s = read_stream(path, "")
             infos_types = [(s.topic or path.stem, "text/" + log_kind(path))]
             times = {infos_types[0][0]: s.t}

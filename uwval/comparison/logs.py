@@ -9,7 +9,8 @@ from pathlib import Path
 from typing import Any
 
 from uwval.comparison.engine import ComparisonResult, compare
-from uwval.errors import ConfigError, LogReadError
+from uwval.errors import LogReadError
+from uwval.io.formats import INPUT_FORMATS, is_tum  # noqa: F401 - INPUT_FORMATS re-exported
 from uwval.posestream import PoseStream
 
 VEHICLE = "model_rov_pose"
@@ -39,25 +40,6 @@ class LogComparison:
         top["sources"] = list(self.sources)
         top["topics"] = {name: res.to_json() for name, res in self.results.items()}
         return top
-
-
-#: Values of ``--format``: ``tum`` selects the TUM text reader; the others name formats the
-#: log readers recognise by suffix anyway (accepted for clarity, checked for typos).
-INPUT_FORMATS = ("tum", "mcap", "bag", "rosbag2", "db3", "csv", "kitti", "euroc")
-
-
-def is_tum(path: str | Path, fmt: str | None = None) -> bool:
-    """TUM text when ``fmt == 'tum'`` or, with no format given, by suffix .tum/.txt."""
-    if fmt is not None:
-        if fmt.lower() not in INPUT_FORMATS:
-            raise ConfigError(
-                f"--format {fmt!r}: choose one of {', '.join(INPUT_FORMATS)} "
-                "(default: by the file's suffix)"
-            )
-        return fmt.lower() == "tum"
-    from uwval.io.tum import TUM_SUFFIXES
-
-    return Path(path).suffix.lower() in TUM_SUFFIXES
 
 
 def read_pose_stream(
@@ -119,27 +101,31 @@ def compare_logs(
         if is_tum(path_a, fmt):
             raise LogReadError(f"{path_a}: a TUM file holds one trajectory; give two files")
         pairs: list[tuple[str, str, str]]
+        from uwval.io import read_streams
+
         if gazebo_topic or unity_topic:
             g = gazebo_topic or DEFAULT_GAZEBO_TOPIC
             u = unity_topic or DEFAULT_UNITY_TOPIC
             pairs = [(g.strip("/").split("/")[-1], g, u)]
+            streams = read_streams(path_a, [g, u])
         else:
-            present = _topics_of(path_a)
+            # one pass over the log: every candidate topic, then the pairs that are present
+            candidates = [
+                p + name for name in (VEHICLE, CAMERA) for p in (GAZEBO_PREFIX, UNITY_PREFIX)
+            ]
+            streams = read_streams(path_a, candidates, skip_missing=True)
             pairs = [
                 (name, GAZEBO_PREFIX + name, UNITY_PREFIX + name)
                 for name in (VEHICLE, CAMERA)
-                if GAZEBO_PREFIX + name in present and UNITY_PREFIX + name in present
+                if GAZEBO_PREFIX + name in streams and UNITY_PREFIX + name in streams
             ]
             if not pairs:
+                present = _topics_of(path_a)
                 raise LogReadError(
                     f"{path_a}: no Gazebo/Unity topic pair ({DEFAULT_GAZEBO_TOPIC} and "
                     f"{DEFAULT_UNITY_TOPIC}); topics: {', '.join(sorted(present))}; "
                     "choose with --gazebo-topic / --unity-topic"
                 )
-        from uwval.io import read_streams
-
-        # one pass over the log for every topic of every pair
-        streams = read_streams(path_a, [t for _, g, u in pairs for t in (g, u)])
         for name, g, u in pairs:
             ref, oth = streams[g], streams[u]
             if frame not in (None, "auto"):

@@ -20,8 +20,18 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from uwval.errors import LogReadError
 from uwval.io.fastdecode import gather
-from uwval.io.raw import RawLog, RawTopic, TopicBuilder, TopicInfo, norm_topic
+from uwval.io.mcap_chunk import Buffer
+from uwval.io.raw import (
+    RawLog,
+    TopicBuilder,
+    TopicInfo,
+    merge_infos,
+    merge_topics,
+    norm_topic,
+    release_pages,
+)
 from uwval.io.ros import normalize_type_name
 
 MAGIC = b"#ROSBAG V2.0\n"
@@ -38,7 +48,7 @@ _U32 = struct.Struct("<I")
 I64 = NDArray[np.int64]
 
 
-class BagFormatError(Exception):
+class BagFormatError(LogReadError):
     """The bag does not have the structure this scanner follows (use the fallback)."""
 
 
@@ -50,7 +60,7 @@ class _Conn:
     msgdef: str
 
 
-def _fields(b: bytes | mmap.mmap, pos: int, end: int) -> dict[str, bytes]:
+def _fields(b: Buffer, pos: int, end: int) -> dict[str, bytes]:
     out: dict[str, bytes] = {}
     while pos + 4 <= end:
         (n,) = _U32.unpack_from(b, pos)
@@ -63,7 +73,7 @@ def _fields(b: bytes | mmap.mmap, pos: int, end: int) -> dict[str, bytes]:
     return out
 
 
-def _record(b: bytes | mmap.mmap, pos: int, size: int) -> tuple[dict[str, bytes], int, int, int]:
+def _record(b: Buffer, pos: int, size: int) -> tuple[dict[str, bytes], int, int, int]:
     """(header fields, data start, data length, next record position) of the record at pos."""
     if pos + 4 > size:
         raise BagFormatError(f"record at byte {pos} is cut off")
@@ -78,9 +88,7 @@ def _record(b: bytes | mmap.mmap, pos: int, size: int) -> tuple[dict[str, bytes]
     return hdr, ds, dl, ds + dl
 
 
-def _records(
-    b: bytes | mmap.mmap, start: int, end: int
-) -> Iterator[tuple[dict[str, bytes], int, int, int]]:
+def _records(b: Buffer, start: int, end: int) -> Iterator[tuple[dict[str, bytes], int, int, int]]:
     """(header fields, op code, data start, data length) of each record in [start, end)."""
     pos = start
     while pos < end:
@@ -88,15 +96,19 @@ def _records(
         yield hdr, hdr["op"][0], ds, dl
 
 
-def _connection(b: bytes | mmap.mmap, hdr: dict[str, bytes], ds: int, dl: int) -> _Conn:
-    """A connection record: id and topic from its header, type and definition from its data."""
+def _connection(b: Buffer, hdr: dict[str, bytes], ds: int, dl: int) -> _Conn:
+    """A connection record: id and topic from its header, type and definition from its data.
+
+    Text that is not UTF-8 is damage (rosbags refuses it too): :class:`UnicodeDecodeError`.
+    """
     d = _fields(b, ds, ds + dl)
     cid = _u32(hdr["conn"])
+    d["md5sum"].decode()  # required, as rosbags requires it (KeyError / decode error: damage)
     return _Conn(
         cid,
         hdr["topic"].decode(),
         d["type"].decode(),
-        d.get("message_definition", b"").decode(errors="replace"),
+        d["message_definition"].decode(),
     )
 
 
@@ -105,15 +117,29 @@ def _u32(v: bytes) -> int:
 
 
 def _decompress(comp: str, data: bytes, size: int) -> bytes:
-    if comp == "none":
-        return data
-    if comp == "bz2":
-        return bz2.decompress(data)
-    if comp == "lz4":
-        import lz4.frame
+    """A chunk's records; :class:`BagFormatError` (one line) when they cannot be had."""
+    try:
+        if comp == "none":
+            out = data
+        elif comp == "bz2":
+            out = bz2.decompress(data)
+        elif comp == "lz4":
+            import lz4.frame
 
-        return bytes(lz4.frame.decompress(data))
-    raise BagFormatError(f"unsupported chunk compression {comp!r}")
+            out = bytes(lz4.frame.decompress(data))
+        else:
+            raise BagFormatError(f"unsupported chunk compression {comp!r}")
+    except BagFormatError:
+        raise
+    except Exception as exc:  # bz2: OSError/ValueError; lz4: RuntimeError
+        raise BagFormatError(
+            f"{comp} data cannot be decompressed ({type(exc).__name__}: "
+            + " ".join(str(exc).split())
+            + ")"
+        ) from exc
+    if len(out) != size:
+        raise BagFormatError(f"chunk decompresses to {len(out)} bytes, its header says {size}")
+    return out
 
 
 def scan_bag1(path: Path, topics: Iterable[str] | None, *, times_only: bool = False) -> RawLog:
@@ -124,6 +150,25 @@ def scan_bag1(path: Path, topics: Iterable[str] | None, *, times_only: bool = Fa
         return _scan(path, mm, len(mm), topics, times_only)
     finally:
         mm.close()
+
+
+def _index_section(
+    mm: mmap.mmap, index_pos: int, size: int
+) -> tuple[dict[int, _Conn], dict[int, dict[int, int]]]:
+    """Connections, and per chunk position its message count per connection (ChunkInfo)."""
+    conns: dict[int, _Conn] = {}
+    chunks: dict[int, dict[int, int]] = {}
+    for h, op, ds, dl in _records(mm, index_pos, size):
+        if op == OP_CONNECTION:
+            conn = _connection(mm, h, ds, dl)
+            conns[conn.id] = conn
+        elif op == OP_CHUNK_INFO:
+            cp = struct.unpack("<Q", h["chunk_pos"][:8])[0]
+            if dl % 8 or _u32(h["count"]) * 8 != dl or not {"start_time", "end_time"} <= set(h):
+                raise BagFormatError(f"chunk info at byte {ds} is malformed")
+            pairs = np.frombuffer(mm[ds : ds + dl], dtype="<u4").reshape(-1, 2)
+            chunks[cp] = {int(a): int(b) for a, b in pairs}
+    return conns, chunks
 
 
 def _scan(
@@ -139,17 +184,19 @@ def _scan(
     n_chunk = _u32(hdr["chunk_count"])
     if index_pos == 0 or index_pos >= size:
         # Never closed (recorder killed) or cut short: recover what the chunks hold.
-        return _walk_unindexed(path, mm, size, _nxt, topics)
-    conns: dict[int, _Conn] = {}
-    chunk_pos: list[int] = []
-    for h, op, ds, dl in _records(mm, index_pos, size):
-        if op == OP_CONNECTION:
-            conn = _connection(mm, h, ds, dl)
-            conns[conn.id] = conn
-        elif op == OP_CHUNK_INFO:
-            chunk_pos.append(struct.unpack("<Q", h["chunk_pos"][:8])[0])
-    if len(conns) != n_conn or len(chunk_pos) != n_chunk:
-        raise BagFormatError("index section does not match the bag header counts")
+        return _walk_unindexed(path, mm, size, _nxt, topics, "no index: the writer did not finish")
+    try:
+        conns, chunk_info = _index_section(mm, index_pos, size)
+        if len(conns) != n_conn or len(chunk_info) != n_chunk:
+            raise BagFormatError("index section does not match the bag header counts")
+    except (BagFormatError, KeyError, ValueError, struct.error) as exc:
+        log = _walk_unindexed(path, mm, size, _nxt, topics, "")
+        log.warnings.insert(
+            0,
+            f"{path}: the index section at byte {index_pos} is damaged ({_why(exc)}); "
+            "read by a linear walk over the records",
+        )
+        return log
     want = None if topics is None else {norm_topic(t) for t in topics}
     builders: dict[int, TopicBuilder] = {}
     for cid, c in conns.items():
@@ -157,15 +204,75 @@ def _scan(
         if want is None or name in want:
             builders[cid] = TopicBuilder(name, normalize_type_name(c.msgtype), "ros1", c.msgdef)
     times: dict[int, list[I64]] = {cid: [] for cid in conns}
-    for cp in sorted(chunk_pos):
-        h, ds, dl, pos = _record(mm, cp, size)
-        if h["op"][0] != OP_CHUNK:
-            raise BagFormatError(f"no chunk record at byte {cp}")
-        # IndexData records follow the chunk: per connection, (time, offset) of its messages.
-        entries: dict[int, NDArray[np.uint32]] = {}
-        while pos < size:
-            if pos + 4 > size:
-                break
+    warns: list[str] = []
+    released = 0
+    for cp in sorted(chunk_info):
+        released = release_pages(mm, released, cp)
+        expected = chunk_info[cp]
+        try:
+            _chunk(mm, size, cp, expected, builders, times, times_only, warns, path)
+        except (BagFormatError, KeyError, ValueError, struct.error) as exc:
+            lost = {c: n for c, n in expected.items() if c in builders}
+            for cid, n in lost.items():
+                builders[cid].drop("damaged_chunk", n)
+                times.setdefault(cid, [])
+            warns.append(
+                f"{path}: ROS 1 chunk at byte {cp} is damaged ({_why(exc)}); "
+                + _lost_text(lost, builders, expected)
+            )
+    infos = [
+        TopicInfo(
+            norm_topic(c.topic),
+            normalize_type_name(c.msgtype),
+            int(sum(x.size for x in times.get(cid, []))),
+            int(min(int(x.min()) for x in times[cid] if x.size)) if _any(times, cid) else 0,
+            int(max(int(x.max()) for x in times[cid] if x.size)) if _any(times, cid) else 0,
+        )
+        for cid, c in conns.items()
+    ]
+    log = RawLog(path, merge_infos(infos), merge_topics(b.build() for b in builders.values()))
+    log.warnings = warns
+    if not infos:
+        log.notes.append("bag has no connections and no messages")
+    return log
+
+
+def _any(times: dict[int, list[I64]], cid: int) -> bool:
+    return any(x.size for x in times.get(cid, []))
+
+
+def _why(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def _lost_text(
+    lost: dict[int, int], builders: dict[int, TopicBuilder], expected: dict[int, int]
+) -> str:
+    total = sum(expected.values())
+    parts = ", ".join(f"{n} on {builders[c].name}" for c, n in lost.items() if n)
+    return f"its {total} message(s) were dropped" + (f" ({parts})" if parts else "")
+
+
+def _chunk(
+    mm: mmap.mmap,
+    size: int,
+    cp: int,
+    expected: dict[int, int],
+    builders: dict[int, TopicBuilder],
+    times: dict[int, list[I64]],
+    times_only: bool,
+    warns: list[str],
+    path: Path,
+) -> None:
+    """One chunk and its IndexData records into the builders (checked against each other)."""
+    h, ds, dl, pos = _record(mm, cp, size)
+    if h["op"][0] != OP_CHUNK:
+        raise BagFormatError(f"no chunk record at byte {cp}")
+    # IndexData records follow the chunk: per connection, (time, offset) of its messages.
+    found_ix: dict[int, NDArray[np.uint32]] = {}
+    entries: dict[int, NDArray[np.uint32]] | None = found_ix
+    try:
+        while pos + 4 <= size and len(found_ix) < len(expected):
             ih, ids, idl, nxt = _record(mm, pos, size)
             if ih["op"][0] != OP_INDEX_DATA:
                 break
@@ -173,56 +280,138 @@ def _scan(
             count = _u32(ih["count"])
             if idl != 12 * count:
                 raise BagFormatError(f"index data at byte {pos} has the wrong size")
-            entries[cid] = np.frombuffer(mm[ids : ids + idl], dtype="<u4").reshape(-1, 3)
+            found_ix[cid] = np.frombuffer(mm[ids : ids + idl], dtype="<u4").reshape(-1, 3)
             pos = nxt
-        for cid, ent in entries.items():
-            times[cid].append(ent[:, 0].astype(np.int64) * 1_000_000_000 + ent[:, 1])
-        todo = {cid: e for cid, e in entries.items() if cid in builders}
-        if not todo:
-            continue
-        if times_only:
-            for cid, e in todo.items():
-                z = np.zeros(len(e), np.int64)
-                builders[cid].add(np.zeros(0, np.uint8), z, z, times[cid][-1])
-            continue
-        comp = h["compression"].decode()
-        data = _decompress(comp, bytes(mm[ds : ds + dl]), _u32(h["size"]))
-        buf = np.frombuffer(data, dtype=np.uint8)
-        for cid, e in todo.items():
-            rec = e[:, 2].astype(np.int64)
-            hl = gather(buf, rec, 4).view("<u4").reshape(-1).astype(np.int64)
-            dlen = gather(buf, rec + 4 + hl, 4).view("<u4").reshape(-1).astype(np.int64)
-            builders[cid].add(buf, rec + 8 + hl, dlen, times[cid][-1])
-    infos: dict[str, TopicInfo] = {}
-    for cid, c in conns.items():
-        name = norm_topic(c.topic)
-        t = np.concatenate(times[cid]) if times[cid] else np.zeros(0, np.int64)
-        old = infos.get(name)
-        lo = [int(t.min())] if t.size else []
-        hi = [int(t.max())] if t.size else []
-        if old is not None and old.count:
-            lo.append(old.start_ns)
-            hi.append(old.end_ns)
-        cnt = int(t.size) + (old.count if old else 0)
-        infos[name] = TopicInfo(
-            name, normalize_type_name(c.msgtype), cnt, min(lo) if lo else 0, max(hi) if hi else 0
+        if {c: len(e) for c, e in found_ix.items()} != expected:
+            raise BagFormatError("its IndexData records disagree with the chunk info")
+    except (BagFormatError, KeyError, ValueError, struct.error) as exc:
+        warns.append(
+            f"{path}: index data after the ROS 1 chunk at byte {cp} is damaged ({_why(exc)}); "
+            "read the chunk by walking its records"
         )
-    raw: dict[str, RawTopic] = {}
-    merged: dict[str, TopicBuilder] = {}
-    for b in builders.values():
-        top = b.build()
-        m = merged.setdefault(top.name, TopicBuilder(top.name, top.msgtype, "ros1", top.msgdef))
-        m.add(top.buf, top.offset, top.length, top.log_time)
-    for name, m in merged.items():
-        raw[name] = m.build()
-    log = RawLog(path, list(infos.values()), raw)
-    if not infos:
-        log.notes.append("bag has no connections and no messages")
-    return log
+        entries = None
+    wanted = [c for c in expected if c in builders]
+    if entries is not None and (times_only or not wanted):
+        for cid, e in entries.items():
+            t = e[:, 0].astype(np.int64) * 1_000_000_000 + e[:, 1]
+            times.setdefault(cid, []).append(t)
+            if cid in builders:
+                z = np.zeros(len(e), np.int64)
+                builders[cid].add(np.zeros(0, np.uint8), z, z, t, copy=False)
+        return
+    data = _decompress(h["compression"].decode(), bytes(mm[ds : ds + dl]), _u32(h["size"]))
+    buf = np.frombuffer(data, dtype=np.uint8)
+    if entries is not None:
+        bad = next((c for c, e in entries.items() if not _index_ok(buf, c, e)), None)
+        if bad is None:
+            for cid, e in entries.items():
+                t = e[:, 0].astype(np.int64) * 1_000_000_000 + e[:, 1]
+                times.setdefault(cid, []).append(t)
+                if cid in builders:
+                    rec = e[:, 2].astype(np.int64)
+                    hl = gather(buf, rec, 4).view("<u4").reshape(-1).astype(np.int64)
+                    dlen = gather(buf, rec + 4 + hl, 4).view("<u4").reshape(-1).astype(np.int64)
+                    builders[cid].add(buf, rec + 8 + hl, dlen, t)
+            return
+        warns.append(
+            f"{path}: the index of the ROS 1 chunk at byte {cp} disagrees with its records "
+            f"(connection {bad}); read the chunk by walking its records"
+        )
+    found: dict[int, tuple[list[int], list[int], list[int]]] = {}
+    q = 0
+    stop = ""
+    while q < len(data):
+        try:
+            rh, rds, rdl, nq = _record(data, q, len(data))
+            if rh["op"][0] == OP_MSG_DATA:
+                cid = _u32(rh["conn"])
+                sec, nsec = struct.unpack("<II", rh["time"][:8])
+                m = found.setdefault(cid, ([], [], []))
+                m[0].append(rds)
+                m[1].append(rdl)
+                m[2].append(sec * 1_000_000_000 + nsec)
+        except (BagFormatError, KeyError, ValueError, struct.error, IndexError) as exc:
+            stop = f"record at byte {q} of the chunk is damaged ({_why(exc)})"
+            break
+        q = nq
+    for cid, (o, ln, stamps) in found.items():
+        tt = np.asarray(stamps, dtype=np.int64)
+        times.setdefault(cid, []).append(tt)
+        if cid in builders:
+            builders[cid].add(buf, np.asarray(o, np.int64), np.asarray(ln, np.int64), tt)
+    lost = {c: n - len(found.get(c, ([], [], []))[2]) for c, n in expected.items()}
+    lost = {c: n for c, n in lost.items() if n > 0}
+    for cid, n in lost.items():
+        if cid in builders:
+            builders[cid].drop("damaged_record", n)
+    if stop or lost:
+        warns.append(
+            f"{path}: ROS 1 chunk at byte {cp}: {stop or 'records missing'}; "
+            f"{sum(lost.values())} of its {sum(expected.values())} message(s) could not be read"
+            + (
+                " ("
+                + ", ".join(f"{n} on {builders[c].name}" for c, n in lost.items() if c in builders)
+                + ")"
+                if any(c in builders for c in lost)
+                else ""
+            )
+        )
+
+
+def _index_ok(buf: NDArray[np.uint8], cid: int, e: NDArray[np.uint32]) -> bool:
+    """Whether every IndexData entry of ``cid`` points at a MessageData record of ``cid``
+    with the entry's time, lying inside the chunk (vectorised: headers of one layout are
+    compared with the first one's bytes, the time field with the index's times)."""
+    n = len(e)
+    if n == 0:
+        return True
+    size = buf.shape[0]
+    rec = e[:, 2].astype(np.int64)
+    if int(rec.max()) + 8 > size:
+        return False
+    hl = gather(buf, rec, 4).view("<u4").reshape(-1).astype(np.int64)
+    if int(hl.min()) != int(hl.max()) or int((rec + 8 + hl).max()) > size:
+        return _index_ok_slow(buf, cid, e)
+    h0 = int(hl[0])
+    try:
+        fields = _fields(buf, int(rec[0]) + 4, int(rec[0]) + 4 + h0)
+    except (BagFormatError, UnicodeDecodeError):
+        return False
+    if fields.get("op", b"")[:1] != bytes([OP_MSG_DATA]) or fields.get("conn", b"")[
+        :4
+    ] != struct.pack("<I", cid):
+        return False
+    heads = gather(buf, rec + 4, h0)
+    tpos = bytes(heads[0]).find(b"time=")
+    if tpos < 0 or tpos + 13 > h0:
+        return False
+    mask = np.ones(h0, dtype=bool)
+    mask[tpos + 5 : tpos + 13] = False
+    if not bool((heads[:, mask] == heads[0, mask]).all()):
+        return _index_ok_slow(buf, cid, e)
+    stamp = np.ascontiguousarray(heads[:, tpos + 5 : tpos + 13]).view("<u4").reshape(-1, 2)
+    if not np.array_equal(stamp, e[:, :2]):
+        return False
+    dlen = gather(buf, rec + 4 + hl, 4).view("<u4").reshape(-1).astype(np.int64)
+    return int((rec + 8 + hl + dlen).max()) <= size
+
+
+def _index_ok_slow(buf: NDArray[np.uint8], cid: int, e: NDArray[np.uint32]) -> bool:
+    """Record-by-record form of :func:`_index_ok` (headers of varying layout)."""
+    for sec, nsec, off in e:
+        try:
+            h, _ds, _dl, _nxt = _record(buf, int(off), buf.shape[0])
+        except (BagFormatError, UnicodeDecodeError, struct.error):
+            return False
+        if h.get("op", b"")[:1] != bytes([OP_MSG_DATA]) or _u32(h.get("conn", b"")) != cid:
+            return False
+        if h.get("time", b"")[:8] != struct.pack("<II", int(sec), int(nsec)):
+            return False
+    return True
 
 
 def _walk_unindexed(
-    path: Path, mm: mmap.mmap, size: int, pos: int, topics: Iterable[str] | None
+    path: Path, mm: mmap.mmap, size: int, pos: int, topics: Iterable[str] | None, unclean: str
 ) -> RawLog:
     """Linear walk over the records of a bag without a usable index (slow path).
 
@@ -234,6 +423,7 @@ def _walk_unindexed(
     payloads: dict[int, list[bytes]] = {}
     stamps: dict[int, list[int]] = {}
     lost = 0
+    stop = ""
 
     def records(b: bytes | mmap.mmap, start: int, end: int) -> None:
         for h, op, ds, dl in _records(b, start, end):
@@ -254,27 +444,20 @@ def _walk_unindexed(
                 records(data, 0, len(data))
             elif h["op"][0] in (OP_CONNECTION, OP_MSG_DATA):
                 records(mm, pos, nxt)
-        except (BagFormatError, KeyError, OSError, ValueError, EOFError):
+        except (BagFormatError, KeyError, OSError, ValueError, EOFError, struct.error) as exc:
             lost = size - pos
+            stop = f"record at byte {pos}: {_why(exc)}"
             break
         pos = nxt
     builders: dict[str, TopicBuilder] = {}
-    infos: dict[str, TopicInfo] = {}
+    infos: list[TopicInfo] = []
     for cid, c in conns.items():
         name = norm_topic(c.topic)
         t = stamps.get(cid, [])
-        old = infos.get(name)
-        lo = [min(t)] if t else []
-        hi = [max(t)] if t else []
-        if old is not None and old.count:
-            lo.append(old.start_ns)
-            hi.append(old.end_ns)
-        infos[name] = TopicInfo(
-            name,
-            normalize_type_name(c.msgtype),
-            len(t) + (old.count if old else 0),
-            min(lo) if lo else 0,
-            max(hi) if hi else 0,
+        infos.append(
+            TopicInfo(
+                name, normalize_type_name(c.msgtype), len(t), min(t) if t else 0, max(t) if t else 0
+            )
         )
         if want is None or name in want:
             b = builders.setdefault(
@@ -282,7 +465,13 @@ def _walk_unindexed(
             )
             b.add_payloads(payloads.get(cid, []), t)
     log = RawLog(
-        path, list(infos.values()), {n: b.build() for n, b in builders.items()}, lost_bytes=lost
+        path, merge_infos(infos), {n: b.build() for n, b in builders.items()}, lost_bytes=lost
     )
-    log.notes.append("bag has no index (not closed): recovered by a linear walk")
+    log.unclean = unclean
+    if lost and not unclean:
+        log.warnings.append(
+            f"{path}: the linear walk stopped at a damaged {stop}; the {lost} bytes after it "
+            "could not be read"
+        )
+        log.lost_bytes = 0
     return log

@@ -1,4 +1,4 @@
-"""Container readers: pick the format from the path and return a :class:`RawLog`.
+"""Container readers: return a :class:`RawLog` for the format :func:`log_kind` names.
 
 * ``.mcap`` (ROS 2 or ROS 1 encoded): :mod:`uwval.io.mcap_raw` (fast chunk scanner).
 * ``.bag`` (ROS 1): rosbags' rosbag1 reader (uncompressed / bz2 / lz4 chunks, unsorted
@@ -20,45 +20,19 @@ from typing import Any
 import numpy as np
 
 from uwval.errors import LogReadError
+from uwval.io.formats import log_kind
 from uwval.io.mcap_raw import scan_mcap
-from uwval.io.raw import RawLog, TopicBuilder, TopicInfo, load_yaml, norm_topic, one_line
+from uwval.io.raw import (
+    RawLog,
+    TopicBuilder,
+    TopicInfo,
+    load_yaml,
+    merge_infos,
+    merge_topics,
+    norm_topic,
+    one_line,
+)
 from uwval.io.ros import normalize_type_name
-
-
-def log_kind(path: Path) -> str:
-    """``mcap``, ``bag``, ``rosbag2``, ``db3``, ``csv`` or ``tum`` for a log path."""
-    if not path.exists():
-        raise LogReadError(f"{path}: no such file or directory")
-    if path.is_dir():
-        if (path / "metadata.yaml").exists() or any(path.glob("*.mcap")) or any(path.glob("*.db3")):
-            return "rosbag2"
-        raise LogReadError(f"{path}: directory holds no metadata.yaml, .mcap or .db3 files")
-    suffix = path.suffix.lower()
-    kinds = {
-        ".mcap": "mcap",
-        ".bag": "bag",
-        ".db3": "db3",
-        ".csv": "csv",
-        ".tum": "tum",
-        ".txt": "tum",
-        ".yaml": "rosbag2",
-    }
-    if suffix in kinds:
-        if kinds[suffix] == "rosbag2":
-            return "rosbag2" if path.name == "metadata.yaml" else "unknown"
-        return kinds[suffix]
-    with open(path, "rb") as fh:
-        head = fh.read(16)
-    if head.startswith(b"\x89MCAP"):
-        return "mcap"
-    if head.startswith(b"#ROSBAG"):
-        return "bag"
-    if head.startswith(b"SQLite format 3"):
-        return "db3"
-    raise LogReadError(
-        f"{path}: unknown log format (expected .mcap, .bag, .db3, a rosbag2 directory, "
-        ".csv or TUM .txt/.tum)"
-    )
 
 
 def scan_log(path: Path, topics: Iterable[str] | None, *, times_only: bool = False) -> RawLog:
@@ -70,8 +44,13 @@ def scan_log(path: Path, topics: Iterable[str] | None, *, times_only: bool = Fal
         return _scan_kind(path, kind, topics, times_only)
     except LogReadError:
         raise
-    except (struct.error, ValueError, IndexError, KeyError, OSError, EOFError) as exc:
-        # Damaged bytes that the format checks above did not anticipate: still no traceback.
+    except MemoryError as exc:
+        raise LogReadError(
+            f"{path}: damaged {kind} log: a size field asks for too much memory"
+        ) from exc
+    except Exception as exc:
+        # Damaged bytes that the format checks did not anticipate (a library's own exception
+        # type, e.g. lz4's RuntimeError): still one line naming the file, never a traceback.
         raise LogReadError(
             f"{path}: damaged {kind} log: {type(exc).__name__}: {one_line(exc)}"
         ) from exc
@@ -115,6 +94,11 @@ def _scan_bag1_rosbags(path: Path, topics: Iterable[str] | None, times_only: boo
         reader.open()
     except ReaderError as exc:
         raise LogReadError(f"{path}: cannot read ROS 1 bag: {one_line(exc)}") from exc
+    except Exception as exc:  # rosbags asserts on some damaged index data
+        raise LogReadError(
+            f"{path}: cannot read ROS 1 bag: damaged index data ({type(exc).__name__}: "
+            f"{one_line(exc)})"
+        ) from exc
     try:
         builders: dict[str, TopicBuilder] = {}
         times: dict[str, list[int]] = {}
@@ -182,7 +166,16 @@ def _scan_rosbag2(bagdir: Path, topics: Iterable[str] | None, times_only: bool) 
         files = sorted(bagdir.glob("*.mcap")) + sorted(bagdir.glob("*.db3"))
         storage, comp_mode, comp_fmt = "", "", ""
     else:
-        files = [bagdir / f for f in info.get("relative_file_paths", [])]
+        names = info.get("relative_file_paths") or []
+        if not isinstance(names, list):
+            raise LogReadError(f"{bagdir / 'metadata.yaml'}: relative_file_paths is not a list")
+        for k, f in enumerate(names):
+            if not isinstance(f, str) or not f.strip() or f.startswith("/") or ".." in f.split("/"):
+                raise LogReadError(
+                    f"{bagdir / 'metadata.yaml'}: relative_file_paths entry {k} ({f!r}) is not "
+                    "a file name inside the bag directory"
+                )
+        files = [bagdir / f for f in names]
         storage = str(info.get("storage_identifier", ""))
         comp_mode = str(info.get("compression_mode", "") or "").upper()
         comp_fmt = str(info.get("compression_format", "") or "")
@@ -209,7 +202,12 @@ def _scan_rosbag2(bagdir: Path, topics: Iterable[str] | None, times_only: bool) 
                     f, src, topic_list, compression=comp_fmt if comp_mode == "MESSAGE" else ""
                 )
             logs.append(log)
-    return _merge_logs(bagdir, logs)
+    merged = _merge_logs(bagdir, logs)
+    if info is None:
+        merged.unclean = merged.unclean or "no metadata.yaml: the recorder did not finish"
+    else:
+        _check_counts(bagdir, info, merged)
+    return merged
 
 
 def _unzstd(src: Path, tmp: Path) -> Path:
@@ -235,7 +233,11 @@ def _scan_db3(name: Path, path: Path, topics: Iterable[str] | None, compression:
             for src in (path, wal, path.with_name(path.name + "-shm")):
                 if src.exists():
                     shutil.copy(src, Path(tmp) / src.name.replace(path.name, "copy.db3"))
-            return _query_db3(name, f"file:{Path(tmp) / 'copy.db3'}", want, compression)
+            log = _query_db3(name, f"file:{Path(tmp) / 'copy.db3'}", want, compression)
+            log.unclean = (
+                "the sqlite write-ahead log was not checkpointed: the writer did not finish"
+            )
+            return log
     return _query_db3(name, f"file:{path}?mode=ro&immutable=1", want, compression)
 
 
@@ -296,37 +298,36 @@ def _decompress_messages(name: Path, fmt: str, datas: list[bytes]) -> list[bytes
 
 def _merge_logs(path: Path, logs: list[RawLog]) -> RawLog:
     """One RawLog from the split files of a rosbag2 (topics concatenated in file order)."""
-    if len(logs) == 1:
-        one = logs[0]
-        return RawLog(path, one.topics, one.raw, one.lost_bytes, one.notes)
-    infos: dict[str, TopicInfo] = {}
-    for lg in logs:
-        for i in lg.topics:
-            o = infos.get(i.name)
-            if o is None:
-                infos[i.name] = i
-                continue
-            starts = [x.start_ns for x in (o, i) if x.count]
-            ends = [x.end_ns for x in (o, i) if x.count]
-            infos[i.name] = TopicInfo(
-                i.name,
-                o.type or i.type,
-                o.count + i.count,
-                min(starts) if starts else 0,
-                max(ends) if ends else 0,
-            )
-    raw = {}
-    names = {n for lg in logs for n in lg.raw}
-    for n in names:
-        parts = [lg.raw[n] for lg in logs if n in lg.raw]
-        b = TopicBuilder(n, parts[0].msgtype, parts[0].encoding, parts[0].msgdef)
-        for p in parts:
-            b.add(p.buf, p.offset, p.length, p.log_time)
-        raw[n] = b.build()
     return RawLog(
         path,
-        list(infos.values()),
-        raw,
+        merge_infos(i for lg in logs for i in lg.topics),
+        merge_topics(t for lg in logs for t in lg.raw.values()),
         sum(lg.lost_bytes for lg in logs),
         [x for lg in logs for x in lg.notes],
+        [x for lg in logs for x in lg.warnings],
+        next((lg.unclean for lg in logs if lg.unclean), ""),
+        "; ".join(lg.cut_detail for lg in logs if lg.cut_detail),
     )
+
+
+def _check_counts(bagdir: Path, info: dict[str, Any], log: RawLog) -> None:
+    """Cross-check metadata.yaml's per-topic message counts with what the storage held."""
+    listed = info.get("topics_with_message_count")
+    if not isinstance(listed, list):
+        return
+    found = {i.name: i.count for i in log.topics}
+    for entry in listed:
+        try:
+            name = norm_topic(str(entry["topic_metadata"]["name"]))
+            expected = int(entry["message_count"])
+        except (KeyError, TypeError, ValueError):
+            continue
+        got = found.get(name, 0)
+        if got < expected:
+            log.warnings.append(
+                f"{bagdir / 'metadata.yaml'}: lists {expected} messages on {name}, "
+                f"the storage holds {got}"
+            )
+            raw = log.raw.get(name)
+            if raw is not None:
+                raw.dropped["missing"] = raw.dropped.get("missing", 0) + expected - got

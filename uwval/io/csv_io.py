@@ -28,6 +28,7 @@ import numpy as np
 from uwval.errors import FrameError, LogReadError
 from uwval.frames import get_convention, quat_from_unity_euler
 from uwval.io.raw import load_yaml, one_line
+from uwval.io.stamps import ns_from_seconds
 from uwval.posestream import PoseStream
 
 TIME_NAMES = ("t", "time", "timestamp", "stamp", "time_s", "unity_time", "frame_time", "sec")
@@ -220,9 +221,13 @@ def read_csv(
     else:
         assert ecols is not None
         quat = quat_from_unity_euler(numbers(ecols))
-    t_ns = np.round(t * TIME_UNITS[tu]).astype(np.int64)
+    if not np.isfinite(t).all() or float(np.abs(t).max(initial=0.0)) * TIME_UNITS[tu] > 9e18:
+        bad = int(np.flatnonzero(~np.isfinite(t) | (np.abs(t) * TIME_UNITS[tu] > 9e18))[0])
+        raise LogReadError(f"{p}: data row {bad + 1}: time {t[bad]!r} is not a usable stamp")
+    # seconds: the exact nanosecond of each double (as the TUM reader); other units: rounded
+    t_ns = ns_from_seconds(t) if tu == "s" else np.round(t * TIME_UNITS[tu]).astype(np.int64)
     try:
-        return PoseStream.from_arrays(
+        s = PoseStream.from_arrays(
             t_ns,
             pos,
             quat,
@@ -232,3 +237,26 @@ def read_csv(
         )
     except Exception as exc:
         raise LogReadError(f"{p}: {one_line(exc)}") from exc
+    dropped = (
+        {"duplicate_stamp": s.repairs["duplicates_dropped"]}
+        if s.repairs.get("duplicates_dropped")
+        else {}
+    )
+    warns: list[str] = []
+    if s.repairs.get("sorted"):
+        warns.append(
+            f"{p}: stamps are not in order ({s.repairs['sorted']} step(s) back in time); "
+            "the rows were sorted by stamp"
+        )
+    if not _ends_with_newline(p):
+        warns.append(f"{p}: the last line has no line end: the file may have been cut off")
+    return s.with_(dropped=dropped, warnings=tuple(warns)) if dropped or warns else s
+
+
+def _ends_with_newline(p: Path) -> bool:
+    with open(p, "rb") as fh:
+        fh.seek(0, 2)
+        if fh.tell() == 0:
+            return True
+        fh.seek(-1, 2)
+        return fh.read(1) in (b"\n", b"\r")

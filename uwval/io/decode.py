@@ -76,10 +76,13 @@ def _fields(msgtype: str, msg: Any) -> tuple[int, tuple[float, ...] | None, str 
     raise LogReadError(f"message type {msgtype} carries no pose")
 
 
-def decode_poses(raw: RawTopic, *, fast: bool = True) -> Decoded:
+def decode_poses(raw: RawTopic, *, fast: bool = True, errors: str = "raise") -> Decoded:
     """Pose columns of every message of ``raw`` (row i = message i).
 
     ``fast=False`` forces the per-message rosbags decode (the reference the tests compare to).
+    ``errors="drop"`` leaves a message that cannot be decoded unhandled (``handled[i]`` False)
+    instead of raising; the caller counts it. Raises :class:`LogReadError` when every message
+    fails (naming the first failure).
     """
     if raw.msgtype not in LAYOUTS:
         raise LogReadError(
@@ -93,17 +96,22 @@ def decode_poses(raw: RawTopic, *, fast: bool = True) -> Decoded:
         else Decoded.empty(n)
     )
     rest = np.flatnonzero(~dec.handled)
+    if rest.size and raw.encoding not in ("cdr", "ros1"):
+        raise LogReadError(f"topic {raw.name}: message encoding {raw.encoding!r} is not supported")
+    first: LogReadError | None = None
     for i in rest:
         try:
             msg = deserialize(raw, int(i))
-        except LogReadError:
-            raise
+            stamp, pose, frame_id, child = _fields(raw.msgtype, msg)
         except Exception as exc:
-            raise LogReadError(
+            err = LogReadError(
                 f"topic {raw.name}: message {int(i)} (log time {int(raw.log_time[i])} ns) "
-                f"cannot be decoded as {raw.msgtype}: {exc}"
-            ) from exc
-        stamp, pose, frame_id, child = _fields(raw.msgtype, msg)
+                f"cannot be decoded as {raw.msgtype}: {' '.join(str(exc).split())}"
+            )
+            if errors != "drop":
+                raise err from exc
+            first = first or err
+            continue
         dec.stamp[i] = stamp
         if pose is not None:
             dec.pose[i] = pose
@@ -112,29 +120,49 @@ def decode_poses(raw: RawTopic, *, fast: bool = True) -> Decoded:
         if child is not None:
             dec.child_code[i] = dec.code(child)
         dec.handled[i] = True
+    if first is not None and n and not dec.handled.any():
+        raise first
     return dec
 
 
-def decode_tf(raw: RawTopic) -> Decoded:
-    """One row per transform in a TFMessage topic (stamp, pose, parent in frame, child)."""
+def decode_tf(raw: RawTopic, *, errors: str = "raise") -> tuple[Decoded, int]:
+    """One row per transform in a TFMessage topic (stamp, pose, parent in frame, child), and
+    the number of messages that could not be decoded (``errors="drop"``; else they raise)."""
     stamps: list[int] = []
     poses: list[tuple[float, ...]] = []
     parents: list[str] = []
     children: list[str] = []
+    bad = 0
+    first: LogReadError | None = None
     for i in range(len(raw)):
         try:
             msg = deserialize(raw, i)
-        except LogReadError:
-            raise
+            rows = [
+                (
+                    _stamp(tr.header),
+                    _pose7(tr.transform),
+                    tr.header.frame_id.strip("/"),
+                    tr.child_frame_id.strip("/"),
+                )
+                for tr in msg.transforms
+            ]
         except Exception as exc:
-            raise LogReadError(
-                f"topic {raw.name}: message {i} cannot be decoded as {raw.msgtype}: {exc}"
-            ) from exc
-        for tr in msg.transforms:
-            stamps.append(_stamp(tr.header))
-            poses.append(_pose7(tr.transform))
-            parents.append(tr.header.frame_id.strip("/"))
-            children.append(tr.child_frame_id.strip("/"))
+            err = LogReadError(
+                f"topic {raw.name}: message {i} cannot be decoded as {raw.msgtype}: "
+                + " ".join(str(exc).split())
+            )
+            if errors != "drop":
+                raise err from exc
+            first = first or err
+            bad += 1
+            continue
+        for st, pose, par, ch in rows:
+            stamps.append(st)
+            poses.append(pose)
+            parents.append(par)
+            children.append(ch)
+    if first is not None and bad == len(raw):
+        raise first
     n = len(stamps)
     dec = Decoded.empty(n)
     if n:
@@ -143,4 +171,4 @@ def decode_tf(raw: RawTopic) -> Decoded:
         dec.frame_code[:] = [dec.code(p) for p in parents]
         dec.child_code[:] = [dec.code(c) for c in children]
         dec.handled[:] = True
-    return dec
+    return dec, bad

@@ -10,7 +10,8 @@ and :mod:`uwval.io.decode` decodes those messages with rosbags, the correctness 
 Layouts (CDR: 4-byte encapsulation header, then fields aligned to their size relative to the
 end of that header; ROS 1: packed, little-endian, strings without NUL, header with ``seq``):
 
-* ``header``: stamp (sec int32/uint32, nanosec uint32) + ``frame_id`` string
+* ``header``: stamp (sec int32, nanosec uint32; ROS 1's uint32 seconds are read as int32
+  too, as rosbags does, so both paths agree bit for bit) + ``frame_id`` string
 * ``string``: uint32 length + bytes (CDR counts and stores the NUL terminator)
 * ``f64 x n``: n float64 values
 """
@@ -121,12 +122,12 @@ def gather(buf: U8, starts: I64, width: int) -> U8:
 
 
 def _fancy(buf: U8, starts: I64, width: int) -> U8:
-    n = starts.shape[0]
-    out = np.empty((n, width), dtype=np.uint8)
-    cols = np.arange(width, dtype=np.int64)
-    for a in range(0, n, BATCH):
-        out[a : a + BATCH] = buf[starts[a : a + BATCH, None] + cols]
-    return out
+    """Rows at arbitrary starts: one fancy index on a sliding-window view of ``buf`` (a row
+    copy each, no (N, width) index array)."""
+    if buf.shape[0] < width:
+        return np.empty((0, width), dtype=np.uint8)
+    view = np.lib.stride_tricks.sliding_window_view(buf, width)
+    return view[starts]
 
 
 def _u32(buf: U8, starts: I64) -> I64:
@@ -189,6 +190,12 @@ def _walk(
                 nbytes = int(s) - (1 if cdr else 0)
                 if nbytes < 0 or int(s) > 1 << 20:
                     continue
+                sub = sub[length[sub] >= base + pos + int(s)]
+                if cdr and sub.size:
+                    # rosbags rejects a CDR string without its NUL: so does the fast path
+                    sub = sub[buf[offset[sub] + base + pos + nbytes] == 0]
+                if sub.size == 0:
+                    continue
                 nxt = _Leaf(**leaf.__dict__)
                 nxt.rows = sub
                 if f == "header":
@@ -240,31 +247,45 @@ def fast_decode(msgtype: str, encoding: str, buf: U8, offset: I64, length: I64) 
         starts = offset[lf.rows]
         if lf.stamp_at >= 0:
             st = gather(buf, starts + lf.stamp_at, 8)
-            sec = st[:, :4].copy().view("<i4" if cdr else "<u4").reshape(-1).astype(np.int64)
+            sec = st[:, :4].copy().view("<i4").reshape(-1).astype(np.int64)
             nsec = st[:, 4:].copy().view("<u4").reshape(-1).astype(np.int64)
             dec.stamp[lf.rows] = sec * 1_000_000_000 + nsec
         if lf.pose_at >= 0:
             dec.pose[lf.rows] = gather(buf, starts + lf.pose_at, 56).view("<f8")
+        ok = np.ones(lf.rows.shape[0], dtype=bool)
         if lf.frame_at >= 0:
-            _names(dec, dec.frame_code, lf.rows, buf, starts + lf.frame_at, lf.frame_len)
+            ok &= _names(dec, dec.frame_code, lf.rows, buf, starts + lf.frame_at, lf.frame_len)
         if lf.child_at >= 0:
-            _names(dec, dec.child_code, lf.rows, buf, starts + lf.child_at, lf.child_len)
-        dec.handled[lf.rows] = True
+            ok &= _names(dec, dec.child_code, lf.rows, buf, starts + lf.child_at, lf.child_len)
+        dec.handled[lf.rows[ok]] = True
     return dec
 
 
-def _names(dec: Decoded, codes: I64, rows: I64, buf: U8, starts: I64, width: int) -> None:
-    """Fill ``codes[rows]`` with name indices for the ``width``-byte strings at ``starts``."""
+def _names(
+    dec: Decoded, codes: I64, rows: I64, buf: U8, starts: I64, width: int
+) -> NDArray[np.bool_]:
+    """Fill ``codes[rows]`` with name indices for the ``width``-byte strings at ``starts``;
+    returns which rows hold valid UTF-8 (the others are left to rosbags, which rejects them,
+    so that both paths agree)."""
+    n = rows.shape[0]
     if width == 0:
         codes[rows] = dec.code("")
-        return
+        return np.ones(n, dtype=bool)
     raw = gather(buf, starts, width)
     if raw.shape[0] and bool((raw == raw[0]).all()):  # one name for the topic (usual): no sort
-        codes[rows] = dec.code(bytes(raw[0]).decode("utf-8", errors="replace"))
-        return
+        try:
+            codes[rows] = dec.code(bytes(raw[0]).decode("utf-8"))
+        except UnicodeDecodeError:
+            return np.zeros(n, dtype=bool)
+        return np.ones(n, dtype=bool)
     keys = np.ascontiguousarray(raw).view(np.dtype((np.void, width))).reshape(-1)
     uniq, inverse = np.unique(keys, return_inverse=True)
-    mapping = np.array(
-        [dec.code(bytes(u).decode("utf-8", errors="replace")) for u in uniq], dtype=np.int64
-    )
-    codes[rows] = mapping[inverse.reshape(-1)]
+    mapping = np.empty(len(uniq), dtype=np.int64)
+    for k, u in enumerate(uniq):
+        try:
+            mapping[k] = dec.code(bytes(u).decode("utf-8"))
+        except UnicodeDecodeError:
+            mapping[k] = -2
+    got = mapping[inverse.reshape(-1)]
+    codes[rows] = np.where(got == -2, -1, got)
+    return np.asarray(got != -2)

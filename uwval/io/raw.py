@@ -6,7 +6,9 @@ decoders in :mod:`uwval.io.fastdecode` / :mod:`uwval.io.decode` then work on who
 
 from __future__ import annotations
 
+import contextlib
 import warnings
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -18,8 +20,13 @@ U8 = NDArray[np.uint8]
 I64 = NDArray[np.int64]
 
 
-class TruncatedLogWarning(UserWarning):
-    """A log ended early (e.g. the recorder was killed); intact messages were recovered."""
+class LogWarning(UserWarning):
+    """Something in a log was damaged or missing; what could be read was read, and counted."""
+
+
+class TruncatedLogWarning(LogWarning):
+    """A log ended early or was not closed cleanly (e.g. the recorder was killed); the intact
+    messages were recovered."""
 
 
 def load_yaml(text: str) -> Any:
@@ -52,6 +59,8 @@ class RawTopic:
     ``buf`` holds the payloads; message i is ``buf[offset[i] : offset[i] + length[i]]``,
     logged (received) at ``log_time[i]`` ns. ``encoding`` is ``"cdr"`` or ``"ros1"``;
     ``msgdef`` is the message definition text from the log, for types rosbags lacks.
+    ``dropped`` counts, by cause, messages of this topic the container held but that could
+    not be recovered (a chunk failing its CRC, a zeroed region...).
     """
 
     name: str
@@ -62,6 +71,7 @@ class RawTopic:
     buf: U8 = field(default_factory=lambda: np.zeros(0, dtype=np.uint8))
     offset: I64 = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     length: I64 = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    dropped: dict[str, int] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return int(self.log_time.shape[0])
@@ -81,8 +91,45 @@ class RawTopic:
         )
 
 
+def _contiguous(buf: U8, offset: I64, length: I64) -> bool:
+    """Whether the messages tile ``buf`` exactly, in order (nothing to compact)."""
+    n = offset.shape[0]
+    if int(length.sum()) != buf.shape[0] or int(offset[0]) != 0:
+        return False
+    return n < 2 or bool(np.array_equal(offset[1:], offset[:-1] + length[:-1]))
+
+
+def compact(buf: U8, offset: I64, length: I64) -> tuple[U8, I64]:
+    """Copy only the messages' bytes out of ``buf`` (a decompressed chunk holding other
+    topics too): returns the new buffer and the messages' offsets in it.
+
+    Equal-length messages (the usual case for one pose topic) are copied as rows through
+    :func:`uwval.io.fastdecode.gather` (strided, memcpy speed); others byte-index by byte.
+    """
+    from uwval.io.fastdecode import gather
+
+    n = offset.shape[0]
+    if n == 0:
+        return buf[:0].copy(), offset
+    if _contiguous(buf, offset, length):
+        return buf, offset
+    width = int(length[0])
+    if bool((length == width).all()):
+        out = gather(buf, offset, width).reshape(-1)
+        return out, np.arange(n, dtype=np.int64) * width
+    new_off = np.zeros(n, dtype=np.int64)
+    np.cumsum(length[:-1], out=new_off[1:])
+    total = int(length.sum())
+    idx = np.repeat(offset - new_off, length) + np.arange(total, dtype=np.int64)
+    return buf[idx], new_off
+
+
 class TopicBuilder:
-    """Collects segments (a buffer + offsets/lengths/log times into it) for one topic."""
+    """Collects one topic's messages, segment by segment (e.g. one chunk each).
+
+    Each segment is compacted when added (only this topic's bytes are kept, never the whole
+    decompressed chunk), so memory is bounded by the selected topics, not by the log.
+    """
 
     def __init__(self, name: str, msgtype: str, encoding: str, msgdef: str = "") -> None:
         self.name, self.msgtype, self.encoding, self.msgdef = name, msgtype, encoding, msgdef
@@ -90,30 +137,61 @@ class TopicBuilder:
         self._offs: list[I64] = []
         self._lens: list[I64] = []
         self._times: list[I64] = []
+        self._tag: list[object] = []
+        self.dropped: dict[str, int] = {}
 
-    def add(self, buf: U8, offset: I64, length: I64, log_time: I64) -> None:
-        """Add messages ``buf[offset[i] : offset[i] + length[i]]`` (bounds are checked)."""
-        if (
-            offset.size
-            and length.any()
-            and (
-                int(offset.min()) < 0
-                or int(length.min()) < 0
-                or int((offset + length).max()) > buf.shape[0]
-            )
+    def __len__(self) -> int:
+        return sum(int(t.shape[0]) for t in self._times)
+
+    def drop(self, cause: str, n: int) -> None:
+        """Count ``n`` messages of this topic lost for ``cause``."""
+        if n > 0:
+            self.dropped[cause] = self.dropped.get(cause, 0) + int(n)
+
+    def add(
+        self,
+        buf: U8,
+        offset: I64,
+        length: I64,
+        log_time: I64,
+        *,
+        tag: object = None,
+        copy: bool = True,
+    ) -> None:
+        """Add messages ``buf[offset[i] : offset[i] + length[i]]`` (bounds are checked).
+
+        ``copy`` compacts them out of ``buf`` now (``False``: ``buf`` holds only them
+        already); ``tag`` names the segment's source, for :meth:`drop_tagged`.
+        """
+        offset = offset.astype(np.int64, copy=False)
+        length = length.astype(np.int64, copy=False)
+        if not offset.size:
+            return
+        if length.any() and (
+            int(offset.min()) < 0
+            or int(length.min()) < 0
+            or int((offset + length).max()) > buf.shape[0]
         ):
             raise ValueError(f"topic {self.name}: a message reaches outside its chunk")
-        if offset.size:
-            self._bufs.append(buf)
-            self._offs.append(offset.astype(np.int64, copy=False))
-            self._lens.append(length.astype(np.int64, copy=False))
-            self._times.append(log_time.astype(np.int64, copy=False))
+        if copy and length.any():
+            buf, offset = compact(buf, offset, length)
+        elif not length.any():
+            buf, offset = buf[:0], np.zeros_like(offset)
+        self._bufs.append(buf)
+        self._offs.append(offset)
+        self._lens.append(length)
+        self._times.append(log_time.astype(np.int64, copy=False))
+        self._tag.append(tag)
 
-    def drop_last_from(self, buf: U8) -> None:
-        """Forget segments added from ``buf`` (a chunk whose index turned out damaged)."""
-        while self._bufs and self._bufs[-1] is buf:
-            for lst in (self._bufs, self._offs, self._lens, self._times):
+    def drop_tagged(self, tag: object) -> int:
+        """Forget the segments added with ``tag`` (a chunk whose index turned out damaged);
+        returns how many messages were forgotten."""
+        n = 0
+        while self._tag and self._tag[-1] is tag and tag is not None:
+            n += int(self._times[-1].shape[0])
+            for lst in (self._bufs, self._offs, self._lens, self._times, self._tag):
                 lst.pop()
+        return n
 
     def add_payloads(self, payloads: list[bytes], log_time: list[int]) -> None:
         """Add per-message byte strings (readers that hand out one message at a time)."""
@@ -127,53 +205,139 @@ class TopicBuilder:
             offs,
             lens,
             np.asarray(log_time, dtype=np.int64),
+            copy=False,
         )
 
+    def add_topic(self, part: RawTopic) -> None:
+        """Append an already built topic (another connection or file of the same topic)."""
+        self.add(part.buf, part.offset, part.length, part.log_time, copy=False)
+        for cause, n in part.dropped.items():
+            self.drop(cause, n)
+
     def build(self) -> RawTopic:
+        """One RawTopic: the segments' buffers concatenated, offsets rebased."""
         topic = RawTopic(self.name, self.msgtype, self.encoding, self.msgdef)
+        topic.dropped = dict(self.dropped)
         if not self._bufs:
             return topic
         if len(self._bufs) == 1:
-            buf = self._bufs[0]
-            offs = self._offs[0]
+            topic.buf, topic.offset = self._bufs[0], self._offs[0]
         else:
-            # Keep only the bytes the messages use (chunks also hold other topics).
-            parts: list[U8] = []
-            new_offs: list[I64] = []
-            base = 0
-            for b, o, ln in zip(self._bufs, self._offs, self._lens, strict=True):
-                lo = int(o.min())
-                hi = int((o + ln).max())
-                parts.append(b[lo:hi])
-                new_offs.append(o - lo + base)
-                base += hi - lo
-            buf = np.concatenate(parts)
-            offs = np.concatenate(new_offs)
-        topic.buf = buf
-        topic.offset = offs
+            bases = np.cumsum([0] + [b.shape[0] for b in self._bufs[:-1]])
+            topic.buf = np.concatenate(self._bufs)
+            topic.offset = np.concatenate(
+                [o + int(base) for o, base in zip(self._offs, bases, strict=True)]
+            )
         topic.length = np.concatenate(self._lens)
         topic.log_time = np.concatenate(self._times)
         return topic
 
 
+def merge_infos(infos: Iterable[TopicInfo]) -> list[TopicInfo]:
+    """One TopicInfo per topic name (several connections, channels or files of one topic):
+    counts added, spans joined over the parts that have messages; first non-empty type."""
+    out: dict[str, TopicInfo] = {}
+    for i in infos:
+        o = out.get(i.name)
+        if o is None:
+            out[i.name] = i
+            continue
+        have = [x for x in (o, i) if x.count]
+        out[i.name] = TopicInfo(
+            i.name,
+            o.type or i.type,
+            o.count + i.count,
+            min(x.start_ns for x in have) if have else 0,
+            max(x.end_ns for x in have) if have else 0,
+        )
+    return list(out.values())
+
+
+def merge_topics(parts: Iterable[RawTopic]) -> dict[str, RawTopic]:
+    """Join RawTopics that share a name (several connections, channels or files)."""
+    groups: dict[str, list[RawTopic]] = {}
+    for t in parts:
+        groups.setdefault(t.name, []).append(t)
+    out: dict[str, RawTopic] = {}
+    for name, ts in groups.items():
+        if len(ts) == 1:
+            out[name] = ts[0]
+            continue
+        b = TopicBuilder(name, ts[0].msgtype, ts[0].encoding, ts[0].msgdef)
+        for t in ts:
+            b.add_topic(t)
+        out[name] = b.build()
+    return out
+
+
 @dataclass
 class RawLog:
-    """What a container reader returns: topics present, and the raw messages asked for."""
+    """What a container reader returns: topics present, and the raw messages asked for.
+
+    ``lost_bytes``: bytes at the end that could not be read (a cut-off log);
+    ``unclean``: why the log looks not closed cleanly (no summary / footer / metadata /
+    index), or ``""``;
+    ``warnings``: what else went wrong (damaged chunks, index disagreements...), each
+    naming the file and the byte offset. Every stream read from the log carries them.
+    """
 
     path: Path
     topics: list[TopicInfo]
     raw: dict[str, RawTopic]  # key: normalised topic name
     lost_bytes: int = 0
     notes: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    unclean: str = ""
+    cut_detail: str = ""  # what was recovered from a record cut by the end of the file
+
+    def truncation(self) -> str:
+        """The one-line truncation / unclean-close message, or ``""``."""
+        n = sum(i.count for i in self.topics)
+        if self.lost_bytes:
+            return (
+                f"{self.path}: log is truncated (not closed cleanly); recovered the intact "
+                f"messages ({n} messages), {self.lost_bytes} bytes at the end were lost"
+                + (f" ({self.cut_detail})" if self.cut_detail else "")
+            )
+        if self.unclean:
+            return (
+                f"{self.path}: log was not closed cleanly ({self.unclean}); recovered "
+                f"{n} messages, no bytes lost"
+            )
+        return ""
+
+    def all_warnings(self) -> list[str]:
+        """The truncation message (if any) then the other warnings."""
+        t = self.truncation()
+        return ([t] if t else []) + list(self.warnings)
 
     def warn_lost(self) -> None:
-        if self.lost_bytes:
-            warnings.warn(
-                f"{self.path}: log is truncated; recovered the intact messages, "
-                f"{self.lost_bytes} bytes at the end were lost",
-                TruncatedLogWarning,
-                stacklevel=3,
-            )
+        """Emit every warning as a Python warning (the CLI prints them as one line each)."""
+        t = self.truncation()
+        if t:
+            warnings.warn(t, TruncatedLogWarning, stacklevel=3)
+        for w in self.warnings:
+            warnings.warn(w, LogWarning, stacklevel=3)
+
+
+def release_pages(mm: Any, mark: int, upto: int, *, every: int = 8 << 20) -> int:
+    """Drop the pages of a read-only file map below ``upto`` from this process's resident
+    set once ``every`` bytes have accumulated (read-ahead of unselected topics, e.g. images,
+    must not count as the reader's memory); ``mark`` is where the last release stopped;
+    returns the new mark.
+
+    Only the mapping goes: the bytes stay in the page cache and fault back in if read again.
+    """
+    if upto - mark < every or not hasattr(mm, "madvise"):
+        return mark
+    import mmap as _mmap
+
+    start = mark - mark % _mmap.PAGESIZE
+    stop = upto - upto % _mmap.PAGESIZE
+    if stop > start:
+        with contextlib.suppress(OSError, ValueError):
+            mm.madvise(_mmap.MADV_DONTNEED, start, stop - start)
+    return stop
 
 
 def one_line(exc: BaseException) -> str:

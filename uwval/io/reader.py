@@ -20,9 +20,10 @@ from numpy.typing import NDArray
 
 from uwval.errors import LogReadError, PoseStreamError
 from uwval.frames import CONVENTIONS
-from uwval.io.containers import log_kind, scan_log
+from uwval.io.containers import scan_log
 from uwval.io.decode import TF_TYPES, decode_poses, decode_tf
 from uwval.io.fastdecode import Decoded
+from uwval.io.formats import TEXT_KINDS, log_kind
 from uwval.io.raw import RawLog, RawTopic, TopicInfo, norm_topic
 from uwval.io.ros import APPLIED_SUFFIX
 from uwval.posestream import PoseStream
@@ -32,8 +33,6 @@ __all__ = ["TopicInfo", "list_topics", "read_stream", "read_streams"]
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
-
-_TEXT_KINDS = ("csv", "tum")
 
 
 def _check_path(path: Path) -> None:
@@ -47,7 +46,7 @@ def list_topics(path: str | Path) -> list[TopicInfo]:
     """Topics of a ROS log (MCAP, ROS 1 bag, rosbag2, .db3): name, type, count, span (ns)."""
     p = Path(path)
     _check_path(p)
-    if log_kind(p) in _TEXT_KINDS:
+    if log_kind(p) in TEXT_KINDS:
         s = read_stream(p, "")
         return [
             TopicInfo(s.topic or p.stem, "text/" + log_kind(p), len(s), int(s.t[0]), int(s.t[-1]))
@@ -119,12 +118,17 @@ def read_streams(
     parent_frame: str | None = None,
     **opts: Any,
 ) -> dict[str, PoseStream]:
-    """Read several topics in one pass over the log; keys are the names as given."""
+    """Read several topics in one pass over the log; keys are the names as given.
+
+    ``skip_missing=True`` leaves out topics the log does not have (instead of raising), so
+    a caller can ask for every candidate topic in the same single pass.
+    """
     p = Path(path)
     _check_path(p)
     time_src = str(opts.pop("time", "header"))
     tf_static = bool(opts.pop("tf_static", False))
     fast = bool(opts.pop("fast", True))
+    skip_missing = bool(opts.pop("skip_missing", False))
     if opts:
         raise LogReadError(f"{p}: unknown read option(s): {', '.join(sorted(opts))}")
     if time_src not in ("header", "log"):
@@ -140,6 +144,8 @@ def read_streams(
         name = norm_topic(t)
         raw = log.raw.get(name)
         if raw is None:
+            if skip_missing and not any(i.name == name for i in log.topics):
+                continue
             raise LogReadError(_missing(p, t, log))
         if len(raw) == 0:
             raise LogReadError(f"{p}: topic {name!r} ({raw.msgtype}) has no messages")
@@ -187,14 +193,19 @@ def _to_stream(
     tf_static: bool,
     fast: bool,
 ) -> PoseStream:
+    dropped = dict(raw.dropped)
     if raw.msgtype in TF_TYPES:
-        stamps, pose, frame_id = _tf_pose(p, raw, log, child, parent, tf_static)
+        stamps, pose, frame_id, bad = _tf_pose(p, raw, log, child, parent, tf_static)
+        if bad:
+            dropped["decode_error"] = dropped.get("decode_error", 0) + bad
         log_time = None
     else:
-        dec = decode_poses(raw, fast=fast)
+        dec = decode_poses(raw, fast=fast, errors="drop")
         if raw.msgtype.endswith("/Header"):
             raise LogReadError(f"{p}: topic {raw.name!r} is std_msgs/Header: it has no pose")
-        keep = np.ones(len(raw), dtype=bool)
+        keep = dec.handled.copy()
+        if not keep.all():
+            dropped["decode_error"] = dropped.get("decode_error", 0) + int((~keep).sum())
         if child is not None and (dec.child_code >= 0).any():
             keep &= _code_is(dec, dec.child_code, child)
         if parent is not None and (dec.frame_code >= 0).any():
@@ -215,10 +226,11 @@ def _to_stream(
     if frame is None:
         frame = next((f for f in frame_id if f in CONVENTIONS), "enu")
     applied = None
+    applied_warning = ""
     comp = log.raw.get(raw.name + APPLIED_SUFFIX)
     if comp is not None and len(comp) and log_time is not None:
-        applied = _applied(comp, log_time)
-    return PoseStream.from_arrays(
+        applied, applied_warning = _applied(p, comp, log_time)
+    s = PoseStream.from_arrays(
         stamps,
         pose[:, :3],
         pose[:, 3:],
@@ -227,21 +239,40 @@ def _to_stream(
         source=str(p),
         applied_stamp=applied,
     )
+    warns = log.all_warnings()
+    if applied_warning:
+        warns.append(applied_warning)
+    if s.repairs.get("duplicates_dropped"):
+        dropped["duplicate_stamp"] = s.repairs["duplicates_dropped"]
+    if s.repairs.get("sorted"):
+        warns.append(
+            f"{p} [{raw.name}]: stamps are not in order ({s.repairs['sorted']} step(s) back "
+            "in time); the samples were sorted by stamp"
+        )
+    return s.with_(dropped=dropped, warnings=tuple(warns))
 
 
-def _applied(comp: RawTopic, log_time: I64) -> I64 | None:
-    """Applied Gazebo stamps for each pose, matched on the log (receive) time."""
-    hdr = decode_poses(comp)
-    order = np.argsort(comp.log_time, kind="stable")
-    ct = comp.log_time[order]
-    cs = hdr.stamp[order]
-    idx = np.searchsorted(ct, log_time)
-    idx_c = np.minimum(idx, len(ct) - 1)
-    if (ct[idx_c] == log_time).all():
-        return cs[idx_c]
-    if len(ct) == len(log_time):
-        return cs[np.argsort(np.argsort(log_time, kind="stable"), kind="stable")]
-    return None
+def _applied(p: Path, comp: RawTopic, log_time: I64) -> tuple[I64 | None, str]:
+    """Applied Gazebo stamps for each pose, matched on the log (receive) time; and a warning
+    when they cannot be matched one to one (then no stamps: latency is not measured)."""
+    hdr = decode_poses(comp, errors="drop")
+    ok = hdr.handled
+    order = np.argsort(comp.log_time[ok], kind="stable")
+    ct = comp.log_time[ok][order]
+    cs = hdr.stamp[ok][order]
+    if ct.size == 0:
+        return None, f"{p} [{comp.name}]: no applied stamp could be decoded"
+    idx = np.minimum(np.searchsorted(ct, log_time), len(ct) - 1)
+    hit = ct[idx] == log_time
+    if hit.all():
+        return cs[idx], ""
+    if not hit.any() and len(ct) == len(log_time) and ok.all():
+        # a recorder that logged the two topics at different receive times: pair by rank
+        return cs[np.argsort(np.argsort(log_time, kind="stable"), kind="stable")], ""
+    return None, (
+        f"{p} [{comp.name}]: {int((~hit).sum())} of {len(log_time)} poses have no applied "
+        "stamp logged at the same time; applied stamps (latency) not used"
+    )
 
 
 def _code_is(dec: Decoded, codes: I64, name: str) -> NDArray[np.bool_]:
@@ -295,9 +326,10 @@ def _compose(a_pose: F64, b_pose: F64) -> F64:
 
 def _tf_pose(
     p: Path, raw: RawTopic, log: RawLog, child: str | None, parent: str | None, tf_static: bool
-) -> tuple[I64, F64, list[str]]:
-    """Pose of ``child`` in ``parent`` from a TFMessage topic (+ /tf_static when asked)."""
-    dec = decode_tf(raw)
+) -> tuple[I64, F64, list[str], int]:
+    """Pose of ``child`` in ``parent`` from a TFMessage topic (+ /tf_static when asked), and
+    the number of messages that could not be decoded."""
+    dec, bad = decode_tf(raw, errors="drop")
     if len(dec.stamp) == 0:
         raise LogReadError(f"{p}: topic {raw.name!r} holds no transforms")
     edges = _edges(dec)
@@ -306,7 +338,7 @@ def _tf_pose(
         st = log.raw.get("/tf_static")
         if st is None or len(st) == 0:
             raise LogReadError(f"{p}: tf_static=True but the log has no /tf_static messages")
-        sd = decode_tf(st)
+        sd, _bad_static = decode_tf(st)
         for a, b, pose in zip(sd.frame_code, sd.child_code, sd.pose, strict=True):
             static[sd.names[int(b)]] = (sd.names[int(a)], pose)
     child_n = child.strip("/") if child else None
@@ -364,4 +396,4 @@ def _tf_pose(
             )
     if child_n != dyn_child or top != dyn_parent:
         pose = _compose(_compose(prefix, pose), suffix)
-    return stamps, pose, [top]
+    return stamps, pose, [top], bad

@@ -1,0 +1,30 @@
+"""Fuzz the container readers (issue 14): mutated MCAP, ROS 1, rosbag2 sqlite3 and rosbag2
+MCAP logs never give a traceback, never hang, and never give numbers that differ from the
+intact file's without a warning or a dropped count (see ``tests/fuzz_harness.py`` for the
+classification). Bounded here (``UWVAL_FUZZ_N`` inputs per format, default 120); run the
+long mode by hand: ``UWVAL_FUZZ_N=10000 python tests/fuzz_harness.py``.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from fuzz_harness import FORMATS, fuzz
+
+N = int(os.environ.get("UWVAL_FUZZ_N", "120"))
+
+
+@pytest.mark.parametrize("fmt", list(FORMATS))
+def test_mutated_logs_fail_cleanly_or_warn(fmt: str) -> None:
+    counts = fuzz(N, [fmt], seed=1)[fmt]
+    assert sum(counts.values()) == N
+    bugs = {k: counts[k] for k in ("traceback", "hang", "silent") if counts[k]}
+    assert not bugs, f"{fmt}: {dict(counts)}"
+    # the harness really damages things: most inputs are refused or warned about
+    assert counts["error"] + counts["warned"] > N // 4, dict(counts)

@@ -1,0 +1,269 @@
+"""MCAP records at the chunk level: record layouts, decompression, record walks, and the
+check of a chunk's MessageIndex against the records it points at (used by
+:mod:`uwval.io.mcap_raw`). Every parser here is bounds-checked: damaged bytes give a reason
+string or a :class:`ValueError`, never a wrong offset.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from uwval.errors import LogReadError
+from uwval.io.ros import normalize_type_name
+
+MAGIC = b"\x89MCAP0\r\n"
+OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 1, 2, 3, 4, 5, 6
+OP_MESSAGE_INDEX, OP_CHUNK_INDEX, OP_STATISTICS, OP_DATA_END = 7, 8, 11, 15
+
+REC = struct.Struct("<BQ")
+U16 = struct.Struct("<H")
+U32 = struct.Struct("<I")
+U64 = struct.Struct("<Q")
+_CHUNK = struct.Struct("<QQQI")
+_MSG = struct.Struct("<HIQQ")
+
+#: bytes, memoryview, mmap or a uint8 ndarray: whatever struct reads and slicing copies
+#: (typeshed's ReadableBuffer cannot be sliced, and numpy's stubs do not make arrays one).
+Buffer = Any
+
+
+def string_at(b: Buffer, pos: int, end: int) -> tuple[str, int]:
+    """A u32-length-prefixed UTF-8 string at ``pos`` that must end by ``end``."""
+    (n,) = U32.unpack_from(b, pos)
+    if pos + 4 + n > end:
+        raise ValueError(f"a string of {n} bytes at byte {pos} runs past its record")
+    # text that is not UTF-8 is damage (the mcap library refuses it too): ValueError
+    return bytes(b[pos + 4 : pos + 4 + n]).decode("utf-8"), pos + 4 + n
+
+
+@dataclass
+class Channel:
+    """An MCAP channel: id, topic, message encoding, schema id."""
+
+    id: int
+    topic: str
+    encoding: str
+    schema_id: int
+
+
+@dataclass
+class Tables:
+    """Schemas and channels seen so far, and per-channel message counts and log-time spans."""
+
+    schemas: dict[int, tuple[str, str, str]] = field(default_factory=dict)  # name, enc, text
+    channels: dict[int, Channel] = field(default_factory=dict)
+    counts: dict[int, int] = field(default_factory=dict)
+    times: dict[int, list[int]] = field(default_factory=dict)  # cid -> [min, max]
+
+    def record(self, op: int, b: Buffer, pos: int, end: int) -> None:
+        """Parse a Schema or Channel record whose content is ``b[pos:end]``."""
+        if op == OP_SCHEMA:
+            (sid,) = U16.unpack_from(b, pos)
+            name, p = string_at(b, pos + 2, end)
+            enc, p = string_at(b, p, end)
+            text, _ = string_at(b, p, end)
+            self.schemas[sid] = (name, enc, text)
+        elif op == OP_CHANNEL:
+            cid, sid = struct.unpack_from("<HH", b, pos)
+            topic, p = string_at(b, pos + 4, end)
+            enc, _ = string_at(b, p, end)
+            self.channels.setdefault(cid, Channel(cid, topic, enc, sid))
+
+    def msgtype(self, ch: Channel) -> tuple[str, str, str]:
+        """(normalised type, 'cdr'|'ros1'|other encoding, definition text) of a channel."""
+        name, _senc, text = self.schemas.get(ch.schema_id, ("", "", ""))
+        enc = {"cdr": "cdr", "ros1": "ros1"}.get(ch.encoding, ch.encoding)
+        return normalize_type_name(name) if name else "", enc, text
+
+    def seen(self, cid: int, times: NDArray[np.int64]) -> None:
+        """Count messages of channel ``cid`` logged at ``times`` (ns)."""
+        if times.size == 0:
+            return
+        self.counts[cid] = self.counts.get(cid, 0) + int(times.size)
+        lo, hi = int(times.min()), int(times.max())
+        cur = self.times.setdefault(cid, [lo, hi])
+        cur[0], cur[1] = min(cur[0], lo), max(cur[1], hi)
+
+
+@dataclass(frozen=True)
+class ChunkHeader:
+    """A Chunk record's fields; the compressed records are ``data_len`` bytes at ``data_at``."""
+
+    usize: int
+    crc: int
+    compression: str
+    data_at: int
+    data_len: int
+
+
+def parse_chunk_header(b: Buffer, c: int, end: int, *, partial: bool = False) -> ChunkHeader:
+    """The header of the Chunk record whose content starts at ``c`` and ends at ``end``.
+
+    ``partial``: the record is cut off at ``end`` (the data may be shorter than declared).
+    """
+    if c + 28 + 4 > end:
+        raise ValueError("chunk header is cut off")
+    _start, _stop, usize, crc = _CHUNK.unpack_from(b, c)
+    comp, p = string_at(b, c + 28, end)
+    if p + 8 > end:
+        raise ValueError("chunk header is cut off")
+    (rlen,) = U64.unpack_from(b, p)
+    if not partial and p + 8 + rlen != end:
+        raise ValueError(f"records length {rlen} does not match the chunk record")
+    if usize > 1 << 34:
+        raise ValueError(f"uncompressed size {usize} is implausible")
+    return ChunkHeader(usize, crc, comp, p + 8, min(rlen, end - p - 8))
+
+
+def decompress(comp: str, b: Buffer, at: int, n: int, usize: int) -> bytes:
+    """A chunk's records, decompressed; :class:`LogReadError` when that fails."""
+    data = memoryview(b)[at : at + n]
+    try:
+        if comp == "":
+            return bytes(data)
+        if comp == "zstd":
+            import zstandard
+
+            return zstandard.ZstdDecompressor().decompress(data, max_output_size=usize)
+        if comp == "lz4":
+            import lz4.frame
+
+            return bytes(lz4.frame.decompress(data))
+    except Exception as exc:  # zstd / lz4 raise their own types for damaged streams
+        raise LogReadError(
+            f"cannot be decompressed ({comp}: {' '.join(str(exc).split())})"
+        ) from exc
+    finally:
+        data.release()
+    raise LogReadError(f"unsupported chunk compression {comp!r}")
+
+
+def decompress_prefix(comp: str, b: Buffer, at: int, end: int) -> bytes:
+    """As much of a cut-off chunk's records as its compressed prefix ``b[at:end]`` yields."""
+    raw = bytes(b[at:end])
+    try:
+        if comp == "":
+            return raw
+        if comp == "zstd":
+            import zstandard
+
+            return bytes(zstandard.ZstdDecompressor().decompressobj().decompress(raw))
+        if comp == "lz4":
+            import lz4.frame
+
+            return bytes(lz4.frame.LZ4FrameDecompressor().decompress(raw))
+    except Exception as exc:
+        raise LogReadError(f"cannot decompress the cut chunk: {exc}") from exc
+    raise LogReadError(f"unsupported chunk compression {comp!r}")
+
+
+@dataclass
+class WalkResult:
+    """Records found by walking: per channel (payload offsets, lengths, log times), the
+    Schema/Channel records as (op, content start, content end), and where the walk stopped
+    (``stop`` < the end when a record is cut off or malformed, with ``reason``)."""
+
+    messages: dict[int, tuple[list[int], list[int], list[int]]] = field(default_factory=dict)
+    tables: list[tuple[int, int, int]] = field(default_factory=list)
+    stop: int = 0
+    reason: str = ""
+    #: filled by :func:`check_index`: per channel, each indexed Message record's length
+    record_lengths: dict[int, NDArray[np.int64]] = field(default_factory=dict)
+
+
+def walk_records(data: Buffer, start: int, end: int) -> WalkResult:
+    """Walk the records in ``data[start:end]`` (slow path: one Python step per record)."""
+    out = WalkResult(stop=start)
+    q = start
+    while q < end:
+        if q + 9 > end:
+            out.reason = "record header cut off"
+            break
+        op, rl = REC.unpack_from(data, q)
+        cc = q + 9
+        if cc + rl > end or op == 0:
+            out.reason = f"record of opcode {op} and {rl} bytes does not fit"
+            break
+        if op == OP_MESSAGE:
+            if rl < 22:
+                out.reason = f"Message record of {rl} bytes is too short"
+                break
+            cid, _seq, lt, _pub = _MSG.unpack_from(data, cc)
+            m = out.messages.setdefault(cid, ([], [], []))
+            m[0].append(cc + 22)
+            m[1].append(rl - 22)
+            m[2].append(lt)
+        elif op in (OP_SCHEMA, OP_CHANNEL):
+            out.tables.append((op, cc, cc + rl))
+        q = cc + rl
+    out.stop = q
+    return out
+
+
+def check_index(
+    buf: NDArray[np.uint8], ents: dict[int, NDArray[np.uint64]]
+) -> tuple[str, WalkResult]:
+    """Check a chunk's MessageIndex against its decompressed records.
+
+    Every entry must point at a Message record of its channel with the entry's log time,
+    lying inside the chunk; the indexed records must not overlap, and the bytes between them
+    must hold only non-Message records (no message left out of the index). Returns
+    ``("", walk of the gaps)`` when the index is right, else ``(reason, _)``.
+    """
+    from uwval.io.fastdecode import gather
+
+    size = int(buf.shape[0])
+    starts: list[NDArray[np.int64]] = []
+    ends: list[NDArray[np.int64]] = []
+    gaps = WalkResult()
+    for cid, e in ents.items():
+        if not len(e):
+            continue
+        if int(e[:, 1].max()) + 31 > size:
+            return f"channel {cid}: an entry points outside the chunk", gaps
+        rec = e[:, 1].astype(np.int64)
+        head = gather(buf, rec, 23)
+        op = head[:, 0]
+        rl = head[:, 1:9].copy().view("<u8").reshape(-1)
+        ch = head[:, 9:11].copy().view("<u2").reshape(-1)
+        lt = head[:, 15:23].copy().view("<u8").reshape(-1)
+        if (op != OP_MESSAGE).any():
+            return f"channel {cid}: an entry does not point at a Message record", gaps
+        if (ch != cid).any():
+            return f"channel {cid}: an entry points at a message of another channel", gaps
+        if (lt != e[:, 0]).any():
+            return f"channel {cid}: an entry's log time differs from its message's", gaps
+        if (rl < 22).any() or (rl > size).any():
+            return f"channel {cid}: a Message record has an impossible length", gaps
+        stop = rec + 9 + rl.astype(np.int64)
+        if int(stop.max()) > size:
+            return f"channel {cid}: a Message record runs past the chunk", gaps
+        starts.append(rec)
+        ends.append(stop)
+        gaps.record_lengths[cid] = rl.astype(np.int64)
+    if not starts:
+        return "the index lists no messages", gaps
+    s = np.concatenate(starts)
+    t = np.concatenate(ends)
+    order = np.argsort(s, kind="stable")
+    s, t = s[order], t[order]
+    if (s[1:] < t[:-1]).any():
+        return "indexed records overlap", gaps
+    holes = np.flatnonzero(s[1:] > t[:-1])
+    spans = [(0, int(s[0]))] + [(int(t[i]), int(s[i + 1])) for i in holes] + [(int(t[-1]), size)]
+    for a, b in spans:
+        if a == b:
+            continue
+        w = walk_records(buf, a, b)
+        if w.stop != b:
+            return f"bytes {a}..{b} between indexed records are not whole records", gaps
+        if w.messages:
+            n = sum(len(m[2]) for m in w.messages.values())
+            return f"{n} message(s) at bytes {a}..{b} are missing from the index", gaps
+        gaps.tables.extend(w.tables)
+    return "", gaps
