@@ -393,7 +393,7 @@ def _index_ok(buf: NDArray[np.uint8], cid: int, e: NDArray[np.uint32]) -> bool:
     if not np.array_equal(stamp, e[:, :2]):
         return False
     dlen = gather(buf, rec + 4 + hl, 4).view("<u4").reshape(-1).astype(np.int64)
-    return int((rec + 8 + hl + dlen).max()) <= size
+    return bool(int((rec + 8 + hl + dlen).max()) <= size)
 
 
 def _index_ok_slow(buf: NDArray[np.uint8], cid: int, e: NDArray[np.uint32]) -> bool:
