@@ -290,7 +290,7 @@ def _write_container(shape: Shape, path: Path) -> int:
 
 def _write_tum(path: Path, stream: Any, decimals: int) -> None:
     """TUM lines ``t x y z qx qy qz qw``: stamps and values to ``decimals`` places."""
-    from uwval.io.tum import seconds_from_ns
+    from uwval.io.stamps import seconds_from_ns
 
     cols = np.column_stack([seconds_from_ns(stream.t), stream.position, stream.orientation])
     fmt = " ".join([f"%.{max(decimals, 4)}f"] + [f"%.{decimals}f"] * 7)

@@ -216,7 +216,8 @@ def compare(
     for s in (reference, other):
         check_pose_values(s)
     # What the readers found wrong with either source travels with the result (never silent).
-    warnings: list[str] = [w for s in (reference, other) for w in s.warnings]
+    # (dict.fromkeys: once each, in order: two topics of one log carry the same log warning)
+    warnings: list[str] = list(dict.fromkeys(w for s in (reference, other) for w in s.warnings))
     for s in (reference, other):
         if s.dropped:
             causes = ", ".join(f"{n} {cause}" for cause, n in sorted(s.dropped.items()))

@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from uwval.errors import AlignmentError
-from uwval.io.tum import seconds_from_ns
+from uwval.io.stamps import seconds_from_ns
 from uwval.posestream import PoseStream
 from uwval.rotations import slerp
 

@@ -14,7 +14,8 @@ from numpy.typing import ArrayLike, NDArray
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 
-_NS = 1_000_000_000
+#: Nanoseconds per second.
+NS_PER_S = 1_000_000_000
 
 
 def ns_from_seconds(seconds: ArrayLike) -> I64:
@@ -26,7 +27,7 @@ def ns_from_seconds(seconds: ArrayLike) -> I64:
     s = np.asarray(seconds, dtype=np.float64)
     whole = np.floor(s)
     frac_ns = np.rint((s - whole) * 1e9).astype(np.int64)
-    return np.asarray(whole.astype(np.int64) * _NS + frac_ns)
+    return np.asarray(whole.astype(np.int64) * NS_PER_S + frac_ns)
 
 
 def seconds_from_ns(t: ArrayLike) -> F64:
@@ -40,7 +41,7 @@ def seconds_from_ns(t: ArrayLike) -> F64:
     small = np.abs(t) < (1 << 53)
     if small.all():
         return np.asarray(t.astype(np.float64) / 1e9)
-    whole, frac = np.divmod(t, _NS)
+    whole, frac = np.divmod(t, NS_PER_S)
     out = whole.astype(np.float64) + frac.astype(np.float64) / 1e9
     if small.any():
         out[small] = t[small].astype(np.float64) / 1e9

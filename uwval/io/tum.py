@@ -30,7 +30,19 @@ import numpy as np
 from numpy.typing import NDArray
 
 from uwval.errors import LogReadError, LogWriteError, PoseStreamError
+from uwval.io.formats import TUM_SUFFIXES
+from uwval.io.stamps import NS_PER_S, ns_from_seconds, seconds_from_ns
 from uwval.posestream import QUAT_NORM_TOLERANCE, PoseStream
+
+__all__ = [
+    "TUM_SUFFIXES",
+    "ns_from_seconds",
+    "parse_tum_file",
+    "read_tum",
+    "read_tum_pair",
+    "seconds_from_ns",
+    "write_tum",
+]
 
 try:  # the optional C accelerator (uwval/io/_tumparse.c), built when a compiler is present
     from uwval.io import _tumparse
@@ -44,41 +56,7 @@ USE_ACCELERATOR = _tumparse is not None and not os.environ.get("UWVAL_NO_ACCELER
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 
-#: Suffixes taken as TUM text when no format is given.
-TUM_SUFFIXES = (".tum", ".txt")
-
 _COMMENT = re.compile(rb"(?m)^[ \t]*#[^\n]*(\n|$)")
-_NS = 1_000_000_000
-
-
-def ns_from_seconds(seconds: F64) -> I64:
-    """Float seconds -> int64 ns, splitting off the whole seconds exactly first.
-
-    ``s - floor(s)`` is exact for doubles, so the only rounding is of the fraction times 1e9
-    (error < 1e-6 ns); the result is the integer nanosecond nearest to the double itself.
-    """
-    s = np.asarray(seconds, dtype=np.float64)
-    whole = np.floor(s)
-    frac_ns = np.rint((s - whole) * 1e9).astype(np.int64)
-    return whole.astype(np.int64) * _NS + frac_ns
-
-
-def seconds_from_ns(t: I64) -> F64:
-    """Int64 ns -> float seconds, the double nearest to ``t / 1e9`` (whole part added last).
-
-    For stamps parsed by :func:`ns_from_seconds` this returns exactly the parsed double, so
-    evo-style float comparisons on seconds see the same numbers evo sees.
-    """
-    t = np.asarray(t, dtype=np.int64)
-    # below 2^53 ns (104 days) the int is an exact double: one correctly rounded division
-    small = np.abs(t) < (1 << 53)
-    if small.all():
-        return np.asarray(t.astype(np.float64) / 1e9)
-    whole, frac = np.divmod(t, _NS)
-    out = whole.astype(np.float64) + frac.astype(np.float64) / 1e9
-    if small.any():
-        out[small] = t[small].astype(np.float64) / 1e9
-    return np.asarray(out)
 
 
 def _first_bad_line(data: bytes, strict: bool = False) -> str:
@@ -577,7 +555,7 @@ def write_tum(path: str | Path, stream: PoseStream, *, precision: int = 9) -> No
     Poses are written as they are stored (in the stream's own frame convention).
     """
     p = Path(path)
-    whole, frac = np.divmod(stream.t, _NS)
+    whole, frac = np.divmod(stream.t, NS_PER_S)
     body = np.column_stack([stream.position, stream.orientation])
     fmt = " ".join([f"%.{precision}f"] * 7)
     try:
