@@ -30,6 +30,9 @@ accept loop never dies:
 Worst case per connection: the incoming frame buffer (``max_frame``, default 16 MiB, only
 while a frame of that size is arriving), the outgoing queue (``queue_size`` frames) and
 256 registrations of at most 2 KiB each.
+
+Size: one module on purpose: one class (the endpoint) whose accept loop, per-client reader and
+writer threads and limits share its locks and counters; splitting would expose that state.
 """
 
 from __future__ import annotations

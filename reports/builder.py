@@ -11,6 +11,9 @@
 
 The verdict is the CI gate (:mod:`uwval.gate`) run on the same results: thresholds
 (default: the embedded ``data/thresholds/default.toml``) and/or a golden baseline.
+
+Size: one module on purpose: it only assembles one :class:`Report` from results, the gate
+verdict and per-run comparisons; rendering lives in html/pdf, figures in plots.
 """
 
 from __future__ import annotations

@@ -12,6 +12,9 @@ Published streams (world ENU, body FLU, quaternions x y z w):
 * ``/gazebo/gui_camera_pose``: a camera at ``camera_offset`` (m) from the vehicle in the
   vehicle's yaw frame (x ahead, y left, z up; default 3 m behind, 1 m above), its x axis
   pointing at the vehicle (roll 0), like Gazebo's GUI camera following a model.
+
+Size: one module on purpose: :class:`Simulator`, :func:`simulate`, :func:`simulate_batch` and
+:class:`SimulationStream` share the input sampling, publish schedule and divergence checks.
 """
 
 from __future__ import annotations

@@ -6,6 +6,9 @@ or estimated from the motion) -> time association (``interp``: lerp/slerp of the
 at the reference stamps, never extrapolated, gaps masked; ``nearest``: evo's association) ->
 optional spatial alignment (evo's Umeyama / origin) -> signed errors other - reference per
 axis, position-error norm, geodesic angle -> statistics and the JSON contract.
+
+Size: one module on purpose: :func:`compare` is one pipeline whose steps share the
+validated inputs and the JSON contract; the steps themselves live in sync, align, offset, stats.
 """
 
 from __future__ import annotations

@@ -10,6 +10,9 @@ into int64 nanoseconds by an exact split of each double into whole seconds and f
 that converting back with :func:`seconds_from_ns` gives bit-for-bit the double evo parses
 (which keeps evo-compatible stamp association exact). Poses are taken as ENU/FLU unless the
 caller states another convention.
+
+Size: one module on purpose: the block parser, the accelerated path, the forked/threaded pair
+reader and the thorough error path must agree on one text grammar, so they are kept together.
 """
 
 from __future__ import annotations
