@@ -33,8 +33,12 @@ from numpy.typing import NDArray
 
 from uwval.bridge import protocol as wire
 from uwval.bridge.errors import BridgeError
-from uwval.bridge.options import RECONNECT_DELAY_S
 from uwval.frames import convert_arrays, get_convention
+
+#: Unity's ROS-TCP-Connector reconnects this long after a lost connection, s. Stated again in
+#: :mod:`uwval.bridge.options` (which must not import this module: it is imported lazily from
+#: there); tests/test_bridge_client.py keeps the two equal.
+RECONNECT_DELAY_S = 1.0
 
 F64 = NDArray[np.float64]
 

@@ -303,6 +303,9 @@ def test_unity_timings_are_ros_tcp_connectors() -> None:
 
     assert uc.KEEPALIVE_INTERVAL_S == 1.0
     assert uc.RECONNECT_DELAY_S == 1.0
+    from uwval.bridge.options import RECONNECT_DELAY_S
+
+    assert RECONNECT_DELAY_S == uc.RECONNECT_DELAY_S
     assert UnityClient().reconnect_delay_s == 1.0
     assert FaultModel().reconnect_delay_s == 1.0
 
