@@ -70,6 +70,8 @@ def test_connections_beyond_the_limit_are_closed_without_threads(server: BridgeS
     idle = [RawClient(server.port) for _ in range(3)]
     for c in idle:
         _handshake(c)
+    # each accepted client has a reader and a writer thread; count once all have started
+    _wait(lambda: _client_threads() >= 2 * len(idle), "the idle clients' threads")
     threads_before = _client_threads()
     PORT[0] = server.port
     for _ in range(20):
