@@ -61,3 +61,30 @@ def test_truncated_log_warning_is_one_clean_line(tmp_path: Path, run_log: Path) 
     assert len(lines) == 1  # once, although the file is opened more than once
     assert lines[0].startswith("warning:")
     assert ".py:" not in res.stderr  # not the warnings module's file:line form
+
+
+def test_streams_on_different_clocks_name_both_time_ranges_and_the_fix(tmp_path: Path) -> None:
+    """Two files from different clocks (issue 16): the error gives both time ranges and points
+    to --offset auto, which then compares them (the offset recovered from the motion)."""
+    from uwval.comparison.synthetic import unity_view, vehicle_motion
+    from uwval.io.tum import write_tum
+
+    gazebo = vehicle_motion(1500, 50.0, seed=3)  # 30 s from t = 0
+    unity = unity_view(gazebo, convention="enu", clock_offset=1000.0, rate_hz=50.0)
+    write_tum(tmp_path / "gazebo.tum", gazebo)
+    write_tum(tmp_path / "unity.tum", unity)
+    res = _uwval("compare", tmp_path / "gazebo.tum", tmp_path / "unity.tum")
+    assert res.returncode == 2
+    message = res.stderr
+    assert "Traceback" not in message
+    assert "do not overlap in time" in message
+    assert "reference [0.000, 29.980] s" in message
+    assert "other [1000.000, " in message
+    assert "--offset auto" in message
+    ok = _uwval(
+        "compare", tmp_path / "gazebo.tum", tmp_path / "unity.tum", "--offset", "auto", "--json"
+    )
+    assert ok.returncode == 0, ok.stderr
+    offset = json.loads(ok.stdout)["offset"]
+    assert offset["source"] == "auto"
+    assert offset["applied_s"] == pytest.approx(-1000.0, abs=0.001)

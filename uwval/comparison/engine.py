@@ -155,6 +155,33 @@ def _stream_info(s: PoseStream) -> dict[str, Any]:
     }
 
 
+def _time_range(s: PoseStream, shift_s: float = 0.0) -> str:
+    """``[first, last] s`` of a stream's stamps (plus ``shift_s``), for messages."""
+    if not len(s):
+        return "no samples"
+    return f"[{s.t[0] * 1e-9 + shift_s:.3f}, {s.t[-1] * 1e-9 + shift_s:.3f}] s"
+
+
+def _overlap_hint(reference: PoseStream, other: PoseStream, offset_s: float) -> str:
+    """Why two streams gave no aligned samples: their time ranges, and what to do about it."""
+    ref, oth = _time_range(reference), _time_range(other, offset_s)
+    apart = (
+        len(reference)
+        and len(other)
+        and (
+            other.t[0] * 1e-9 + offset_s > reference.t[-1] * 1e-9
+            or other.t[-1] * 1e-9 + offset_s < reference.t[0] * 1e-9
+        )
+    )
+    if apart:
+        return (
+            f"the streams do not overlap in time (reference {ref}, other {oth} after the "
+            "offset): their clocks differ? --offset auto estimates the offset from the "
+            "motion, --offset S gives a known one"
+        )
+    return f"reference {ref}, other {oth} after the offset: too few samples match in time"
+
+
 def _to_canonical(stream: PoseStream) -> PoseStream:
     return convert_stream(stream, "enu")
 
@@ -331,8 +358,8 @@ def compare(
     if n < max(1, min_samples):
         raise AlignmentError(
             f"only {n} aligned samples between {reference.describe()} and {other.describe()} "
-            f"(need {min_samples}): do the streams overlap in time? "
-            f"(offset {offset_s:g} s, sync {sync})"
+            f"(need {min_samples}; offset {offset_s:g} s, sync {sync}): "
+            + _overlap_hint(reference, other, offset_s)
         )
 
     # ---- spatial alignment
