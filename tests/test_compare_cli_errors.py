@@ -88,3 +88,17 @@ def test_streams_on_different_clocks_name_both_time_ranges_and_the_fix(tmp_path:
     offset = json.loads(ok.stdout)["offset"]
     assert offset["source"] == "auto"
     assert offset["applied_s"] == pytest.approx(-1000.0, abs=0.001)
+
+
+def test_the_table_header_says_how_the_streams_were_synchronised(tmp_path: Path) -> None:
+    """interp and nearest give different numbers (evo uses nearest): the header says which."""
+    from uwval.comparison.synthetic import unity_view, vehicle_motion
+    from uwval.io.tum import write_tum
+
+    gazebo = vehicle_motion(500, 50.0, seed=4)
+    write_tum(tmp_path / "gt.tum", gazebo)
+    write_tum(tmp_path / "est.tum", unity_view(gazebo, convention="enu", rate_hz=50.0))
+    text = _uwval("compare", tmp_path / "gt.tum", tmp_path / "est.tum")
+    assert "(sync interp:" in " ".join(text.stdout.split())
+    text = _uwval("compare", tmp_path / "gt.tum", tmp_path / "est.tum", "--sync", "nearest")
+    assert "(sync nearest, max diff 0.01 s, as evo)" in " ".join(text.stdout.split())

@@ -48,6 +48,11 @@ def _print_table(doc: dict[str, Any], title: str) -> None:
     from rich.table import Table
 
     console = Console()
+    sync = doc.get("sync") or {}
+    if sync.get("method") == "nearest":  # evo's association: say its parameter too
+        title += f"  (sync nearest, max diff {sync.get('max_diff_s', 0.01):g} s, as evo)"
+    elif sync.get("method"):
+        title += f"  (sync {sync['method']}: Unity side interpolated at the reference stamps)"
     table = Table(title=escape(title), title_justify="left", box=box.SIMPLE_HEAD, pad_edge=False)
     # short on purpose (fits 80 columns): p95, std, p-value and CI are in --json
     for col in ("axis", "MAE", "RMSE", "max", "bias", "Pearson r"):
@@ -187,7 +192,8 @@ COMPARE_OPTIONS: tuple[CompareOption, ...] = (
         ("--sync",),
         str,
         "interp",
-        "interp (lerp+slerp at reference stamps) or nearest (evo's association)",
+        "interp (lerp+slerp at reference stamps) or nearest (evo's association: "
+        "--sync nearest --max-diff 0.01 gives evo_ape's numbers)",
     ),
     CompareOption(
         "max_gap",
