@@ -489,3 +489,25 @@ def test_pair_is_read_in_this_process_when_other_threads_run(
         worker.join()
     assert not forks
     assert len(ra) == len(rb) == 50
+
+
+@pytest.mark.parametrize("accelerated", [True, False])
+def test_a_carriage_return_inside_a_line_is_refused_not_read_as_space(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, accelerated: bool
+) -> None:
+    """Found by the fuzz harness: '-' flipped to CR turned -0.007853 into 0.007853 silently
+    (both parsers took CR as blank space; loadtxt and evo see a line break). CRLF files stay
+    fine."""
+    import uwval.io.tum as tum
+
+    if accelerated and tum._tumparse is None:
+        pytest.skip("C accelerator not built")
+    monkeypatch.setattr(tum, "USE_ACCELERATOR", accelerated)
+    good = "1.0 0.1 -0.2 0.3 0 0 0 1\n2.0 0.1 -0.007853 0.3 0 0 0 1\n"
+    p = tmp_path / "crlf.txt"
+    p.write_bytes(good.replace("\n", "\r\n").encode())
+    assert read_tum(p).position[1, 1] == -0.007853
+    p = tmp_path / "damaged.txt"
+    p.write_bytes(good.replace("-0.007853", "\r0.007853").encode())
+    with pytest.raises(LogReadError, match=r"line 2 \(byte \d+\): a carriage return inside"):
+        read_tum(p)

@@ -143,6 +143,7 @@ def _read_columns(path: Path, out: tuple[I64, F64] | None = None) -> tuple[I64, 
         size = fh.seek(0, 2)
         if size == 0:
             raise LogReadError(f"{path}: file is empty")
+        _refuse_bare_carriage_return(fh, path)
         fh.seek(0)
         head = fh.read(_CHUNK)
         start = _skip_header(head)
@@ -180,6 +181,32 @@ def _read_columns(path: Path, out: tuple[I64, F64] | None = None) -> tuple[I64, 
     if rows == 0:
         raise LogReadError(f"{path}: no poses (empty TUM file)")
     return t[:rows], pose[:rows]
+
+
+def _refuse_bare_carriage_return(fh: io.BufferedReader, path: Path) -> None:
+    """Refuse a carriage return that does not end a line (CRLF is fine).
+
+    The parsers take CR as blank space, as Python's ``float``/``split`` do, so a stray CR
+    inside a line (a damaged byte: ``-0.5`` becoming ``\r0.5``) would silently change a
+    number; numpy's loadtxt (and evo) see a line break there instead. One ``memchr`` over the
+    mapped file when there is no CR at all; a vectorised check of every CR otherwise.
+    """
+    with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as m:
+        if m.find(b"\r") < 0:
+            return
+        b = np.frombuffer(m, dtype=np.uint8)
+        cr = np.flatnonzero(b == 13)
+        after = np.minimum(cr + 1, b.size - 1)
+        bare = cr[(cr + 1 < b.size) & (b[after] != 10)]
+        if bare.size:
+            off = int(bare[0])
+            line = int(np.count_nonzero(b[:off] == 10)) + 1
+            del b, cr, after, bare  # release the exported buffer before the map closes
+            raise LogReadError(
+                f"{path}: line {line} (byte {off}): a carriage return inside the line (a "
+                "damaged file, or old Mac line ends): refused, its numbers cannot be trusted"
+            )
+        del b, cr, after, bare
 
 
 def _fill_accelerated(
