@@ -5,34 +5,51 @@ calls :meth:`BridgeServer.publish` as ros_gz_bridge's topics would reach the end
 subscribers, and local callbacks receive what Unity publishes.
 
 Robustness rules (issue 6):
-- several clients at once, each with a reader thread and a writer thread;
+- several clients at once;
 - per-client bounded outgoing queue: when full the oldest item is dropped and counted
   (ROS-TCP-Endpoint's queues are unbounded, so overload there shows as growing lag);
 - a frame-size cap; a malformed frame closes only that client, with a logged reason;
 - a frame is queued atomically (a ``__response`` and its body travel as one item) so a drop
   never splits a pair.
 
-Limits against hostile clients (issue 14), so that memory and threads stay bounded and the
-accept loop never dies:
-- at most ``max_clients`` connections (default 64, two threads each); one more is accepted
-  and closed at once, without a thread, and counted in :attr:`BridgeServer.refused`;
+One I/O thread serves every connection (issue 14): non-blocking sockets on a selector
+(epoll on Linux), so a connection costs a socket, a parser buffer and a queue, never a
+thread. Thread-per-client servers (this one before, and ROS-TCP-Endpoint) keep glibc arenas
+and thread stacks after their clients leave; after 10,000 hostile connections this one's
+RSS is back where it started (``benchmarks/bridge_hostile.py``). A publisher thread sends a
+frame itself with a non-blocking send when nothing is queued for that client (no hand-off,
+which keeps one-way latency low); what the socket does not take is finished by the I/O
+thread. Callbacks (:meth:`BridgeServer.on_topic`) and service handlers run on the I/O thread:
+they must not block on the server.
+
+Limits against hostile clients (issue 14), so that memory stays bounded and the accept loop
+never dies:
+- at most ``max_clients`` connections (default 64). When all are taken, a new connection
+  takes the slot of the longest-silent connection that has registered nothing and sent
+  nothing for ``EVICT_SILENT_S`` (a socket held open and never used); otherwise it is closed
+  at once and counted in :attr:`BridgeServer.refused`;
+- a connection that registers nothing within ``unused_timeout`` (default 10 s) is closed, and
+  with ``idle_timeout`` set, any connection silent (not even a keepalive; ROS-TCP-Connector
+  sends one every second) for that long;
 - a system command's payload is at most ``protocol.MAX_COMMAND_BYTES`` (64 KiB), a frame's
   destination ``MAX_DESTINATION_BYTES`` (1 KiB); a registered topic or message name is at
   most ``MAX_NAME_BYTES`` (1 KiB, a longer topic could never be a frame's destination), and
   a client holds at most ``MAX_REGISTRATIONS`` (256) registrations;
-- texts kept in :attr:`BridgeServer.events` are cut to ``EVENT_TEXT_CHARS``; the statistics
-  of only the last ``CLOSED_STATS_KEPT`` closed clients are kept (their subscription lists
-  cut to 16 names), so memory comes back when clients leave;
+- texts kept in :attr:`BridgeServer.events` are cut to ``EVENT_TEXT_CHARS`` (the newest
+  ``EVENTS_KEPT``), and at most ``LOG_BURST`` of them per ``LOG_WINDOW_S`` go to the log (then
+  a count of the rest); the statistics of only the last ``CLOSED_STATS_KEPT`` closed clients
+  are kept (their subscription lists cut to 16 names of ``CLOSED_NAME_CHARS``), so memory
+  comes back when clients leave;
 - the listen backlog is the system's ``SOMAXCONN`` (bursts of connections do not wait for
-  SYN retries); an accept or thread-start failure (out of descriptors, "can't start new
-  thread") closes that one connection, and the loop goes on.
+  SYN retries); an accept failure (out of descriptors) pauses accepting for
+  ``ACCEPT_BACKOFF_S`` while the connected clients are served, and the loop goes on.
 
 Worst case per connection: the incoming frame buffer (``max_frame``, default 16 MiB, only
 while a frame of that size is arriving), the outgoing queue (``queue_size`` frames) and
 256 registrations of at most 2 KiB each.
 
-Size: one module on purpose: one class (the endpoint) whose accept loop, per-client reader and
-writer threads and limits share its locks and counters; splitting would expose that state.
+Size: one module on purpose: one class (the endpoint) whose I/O loop, send paths and limits
+share its locks and counters; splitting would expose that state.
 """
 
 from __future__ import annotations
@@ -40,6 +57,7 @@ from __future__ import annotations
 import contextlib
 import itertools
 import logging
+import selectors
 import socket
 import struct
 import threading
@@ -52,20 +70,37 @@ from typing import Any
 from uwval.bridge import protocol as wire
 from uwval.bridge.errors import BridgeError
 
-#: Default bound on simultaneous connections (each has a reader and a writer thread).
+#: Default bound on simultaneous connections.
 DEFAULT_MAX_CLIENTS = 64
+#: Default seconds a connection may stay without registering anything.
+DEFAULT_UNUSED_TIMEOUT_S = 10.0
+#: Seconds of silence after which an unused connection gives its slot to a new one when all
+#: ``max_clients`` slots are taken (ROS-TCP-Connector sends a keepalive every second).
+EVICT_SILENT_S = 2.0
 #: Registrations (subscribe, publish, services) one client may hold.
 MAX_REGISTRATIONS = 256
 #: Longest topic, service or message name accepted in a registration (bytes of UTF-8).
 MAX_NAME_BYTES = wire.MAX_DESTINATION_BYTES
 #: Longest text kept in an event (client log texts, names in messages).
 EVENT_TEXT_CHARS = 300
+#: Server messages logged per ``LOG_WINDOW_S`` at most (the rest are counted, then summarised).
+LOG_BURST = 50
+LOG_WINDOW_S = 10.0
+#: Characters of each topic name kept in a closed client's statistics.
+CLOSED_NAME_CHARS = 80
+#: Events kept in :attr:`BridgeServer.events` (the newest). Few on purpose: each long-lived
+#: small object made during a flood of clients can pin a whole allocator arena.
+EVENTS_KEPT = 200
 #: Statistics of closed clients kept (the newest).
-CLOSED_STATS_KEPT = 256
-#: Seconds the accept loop pauses after an accept failure (e.g. out of file descriptors).
+CLOSED_STATS_KEPT = 64
+#: Seconds accepting pauses after an accept failure (e.g. out of file descriptors).
 ACCEPT_BACKOFF_S = 0.05
 
 log = logging.getLogger("uwval.bridge.server")
+
+#: Selector keys' data for the listening socket and the wake-up socket.
+_LISTENER = object()
+_WAKE = object()
 
 #: Callback for messages Unity publishes: (topic, body bytes, client id).
 TopicCallback = Callable[[str, bytes, int], None]
@@ -94,8 +129,10 @@ class _Client:
     client_id: int
     address: str
     max_queue: int
+    max_frame: int
+    server: BridgeServer
     queue: deque[bytes] = field(default_factory=deque)
-    cond: threading.Condition = field(default_factory=threading.Condition)
+    lock: threading.Lock = field(default_factory=threading.Lock)  # queue, partial, sends
     closed: bool = False
     stats: ClientStats | None = None
     subscriptions: dict[str, str] = field(default_factory=dict)  # topic -> message name
@@ -103,56 +140,98 @@ class _Client:
     unity_services: dict[str, str] = field(default_factory=dict)
     ros_services: dict[str, str] = field(default_factory=dict)
     pending_srv: tuple[int, bool] | None = None  # (srv_id, is_request) for the next frame
-    send_lock: threading.Lock = field(default_factory=threading.Lock)  # one writer at a time
-    partial: bytes = b""  # unsent tail of a frame already partly on the wire
-    partial_frames: int = 0
-    threads: list[threading.Thread] = field(default_factory=list)
+    partial: memoryview | None = None  # unsent tail of data already partly on the wire
+    partial_frames: int = 0  # frames that are complete once ``partial`` is sent
+    writing: bool = False  # registered for write readiness (or asked to be)
+    connected_at: float = 0.0  # time.monotonic()
+    last_heard: float = 0.0  # time.monotonic() of the last bytes received
+    parser: wire.FrameParser | None = None
+
+    @property
+    def registered(self) -> bool:
+        """Whether the client registered anything (a topic, a publisher, a service)."""
+        return bool(
+            self.subscriptions or self.publications or self.unity_services or self.ros_services
+        )
 
     def enqueue(self, item: bytes) -> bool:
         """Send or queue one atomic item; False if the client is closed.
 
-        Fast path: when nothing is queued and no write is in progress, the caller sends
-        the item itself with a non-blocking send (no thread hand-off, which is what keeps
-        one-way latency low); whatever the socket does not take is finished by the writer
-        thread first. Otherwise the item is queued; a full queue drops its oldest item.
+        Fast path: when nothing is queued and nothing is partly sent, the caller sends the
+        item itself with a non-blocking send; whatever the socket does not take is finished by
+        the I/O thread first. Otherwise the item is queued; a full queue drops its oldest item
+        (never the frame partly on the wire).
         """
-        with self.cond:
+        with self.lock:
             if self.closed:
                 return False
             assert self.stats is not None
-            if (
-                _DONTWAIT
-                and not self.queue
-                and not self.partial
-                and self.send_lock.acquire(blocking=False)
-            ):
+            if not self.queue and self.partial is None:
                 try:
-                    try:
-                        sent = self.sock.send(item, _DONTWAIT)
-                    except OSError:  # would block, or broken: the writer thread handles it
-                        sent = 0
-                    if sent:
-                        self.stats.bytes_out += sent
-                        if sent == len(item):
-                            self.stats.frames_out += 1
-                            return True
-                        # Part of a frame is on the wire: the rest goes next, never dropped.
-                        self.partial = item[sent:]
-                        self.partial_frames = 1
-                        self.cond.notify()
-                        return True
-                finally:
-                    self.send_lock.release()
-            if len(self.queue) >= self.max_queue:
-                self.queue.popleft()
-                self.stats.dropped += 1
-            self.queue.append(item)
-            self.cond.notify()
+                    sent = self.sock.send(item)
+                except OSError:  # would block, or broken: the I/O thread handles it
+                    sent = 0
+                self.stats.bytes_out += sent
+                if sent == len(item):
+                    self.stats.frames_out += 1
+                    return True
+                # Part of a frame may be on the wire: the rest goes next, never dropped.
+                self.partial = memoryview(item)[sent:]
+                self.partial_frames = 1
+            else:
+                if len(self.queue) >= self.max_queue:
+                    self.queue.popleft()
+                    self.stats.dropped += 1
+                self.queue.append(item)
+            if self.writing:
+                return True
+            self.writing = True
+        self.server._want_write(self)
         return True
 
+    def flush(self) -> str | None:
+        """Send what the socket takes now (I/O thread). Returns a close reason or None."""
+        assert self.stats is not None
+        with self.lock:
+            while True:
+                if self.partial is not None:
+                    data, frames = self.partial, self.partial_frames
+                elif self.queue:
+                    items: list[bytes] = []
+                    size = 0
+                    while self.queue and size < _WRITE_BATCH_BYTES:
+                        item = self.queue.popleft()
+                        items.append(item)
+                        size += len(item)
+                    data, frames = memoryview(b"".join(items)), len(items)
+                else:
+                    self.writing = False
+                    return None
+                try:
+                    sent = self.sock.send(data)
+                except BlockingIOError:
+                    sent = 0
+                except OSError as exc:
+                    return f"send failed: {exc}"
+                self.stats.bytes_out += sent
+                if sent < len(data):
+                    self.partial, self.partial_frames = data[sent:], frames
+                    return None  # the socket is full: wait for write readiness
+                self.partial, self.partial_frames = None, 0
+                self.stats.frames_out += frames
 
-#: Flag for a non-blocking send (Linux/macOS); 0 disables the direct-send fast path.
-_DONTWAIT = getattr(socket, "MSG_DONTWAIT", 0)
+
+#: Bytes of queued frames joined into one send by the I/O thread.
+_WRITE_BATCH_BYTES = 256 * 1024
+#: Bytes read from a socket per readiness event (one read per event keeps clients fair).
+_READ_BYTES = 256 * 1024
+#: Seconds between checks of the idle and unused timeouts.
+_SWEEP_S = 0.25
+
+
+def _short(text: str, limit: int) -> str:
+    """``text`` cut to ``limit`` characters, saying how long it was."""
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
 
 
 def _load_malloc_trim() -> Callable[[int], int] | None:
@@ -169,6 +248,27 @@ def _load_malloc_trim() -> Callable[[int], int] | None:
 
 _MALLOC_TRIM = _load_malloc_trim()
 
+#: glibc's mallopt parameter number of M_MMAP_THRESHOLD.
+_M_MMAP_THRESHOLD = -3
+
+
+def use_mmap_for_large_buffers(threshold: int = 64 * 1024) -> bool:
+    """Make glibc serve allocations of ``threshold`` bytes or more with mmap (process-wide).
+
+    For a long-running endpoint process: glibc otherwise raises its mmap threshold after the
+    first large buffer is freed and then takes large buffers (a hostile client's 256 KiB
+    topic name) from the heap, where they leave fragments that keep RSS up after every
+    client left. ``uwval bridge serve`` calls it; a library user decides for their process.
+    Returns False where glibc is not the allocator.
+    """
+    try:
+        import ctypes
+
+        mallopt = ctypes.CDLL("libc.so.6").mallopt
+    except (OSError, AttributeError):
+        return False
+    return bool(mallopt(_M_MMAP_THRESHOLD, int(threshold)))
+
 
 #: SO_LINGER (on, 0 s): close with a reset, leaving no TIME_WAIT for a refused connection.
 _LINGER_RESET = struct.pack("ii", 1, 0)
@@ -182,7 +282,13 @@ class BridgeServer:
         protocol: ``"ROS2"`` (CDR bodies) or ``"ROS1"``, announced in the handshake.
         queue_size: bound of each client's outgoing queue (items).
         max_frame: cap on one incoming frame's payload, bytes.
-        max_clients: bound on simultaneous connections; more are closed on arrival.
+        max_clients: bound on simultaneous connections (see the module's eviction rule).
+        unused_timeout: seconds a connection may stay without registering anything (a topic,
+            a publisher, a service) before it is closed; ``None`` keeps it.
+        idle_timeout: seconds any connection may stay silent (no frame, no keepalive) before
+            it is closed; ``None`` (default) keeps it.
+        evict_silent: seconds of silence after which an unused connection gives its slot to
+            a new one when all ``max_clients`` slots are taken.
     """
 
     def __init__(
@@ -194,6 +300,9 @@ class BridgeServer:
         queue_size: int = 1024,
         max_frame: int = wire.MAX_FRAME_BYTES,
         max_clients: int = DEFAULT_MAX_CLIENTS,
+        unused_timeout: float | None = DEFAULT_UNUSED_TIMEOUT_S,
+        idle_timeout: float | None = None,
+        evict_silent: float = EVICT_SILENT_S,
     ) -> None:
         self.host = host
         self.port = port
@@ -207,12 +316,26 @@ class BridgeServer:
         self.max_clients = int(max_clients)
         if self.max_clients < 1:
             raise BridgeError(f"max clients must be >= 1, got {max_clients}")
+        for what, value in (("unused timeout", unused_timeout), ("idle timeout", idle_timeout)):
+            if value is not None and not (0 < value < 1e9):  # NaN fails too
+                raise BridgeError(f"{what} must be a positive number of seconds, got {value}")
+        if not evict_silent >= 0:
+            raise BridgeError(f"evict_silent must be >= 0 s, got {evict_silent}")
+        self.unused_timeout = unused_timeout
+        self.evict_silent = float(evict_silent)
+        self.idle_timeout = idle_timeout
         #: Connections closed on arrival because ``max_clients`` were connected.
         self.refused = 0
+        #: Unused connections closed to make room for a new one.
+        self.evicted = 0
         #: Connections closed since the start (their stats: :meth:`closed_clients`).
         self.closed_count = 0
         self._listener: socket.socket | None = None
-        self._accept_thread: threading.Thread | None = None
+        self._selector: selectors.BaseSelector | None = None
+        self._io_thread: threading.Thread | None = None
+        self._wake_r: socket.socket | None = None
+        self._wake_w: socket.socket | None = None
+        self._requests: deque[tuple[str, _Client, str]] = deque()  # from other threads
         self._stopping = threading.Event()
         self._lock = threading.RLock()
         self._clients: dict[int, _Client] = {}
@@ -224,12 +347,16 @@ class BridgeServer:
         self._services: dict[str, ServiceHandler] = {}
         self._waiting: dict[int, tuple[threading.Event, list[bytes]]] = {}
         self._sub_cond = threading.Condition(self._lock)
+        self._accept_paused_until = 0.0
+        self._log_window_start, self._log_count, self._log_suppressed = time.monotonic(), 0, 0
+        self._read_buffer = bytearray(_READ_BYTES)  # the I/O thread's only read buffer
+        self._read_view = memoryview(self._read_buffer)
         #: Human-readable events (connects, registrations, closes with reasons), newest last.
-        self.events: deque[str] = deque(maxlen=1000)
+        self.events: deque[str] = deque(maxlen=EVENTS_KEPT)
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> BridgeServer:
-        """Bind, listen and start accepting clients in a background thread."""
+        """Bind, listen and start serving clients on one background I/O thread."""
         if not 0 <= self.port <= 65535:
             raise BridgeError(f"port must be 0-65535, got {self.port}")
         sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
@@ -240,13 +367,19 @@ class BridgeServer:
             sock.close()
             raise BridgeError(f"cannot listen on {self.host}:{self.port}: {exc}") from exc
         sock.listen(socket.SOMAXCONN)
-        sock.settimeout(0.1)
+        sock.setblocking(False)
         self._listener = sock
         self.port = sock.getsockname()[1]
-        self._accept_thread = threading.Thread(
-            target=self._accept_loop, daemon=True, name=f"bridge-accept-{self.port}"
+        self._wake_r, self._wake_w = socket.socketpair()
+        self._wake_r.setblocking(False)
+        self._wake_w.setblocking(False)
+        self._selector = selectors.DefaultSelector()
+        self._selector.register(sock, selectors.EVENT_READ, _LISTENER)
+        self._selector.register(self._wake_r, selectors.EVENT_READ, _WAKE)
+        self._io_thread = threading.Thread(
+            target=self._io_loop, daemon=True, name=f"bridge-io-{self.port}"
         )
-        self._accept_thread.start()
+        self._io_thread.start()
         self._event(f"listening on {self.host}:{self.port} ({self.protocol})")
         return self
 
@@ -256,29 +389,22 @@ class BridgeServer:
         return self.host, self.port
 
     def stop(self) -> None:
-        """Stop accepting, close every client and join the threads."""
+        """Stop accepting, close every client and join the I/O thread."""
         self._stopping.set()
-        if self._accept_thread is not None:
-            # Wake accept() at once with a throwaway connection instead of waiting it out.
-            with (
-                contextlib.suppress(OSError),
-                socket.create_connection(
-                    (self.host if self.host not in ("", "0.0.0.0") else "127.0.0.1", self.port),
-                    timeout=0.5,
-                ),
-            ):
-                pass
-            self._accept_thread.join(timeout=2)
-        if self._listener is not None:
-            self._listener.close()
+        if self._io_thread is not None:
+            self._wake()
+            if self._io_thread is not threading.current_thread():
+                self._io_thread.join(timeout=5)
         with self._lock:
             clients = list(self._clients.values())
-        for c in clients:
-            self._close(c, "server stopping")
-        for c in clients:
-            for t in c.threads:
-                if t is not threading.current_thread():
-                    t.join(timeout=2)
+        for c in clients:  # only if the I/O thread did not get to them
+            self._finish_close(c, "server stopping")
+        for s in (self._listener, self._wake_r, self._wake_w):
+            if s is not None:
+                s.close()
+        if self._selector is not None:
+            with contextlib.suppress(Exception):
+                self._selector.close()
 
     def __enter__(self) -> BridgeServer:
         return self.start() if self._listener is None else self
@@ -387,6 +513,9 @@ class BridgeServer:
         if client is None:
             return False
         self._close(client, reason)
+        deadline = time.monotonic() + 2.0
+        while not client.closed and time.monotonic() < deadline:  # the I/O thread closes it
+            time.sleep(0.001)
         return True
 
     def clients(self) -> list[ClientStats]:
@@ -407,41 +536,180 @@ class BridgeServer:
 
     # ------------------------------------------------------------------ internals
     def _event(self, text: str, level: int = logging.INFO) -> None:
-        if len(text) > EVENT_TEXT_CHARS:
-            text = f"{text[:EVENT_TEXT_CHARS]}... ({len(text)} characters)"
+        text = _short(text, EVENT_TEXT_CHARS)
         self.events.append(text)
-        log.log(level, text)
+        # a flood of hostile clients must not flood the log (nor grow its formatter's caches)
+        now = time.monotonic()
+        if now - self._log_window_start >= LOG_WINDOW_S:
+            if self._log_suppressed:
+                log.warning(
+                    "%d more server messages in the last %.0f s not logged (at most %d per window)",
+                    self._log_suppressed,
+                    now - self._log_window_start,
+                    LOG_BURST,
+                )
+            self._log_window_start, self._log_count, self._log_suppressed = now, 0, 0
+        if self._log_count < LOG_BURST:
+            self._log_count += 1
+            log.log(level, text)
+        else:
+            self._log_suppressed += 1
 
-    def _accept_loop(self) -> None:
-        """Accept clients until stopped; no failure but a closed listener ends it."""
-        listener = self._listener
-        assert listener is not None
+    def _on_io_thread(self) -> bool:
+        return self._io_thread is threading.current_thread()
+
+    def _wake(self) -> None:
+        """Wake the I/O thread's select() (from another thread)."""
+        if self._wake_w is not None:
+            with contextlib.suppress(OSError):  # full: a wake-up is pending anyway
+                self._wake_w.send(b"\0")
+
+    def _want_write(self, c: _Client) -> None:
+        """Ask for write readiness of ``c`` (its queue or a partial frame waits)."""
+        if self._on_io_thread():
+            self._watch(c, write=True)
+        else:
+            self._requests.append(("write", c, ""))
+            self._wake()
+
+    def _watch(self, c: _Client, write: bool) -> None:
+        assert self._selector is not None
+        if c.closed:
+            return
+        events = selectors.EVENT_READ | (selectors.EVENT_WRITE if write else 0)
+        with contextlib.suppress(KeyError, ValueError, OSError):
+            self._selector.modify(c.sock, events, c)
+
+    def _io_loop(self) -> None:
+        """Serve the listener and every client until stopped; no failure ends it."""
+        sel = self._selector
+        assert sel is not None
+        next_sweep = time.monotonic() + _SWEEP_S
         while not self._stopping.is_set():
             try:
-                conn, addr = listener.accept()
-            except TimeoutError:
-                continue
-            except OSError as exc:
-                if self._stopping.is_set() or listener.fileno() < 0:
-                    break
-                # out of descriptors, a connection reset before accept...: keep serving
-                self._event(f"accept failed: {exc}", logging.WARNING)
+                ready = sel.select(timeout=_SWEEP_S)
+            except (OSError, ValueError) as exc:  # a descriptor closed under us
+                self._event(f"select failed: {exc}", logging.WARNING)
                 time.sleep(ACCEPT_BACKOFF_S)
                 continue
-            if self._stopping.is_set():
-                conn.close()
-                break
+            for key, mask in ready:
+                try:
+                    self._ready(key, mask)
+                except Exception as exc:  # a bug must not kill the server
+                    if isinstance(key.data, _Client):
+                        self._close(key.data, f"internal error: {type(exc).__name__}: {exc}")
+                    else:
+                        self._event(f"I/O loop: {type(exc).__name__}: {exc}", logging.ERROR)
+            while self._requests:
+                what, c, reason = self._requests.popleft()
+                if what == "close":
+                    self._close(c, reason)
+                elif not c.closed:
+                    self._watch(c, write=True)
+            now = time.monotonic()
+            if now >= next_sweep:
+                next_sweep = now + _SWEEP_S
+                self._sweep(now)
+        with self._lock:
+            clients = list(self._clients.values())
+        for c in clients:
+            self._close(c, "server stopping")
+
+    def _ready(self, key: selectors.SelectorKey, mask: int) -> None:
+        if key.data is _WAKE:
+            with contextlib.suppress(OSError):
+                while self._wake_r is not None and self._wake_r.recv(4096):
+                    pass
+        elif key.data is _LISTENER:
+            self._accept_some()
+        else:
+            c: _Client = key.data
+            if mask & selectors.EVENT_READ and not c.closed:
+                self._read(c)
+            if mask & selectors.EVENT_WRITE and not c.closed:
+                reason = c.flush()
+                if reason is not None:
+                    self._close(c, reason)
+                elif not c.writing:
+                    self._watch(c, write=False)
+
+    def _sweep(self, now: float) -> None:
+        """Close connections past their unused or idle timeout; resume a paused accept."""
+        if self._accept_paused_until and now >= self._accept_paused_until:
+            self._accept_paused_until = 0.0
+            assert self._selector is not None and self._listener is not None
+            with contextlib.suppress(KeyError, ValueError, OSError):
+                self._selector.register(self._listener, selectors.EVENT_READ, _LISTENER)
+        with self._lock:
+            clients = list(self._clients.values())
+        for c in clients:
+            if self.idle_timeout is not None and now - c.last_heard > self.idle_timeout:
+                self._close(
+                    c,
+                    f"idle for {now - c.last_heard:.1f} s (no frame or keepalive within the "
+                    f"idle timeout of {self.idle_timeout:g} s)",
+                )
+            elif (
+                self.unused_timeout is not None
+                and not c.registered
+                and now - c.connected_at > self.unused_timeout
+            ):
+                self._close(
+                    c,
+                    f"registered nothing within {self.unused_timeout:g} s of connecting "
+                    "(the unused-connection timeout)",
+                )
+
+    def _accept_some(self) -> None:
+        """Accept the connections waiting (a bounded number per wake-up, for fairness)."""
+        listener = self._listener
+        assert listener is not None and self._selector is not None
+        for _ in range(64):
+            try:
+                conn, addr = listener.accept()
+            except BlockingIOError:
+                return
+            except OSError as exc:
+                if self._stopping.is_set() or listener.fileno() < 0:
+                    return
+                # out of descriptors, a connection reset before accept...: keep serving the
+                # connected clients, and try again a little later
+                self._event(f"accept failed: {exc}", logging.WARNING)
+                with contextlib.suppress(KeyError, ValueError):
+                    self._selector.unregister(listener)
+                self._accept_paused_until = time.monotonic() + ACCEPT_BACKOFF_S
+                return
             try:
                 self._admit(conn, addr)
-            except Exception as exc:  # never let one connection end the accept loop
+            except Exception as exc:  # never let one connection end the loop
                 self._event(f"could not serve {addr}: {type(exc).__name__}: {exc}", logging.ERROR)
                 with contextlib.suppress(OSError):
                     conn.close()
 
+    def _evictable(self, now: float) -> _Client | None:
+        """The longest-silent connection that never registered anything, if silent long enough."""
+        with self._lock:
+            unused = [c for c in self._clients.values() if not c.registered and not c.closed]
+        if not unused:
+            return None
+        oldest = min(unused, key=lambda c: c.last_heard)
+        return oldest if now - oldest.last_heard >= self.evict_silent else None
+
     def _admit(self, conn: socket.socket, addr: Any) -> None:
         """Start serving one accepted connection, or close it if ``max_clients`` are served."""
+        now = time.monotonic()
         with self._lock:
             full = len(self._clients) >= self.max_clients
+        if full:
+            victim = self._evictable(now)
+            if victim is not None:
+                self.evicted += 1
+                self._close(
+                    victim,
+                    f"evicted: {self.max_clients} clients connected (the limit) and this one "
+                    f"registered nothing and was silent for {now - victim.last_heard:.1f} s",
+                )
+                full = False
         if full:
             self.refused += 1
             with contextlib.suppress(OSError):
@@ -454,109 +722,101 @@ class BridgeServer:
                     logging.WARNING,
                 )
             return
-        conn.settimeout(None)
+        conn.setblocking(False)
         conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         cid = next(self._ids)
         address = f"{addr[0]}:{addr[1]}"
-        client = _Client(conn, cid, address, self.queue_size)
+        client = _Client(conn, cid, address, self.queue_size, self.max_frame, self)
         client.stats = ClientStats(cid, address)
-        # The endpoint's first frame is the handshake (version + protocol).
-        client.queue.append(wire.handshake_frame(self.protocol))
+        client.connected_at = client.last_heard = now
+        client.parser = wire.FrameParser(max_frame=self.max_frame)
+        assert self._selector is not None
+        self._selector.register(conn, selectors.EVENT_READ, client)
         with self._lock:
             self._clients[cid] = client
-        reader = threading.Thread(
-            target=self._read_loop, args=(client,), daemon=True, name=f"bridge-read-{cid}"
-        )
-        writer = threading.Thread(
-            target=self._write_loop, args=(client,), daemon=True, name=f"bridge-write-{cid}"
-        )
-        client.threads = [reader, writer]
         self._event(f"client {cid} connected from {address}")
-        try:
-            writer.start()
-            reader.start()
-        except RuntimeError as exc:  # "can't start new thread"
-            self._close(client, f"cannot start its threads: {exc}")
+        # The endpoint's first frame is the handshake (version + protocol).
+        client.enqueue(wire.handshake_frame(self.protocol))
 
-    def _write_loop(self, c: _Client) -> None:
-        assert c.stats is not None
-        while True:
-            with c.cond:
-                while not c.queue and not c.partial and not c.closed:
-                    c.cond.wait()
+    def _read(self, c: _Client) -> None:
+        """Read what one readable client sent and dispatch its complete frames."""
+        assert c.stats is not None and c.parser is not None
+        try:
+            # into one reused buffer: a fresh 256 KiB bytes per read, shrunk to what came,
+            # fragments the heap (RSS that never comes back)
+            n = c.sock.recv_into(self._read_buffer)
+        except BlockingIOError:
+            return
+        except OSError as exc:
+            self._close(c, f"receive failed: {exc}")
+            return
+        parser = c.parser
+        data = self._read_view[:n]
+        if not n:
+            reason = "peer closed the connection"
+            if parser.buffered:
+                reason = (
+                    f"peer closed mid-frame: {parser.buffered} bytes of an "
+                    f"incomplete frame at byte {parser.offset}"
+                )
+            self._close(c, reason)
+            return
+        c.last_heard = time.monotonic()
+        c.stats.bytes_in += n
+        try:
+            for frame in parser.feed(data):
+                c.stats.frames_in += 1
+                self._dispatch(c, frame)
                 if c.closed:
                     return
-            # Hold send_lock while taking items so a direct send cannot overtake them.
-            with c.send_lock:
-                with c.cond:
-                    items = ([c.partial] if c.partial else []) + list(c.queue)
-                    n_frames = len(c.queue) + c.partial_frames
-                    c.queue.clear()
-                    c.partial, c.partial_frames = b"", 0
-                if not items:
-                    continue
-                data = b"".join(items)
-                try:
-                    c.sock.sendall(data)
-                except OSError as exc:
-                    self._close(c, f"send failed: {exc}")
-                    return
-            c.stats.frames_out += n_frames
-            c.stats.bytes_out += len(data)
-
-    def _read_loop(self, c: _Client) -> None:
-        assert c.stats is not None
-        parser = wire.FrameParser(max_frame=self.max_frame)
-        reason = "peer closed the connection"
-        try:
-            while not c.closed:
-                try:
-                    data = c.sock.recv(1 << 16)
-                except OSError as exc:
-                    reason = f"receive failed: {exc}"
-                    break
-                if not data:
-                    if parser.buffered:
-                        reason = (
-                            f"peer closed mid-frame: {parser.buffered} bytes of an "
-                            f"incomplete frame at byte {parser.offset}"
-                        )
-                    break
-                c.stats.bytes_in += len(data)
-                for frame in parser.feed(data):
-                    c.stats.frames_in += 1
-                    self._dispatch(c, frame)
         except wire.ProtocolError as exc:
             reason = f"protocol error: {exc}"
             self._event(f"client {c.client_id} ({c.address}): {reason}", logging.WARNING)
-        except Exception as exc:  # a bug must not kill the server; close this client only
-            reason = f"internal error: {type(exc).__name__}: {exc}"
-            self._event(f"client {c.client_id} ({c.address}): {reason}", logging.ERROR)
-        self._close(c, reason)
+            self._close(c, reason)
 
     def _close(self, c: _Client, reason: str) -> None:
-        with c.cond:
+        """Close one client (any thread; off the I/O thread it is handed over)."""
+        if self._io_thread is not None and self._io_thread.is_alive() and not self._on_io_thread():
+            with c.lock:
+                if c.closed:
+                    return
+            self._requests.append(("close", c, reason))
+            self._wake()
+            return
+        self._finish_close(c, reason)
+
+    def _finish_close(self, c: _Client, reason: str) -> None:
+        with c.lock:
             if c.closed:
                 return
             c.closed = True
-            c.cond.notify_all()
+            c.queue.clear()
+            c.partial = None
         # Bookkeeping first, so whoever sees the socket close also sees the reason.
         with self._lock:
             self._clients.pop(c.client_id, None)
             assert c.stats is not None
             c.stats.closed_reason = reason
-            c.stats.subscriptions = tuple(sorted(c.subscriptions)[:16])
+            # a closed client's names are kept short: 256 kept stats of 16 names of 1 KiB
+            # would hold 4 MiB after the clients left
+            c.stats.subscriptions = tuple(
+                _short(t, CLOSED_NAME_CHARS) for t in sorted(c.subscriptions)[:16]
+            )
             self._closed_stats.append(c.stats)
             self.closed_count += 1
             self._sub_cond.notify_all()
             idle = not self._clients
+        if self._selector is not None:
+            with contextlib.suppress(KeyError, ValueError, OSError):
+                self._selector.unregister(c.sock)
         with contextlib.suppress(OSError):
             c.sock.shutdown(socket.SHUT_RDWR)
         c.sock.close()
+        c.parser = None
         self._event(f"client {c.client_id} ({c.address}) closed: {reason}")
         if idle and _MALLOC_TRIM is not None:
-            # the last client left: give the memory its buffers and threads used back to
-            # the system (glibc keeps freed pages of per-thread arenas otherwise)
+            # the last client left: give the memory its buffers used back to the system
+            # (glibc keeps freed pages otherwise)
             _MALLOC_TRIM(0)
 
     def _reply(self, c: _Client, command: str, params: dict[str, Any]) -> None:

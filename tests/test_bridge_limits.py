@@ -6,6 +6,8 @@ benchmarks/bridge_hostile.py)."""
 from __future__ import annotations
 
 import socket
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -14,7 +16,7 @@ import pytest
 
 from tests.test_bridge_server import RawClient
 from uwval.bridge import protocol as wire
-from uwval.bridge import server as server_mod
+from uwval.bridge.errors import BridgeError
 from uwval.bridge.server import CLOSED_STATS_KEPT, MAX_REGISTRATIONS, BridgeServer
 
 
@@ -32,9 +34,9 @@ def _wait(cond: object, what: str, seconds: float = 10.0) -> None:
     pytest.fail(f"timed out waiting for {what}")
 
 
-def _client_threads() -> int:
-    """Reader and writer threads of bridge servers in this process."""
-    return sum(t.name.startswith(("bridge-read", "bridge-write")) for t in threading.enumerate())
+def _server_threads() -> int:
+    """Threads of bridge servers in this process (one I/O thread per server)."""
+    return sum(t.name.startswith("bridge-") for t in threading.enumerate())
 
 
 def _handshake(c: RawClient) -> None:
@@ -67,28 +69,88 @@ def _closed_by_server(sock: socket.socket | None) -> bool:
 
 
 def test_connections_beyond_the_limit_are_closed_without_threads(server: BridgeServer) -> None:
-    idle = [RawClient(server.port) for _ in range(3)]
-    for c in idle:
+    threads_before = _server_threads()
+    used = [RawClient(server.port) for _ in range(3)]
+    for i, c in enumerate(used):
         _handshake(c)
-    # each accepted client has a reader and a writer thread; count once all have started
-    _wait(lambda: _client_threads() >= 2 * len(idle), "the idle clients' threads")
-    threads_before = _client_threads()
+        c.command(wire.SUBSCRIBE, {"topic": f"/u{i}", "message_name": "std_msgs/String"})
+        server.wait_for_subscribers(f"/u{i}")
     PORT[0] = server.port
-    for _ in range(20):
+    for _ in range(20):  # clients that use their connection are never evicted
         s = _connect()
         assert _closed_by_server(s)
         if s is not None:
             s.close()
     _wait(lambda: server.refused == 20, "20 refusals")
-    assert len(server.clients()) == 3
-    assert _client_threads() <= threads_before  # no thread for a refused connection
+    assert len(server.clients()) == 3 and server.evicted == 0
+    assert _server_threads() == threads_before == 1  # one I/O thread, none per client
     assert any("refused a connection" in e for e in server.events)
-    for c in idle:
+    for c in used:
         c.sock.close()
-    _wait(lambda: not server.clients(), "the idle clients to go")
+    _wait(lambda: not server.clients(), "the clients to go")
     ok = RawClient(server.port)  # the server serves again once there is room
     _handshake(ok)
     ok.sock.close()
+
+
+def test_one_thread_serves_many_clients() -> None:
+    with BridgeServer(port=0, max_clients=200) as s:
+        before = threading.active_count()
+        clients = [RawClient(s.port) for _ in range(100)]
+        for c in clients:
+            _handshake(c)
+            c.command(wire.SUBSCRIBE, {"topic": "/all", "message_name": "std_msgs/String"})
+        s.wait_for_subscribers("/all", 100)
+        assert threading.active_count() == before
+        assert s.publish("/all", b"payload") == 100
+        for c in clients:
+            assert c.read() == ("/all", b"payload")
+            c.sock.close()
+
+
+def test_silent_unused_connections_give_their_slots_to_new_clients() -> None:
+    """Idle sockets no longer hold every slot: a well-behaved client still gets served."""
+    with BridgeServer(port=0, max_clients=3, evict_silent=0.2) as s:
+        idle = [RawClient(s.port) for _ in range(3)]
+        for c in idle:
+            _handshake(c)
+        time.sleep(0.3)
+        t0 = time.monotonic()
+        good = RawClient(s.port)
+        _handshake(good)
+        assert time.monotonic() - t0 < 1.0
+        good.command(wire.SUBSCRIBE, {"topic": "/g", "message_name": "std_msgs/String"})
+        s.wait_for_subscribers("/g")
+        assert s.evicted == 1 and s.refused == 0
+        reasons = [c.closed_reason for c in s.closed_clients()]
+        assert len(reasons) == 1 and reasons[0].startswith("evicted:")
+        assert "registered nothing" in reasons[0]
+
+
+def test_unused_and_idle_timeouts_close_with_the_reason() -> None:
+    with BridgeServer(port=0, unused_timeout=0.3) as s:
+        unused, used = RawClient(s.port), RawClient(s.port)
+        _handshake(unused)
+        _handshake(used)
+        used.command(wire.SUBSCRIBE, {"topic": "/x", "message_name": "std_msgs/String"})
+        assert _closed_by_server(unused.sock)
+        _wait(lambda: len(s.clients()) == 1, "the unused client to be closed")
+        assert "registered nothing within 0.3 s" in s.closed_clients()[0].closed_reason
+        assert s.subscriber_count("/x") == 1
+    with BridgeServer(port=0, idle_timeout=0.4, unused_timeout=None) as s:
+        talking, silent = RawClient(s.port), RawClient(s.port)
+        _handshake(talking)
+        _handshake(silent)
+        for _ in range(8):  # keepalives every 0.1 s keep a connection open
+            talking.send_raw(wire.KEEPALIVE)
+            time.sleep(0.1)
+        assert _closed_by_server(silent.sock)
+        _wait(lambda: len(s.clients()) == 1, "the silent client to be closed")
+        reasons = [c.closed_reason for c in s.closed_clients()]
+        assert len(reasons) == 1 and reasons[0].startswith("idle for ")
+        assert "idle timeout of 0.4 s" in reasons[0]
+    with pytest.raises(BridgeError, match="idle timeout must be a positive number"):
+        BridgeServer(port=0, idle_timeout=float("nan"))
 
 
 def test_oversized_system_commands_close_only_that_client(server: BridgeServer) -> None:
@@ -143,26 +205,41 @@ def test_closed_client_statistics_are_bounded() -> None:
         assert len(s.closed_clients()) == min(CLOSED_STATS_KEPT, s.closed_count)
 
 
-def test_the_accept_loop_survives_a_thread_that_cannot_start(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    """The real failure was RuntimeError("can't start new thread") under a memory limit."""
-    failures = {"left": 1}
-    real_thread = threading.Thread
+_FD_STARVED_SERVER = """
+import resource, sys
+resource.setrlimit(resource.RLIMIT_NOFILE, (40, 40))
+from uwval.bridge.server import BridgeServer
+s = BridgeServer(port=0, max_clients=1000, unused_timeout=None).start()
+print(s.port, flush=True)
+sys.stdin.read()  # until the test closes our stdin
+print(sum("accept failed" in e for e in s.events), flush=True)
+s.stop()
+"""
 
-    class Flaky(real_thread):  # type: ignore[misc, valid-type]
-        def start(self) -> None:
-            if self.name.startswith("bridge-write") and failures["left"]:
-                failures["left"] -= 1
-                raise RuntimeError("can't start new thread")
-            super().start()
 
-    monkeypatch.setattr(server_mod.threading, "Thread", Flaky)
-    with BridgeServer(port=0) as s:
-        PORT[0] = s.port
-        assert _closed_by_server(_connect())
-        _wait(lambda: s.closed_count == 1, "the failed client to be closed")
-        assert "cannot start its threads" in s.closed_clients()[0].closed_reason
-        ok = RawClient(s.port)
-        _handshake(ok)
+def test_the_accept_loop_survives_running_out_of_descriptors() -> None:
+    """The real failure was an accept thread that died; here the server process's descriptor
+    limit (40) is far below the 80 connections made, so accept() meets EMFILE."""
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _FD_STARVED_SERVER],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None
+        port = int(proc.stdout.readline())
+        held = [socket.create_connection(("127.0.0.1", port), timeout=5) for _ in range(80)]
+        time.sleep(0.5)  # the server meets EMFILE and pauses accepting
+        for sock in held:
+            sock.close()
+        ok = RawClient(port)
+        ok.sock.settimeout(10)
+        _handshake(ok)  # served again once descriptors are free
         ok.sock.close()
+        out, _ = proc.communicate("", timeout=20)
+        assert int(out) >= 1  # EMFILE was really met
+        assert proc.returncode == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()

@@ -83,8 +83,26 @@ def serve(
     * 1024,
     max_clients: Annotated[
         int,
-        typer.Option(help="Simultaneous connections (two threads each); more are closed at once."),
+        typer.Option(
+            help="Simultaneous connections (one I/O thread serves all). When all are taken, a "
+            "connection that registered nothing and was silent 2 s gives its slot to the new "
+            "one; otherwise the new one is closed at once."
+        ),
     ] = 64,
+    unused_timeout: Annotated[
+        float,
+        typer.Option(
+            help="Close a connection that registers no topic or service within this many "
+            "seconds (0: never)."
+        ),
+    ] = 10.0,
+    idle_timeout: Annotated[
+        float,
+        typer.Option(
+            help="Close a connection silent (no frame, no keepalive; ROS-TCP-Connector sends "
+            "one every second) for this many seconds (0: never)."
+        ),
+    ] = 0.0,
     duration: Annotated[
         float, typer.Option(help="Stop after this many seconds (0: run until Ctrl-C).")
     ] = 0.0,
@@ -94,15 +112,19 @@ def serve(
 ) -> None:
     """Run the ROS-TCP endpoint that Unity's ROS-TCP-Connector connects to.
 
-    Limits (a client breaking one gets an __error, or is closed): --max-clients connections;
+    Limits (a client breaking one gets an __error, or is closed): --max-clients connections,
+    --unused-timeout and --idle-timeout;
     a frame's payload at most --max-frame bytes and its destination 1 KiB; a system command
     (__subscribe, __log...) at most 64 KiB; topic and message names at most 1 KiB; 256
     registrations per client; --queue-size outgoing frames per client (oldest dropped).
     """
-    from uwval.bridge.server import BridgeServer
+    from uwval.bridge.server import BridgeServer, use_mmap_for_large_buffers
 
     _check_port(port)
     _check_seconds(duration, "--duration", zero_ok=True)
+    _check_seconds(unused_timeout, "--unused-timeout", zero_ok=True)
+    _check_seconds(idle_timeout, "--idle-timeout", zero_ok=True)
+    use_mmap_for_large_buffers()  # memory comes back when hostile clients leave
     _logging(verbose)
     server = BridgeServer(
         host,
@@ -111,6 +133,8 @@ def serve(
         queue_size=queue_size,
         max_frame=max_frame,
         max_clients=max_clients,
+        unused_timeout=unused_timeout or None,
+        idle_timeout=idle_timeout or None,
     ).start()
     console.print(
         f"[green]ROS-TCP endpoint[/] listening on {host}:{server.port} "
