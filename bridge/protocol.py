@@ -224,7 +224,9 @@ class FrameParser:
         self.max_command = max_command
         self._buf = bytearray()
         self._consumed = 0  # stream offset of _buf[0]
-        self._failed: ProtocolError | None = None
+        # the reason, not the exception: an exception kept here would hold its traceback,
+        # whose frames hold this parser and its buffer (a cycle only the cyclic GC frees)
+        self._failed: str | None = None
 
     @property
     def buffered(self) -> int:
@@ -239,7 +241,7 @@ class FrameParser:
     def feed(self, data: bytes | bytearray | memoryview) -> list[Frame]:
         """Append received bytes and return every frame they complete, in order."""
         if self._failed is not None:
-            raise self._failed
+            raise ProtocolError(self._failed)
         buf = self._buf
         buf += data
         frames: list[Frame] = []
@@ -283,8 +285,8 @@ class FrameParser:
         return frames
 
     def _fail(self, reason: str, pos: int) -> None:
-        self._failed = ProtocolError(f"malformed frame at byte {self._consumed + pos}: {reason}")
-        raise self._failed
+        self._failed = f"malformed frame at byte {self._consumed + pos}: {reason}"
+        raise ProtocolError(self._failed)
 
 
 # ---------------------------------------------------------------------------- messages

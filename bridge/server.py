@@ -55,6 +55,7 @@ share its locks and counters; splitting would expose that state.
 from __future__ import annotations
 
 import contextlib
+import gc
 import itertools
 import logging
 import selectors
@@ -348,6 +349,7 @@ class BridgeServer:
         self._waiting: dict[int, tuple[threading.Event, list[bytes]]] = {}
         self._sub_cond = threading.Condition(self._lock)
         self._accept_paused_until = 0.0
+        self._last_trim = 0.0
         self._log_window_start, self._log_count, self._log_suppressed = time.monotonic(), 0, 0
         self._read_buffer = bytearray(_READ_BYTES)  # the I/O thread's only read buffer
         self._read_view = memoryview(self._read_buffer)
@@ -814,10 +816,14 @@ class BridgeServer:
         c.sock.close()
         c.parser = None
         self._event(f"client {c.client_id} ({c.address}) closed: {reason}")
-        if idle and _MALLOC_TRIM is not None:
-            # the last client left: give the memory its buffers used back to the system
-            # (glibc keeps freed pages otherwise)
-            _MALLOC_TRIM(0)
+        now = time.monotonic()
+        if idle and now - self._last_trim >= 1.0:  # at most once a second (a flood comes and
+            # goes): the last client left: free what only the cyclic GC frees (an exception
+            # with its frames), then give the freed pages back (glibc keeps them otherwise)
+            self._last_trim = now
+            gc.collect()
+            if _MALLOC_TRIM is not None:
+                _MALLOC_TRIM(0)
 
     def _reply(self, c: _Client, command: str, params: dict[str, Any]) -> None:
         c.enqueue(wire.encode_command(command, params, nul=False))

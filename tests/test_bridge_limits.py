@@ -243,3 +243,23 @@ def test_the_accept_loop_survives_running_out_of_descriptors() -> None:
     finally:
         if proc.poll() is None:
             proc.kill()
+
+
+def test_a_failed_parser_is_freed_without_the_cyclic_gc() -> None:
+    """A parser kept its ProtocolError, whose traceback held the parser and its buffer: a
+    cycle only the cyclic GC freed, which kept hostile clients' buffers after they left."""
+    import gc
+    import weakref
+
+    parser = wire.FrameParser()
+    with pytest.raises(wire.ProtocolError, match="malformed frame at byte 0"):
+        parser.feed(b"\xf0\xff\xff\xff" + b"x" * 100_000)
+    with pytest.raises(wire.ProtocolError, match="malformed frame at byte 0"):
+        parser.feed(b"more")  # still unusable, with the same reason
+    ref = weakref.ref(parser)
+    gc.disable()
+    try:
+        del parser
+        assert ref() is None
+    finally:
+        gc.enable()
