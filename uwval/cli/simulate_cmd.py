@@ -205,8 +205,32 @@ def simulate(
             "vectorised state first (large sweeps of short runs).",
         ),
     ] = False,
+    endpoint: Annotated[
+        str | None,
+        typer.Option(
+            help="One run: publish the simulated Gazebo poses INTO a running ROS-TCP "
+            "endpoint at HOST:PORT (Unity's ROS-TCP-Endpoint or uwval bridge serve) as a ROS "
+            "publisher, in real time; -o records the Gazebo side.",
+        ),
+    ] = None,
+    endpoint_namespace: Annotated[
+        str,
+        typer.Option(
+            help="With --endpoint: ROS namespace of the topics (e.g. /gazebo gives "
+            "/gazebo/model_rov_pose); default relative names model_rov_pose, gui_camera_pose.",
+        ),
+    ] = "",
+    endpoint_wait: Annotated[
+        float,
+        typer.Option(
+            help="With --endpoint: seconds between registering the topics and the first "
+            "pose (ROS 1 drops what is published before a subscriber has connected).",
+        ),
+    ] = 1.0,
 ) -> None:
     """Simulate, bridge over TCP and record paired Gazebo/Unity pose logs."""
+    if endpoint is not None and experiment is not None:
+        raise ConfigError("--endpoint publishes one run; it does not take an experiment file")
     session = SessionOptions(
         unity_map=unity_map,
         frame_rate=frame_rate,
@@ -261,6 +285,11 @@ def simulate(
         implicit_added_mass=added_mass == "implicit",
         legacy_coriolis=legacy_coriolis,
     )
+    if endpoint is not None:
+        _publish_to_endpoint(
+            spec, output, log_format, endpoint, endpoint_namespace, endpoint_wait, as_json
+        )
+        return
     t0 = time.perf_counter()
     with console.status(f"simulating {duration:g} s and bridging over TCP..."):
         record = run_one(RunJob(spec, str(output), session))
@@ -279,3 +308,86 @@ def simulate(
             else "n/a (nothing rendered)"
         )
     )
+
+
+def parse_endpoint(text: str, option: str = "--endpoint") -> tuple[str, int]:
+    """``"127.0.0.1:10000"`` -> ("127.0.0.1", 10000); a clean error names the option."""
+    host, sep, port = text.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) <= 65535:
+        raise ConfigError(f"{option}: expected HOST:PORT with a port 1-65535, got {text!r}")
+    return host.strip("[]"), int(port)
+
+
+def endpoint_topics(namespace: str) -> dict[str, str]:
+    """Tick name -> ROS topic under ``namespace`` ("" keeps the relative names)."""
+    from uwval.bridge.options import DEFAULT_TOPICS
+
+    ns = namespace.strip()
+    if ns and (not ns.startswith("/") or "//" in ns or any(c.isspace() for c in ns)):
+        raise ConfigError(
+            f"--endpoint-namespace {namespace!r}: expected an absolute ROS namespace like /gazebo"
+        )
+    return {t: f"{ns.rstrip('/')}/{t}" if ns else t for t in DEFAULT_TOPICS}
+
+
+def _publish_to_endpoint(
+    spec: Any,
+    output: Path,
+    log_format: str,
+    endpoint: str,
+    namespace: str,
+    wait: float,
+    as_json: bool,
+) -> None:
+    """``simulate --endpoint``: stream the run's ticks into a running endpoint, in real time."""
+    from uwval.bridge.gazebo import EndpointPublisher, publish_ticks_realtime
+    from uwval.cli.pipeline import _ticks_of
+    from uwval.io import open_writer
+    from uwval.simulator import SimulationStream
+
+    host, port = parse_endpoint(endpoint)
+    topics = endpoint_topics(namespace)
+    if not 0 <= wait < float("inf"):
+        raise ConfigError(f"--endpoint-wait must be a finite number of seconds >= 0, got {wait}")
+    errors: list[str] = []
+
+    def on_message(kind: str, text: str) -> None:
+        if kind == "__error":
+            errors.append(text)
+        console.print(f"endpoint {kind}: {text}", highlight=False, markup=False)
+
+    publisher = EndpointPublisher(host, port, topics=topics, on_message=on_message)
+    stream = SimulationStream(spec.vehicle, spec.inputs, spec.duration_s, **spec.simulate_kwargs())
+    t0 = time.perf_counter()
+    try:
+        with open_writer(
+            output,
+            format=log_format,
+            metadata={"run": spec.name, "endpoint": f"{host}:{port}", "topics": json.dumps(topics)},
+        ) as writer:
+            sent = publish_ticks_realtime(
+                _ticks_of(stream), publisher, writer=writer, start_delay_s=wait
+            )
+        publisher.service()
+    finally:
+        publisher.close()
+    record = {
+        "endpoint": f"{host}:{port}",
+        "protocol": publisher.protocol,
+        "topics": topics,
+        "ticks": sent,
+        "poses": publisher.seq,
+        "endpoint_errors": errors,
+        "log": str(output),
+        "wall_time_s": round(time.perf_counter() - t0, 3),
+    }
+    if as_json:
+        typer.echo(json.dumps(record, indent=2))
+    else:
+        console.print(
+            f"[green]published[/] {sent} ticks ({publisher.seq} poses) into {host}:{port} "
+            f"({publisher.protocol}) on {', '.join(topics.values())}; Gazebo side in {output}"
+        )
+    if errors:
+        console.print(f"[red]error:[/] the endpoint sent {len(errors)} __error message(s)")
+        raise typer.Exit(1)
