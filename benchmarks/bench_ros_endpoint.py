@@ -1,6 +1,6 @@
 """Side by side, same run: Unity's real ROS-TCP-Endpoint 0.7.0 (ROS 1) vs ``uwval bridge serve``.
 
-``python -m benchmarks.bench_ros_endpoint [--quick] [--markdown FILE]``
+``python -m benchmarks.bench_ros_endpoint [--quick] [--repeat R] [--markdown FILE]``
 
 For each endpoint the same two uwval clients run over loopback TCP: a publisher
 (:class:`uwval.bridge.gazebo.EndpointPublisher`, ``__publish``) and a Unity-like subscriber
@@ -175,12 +175,10 @@ def measure(port: int, rate: float, n: int) -> dict[str, float]:
     period = 1.0 / rate if rate > 0 else 0.0
     t0 = time.perf_counter()
     for k in range(n):
-        if period:
+        if period:  # sleep, no busy wait: the 2 cores are shared with the endpoints
             lag = t0 + k * period - time.perf_counter()
-            if lag > 0.002:
-                time.sleep(lag - 0.001)
-            while time.perf_counter() < t0 + k * period:
-                pass
+            if lag > 0:
+                time.sleep(lag)
         pub.publish("pose", time.monotonic_ns(), pos, quat)
         if k % 50 == 0:
             pub.service()
@@ -202,19 +200,28 @@ def measure(port: int, rate: float, n: int) -> dict[str, float]:
     }
 
 
-def run_all(quick: bool) -> list[tuple[str, str, dict[str, float]]]:
-    """Every (rate, endpoint) pair, alternating endpoints per rate in one run."""
+def run_all(quick: bool, repeat: int = 1) -> list[tuple[str, str, dict[str, float]]]:
+    """Every (rate, endpoint) pair, the endpoints alternating within one run; with
+    ``repeat`` > 1 every figure is the median over the repetitions (sent/received: sums)."""
     cases = [("50 Hz", 50.0, 150 if quick else 500), ("1 kHz", 1000.0, 1000 if quick else 5000)]
     cases.append(("max", 0.0, 2000 if quick else 10000))
-    out = []
+    runs: dict[tuple[str, str], list[dict[str, float]]] = {}
     with real_endpoint() as real_port, uwval_serve() as uw_port:
-        for label, rate, n in cases:
-            for name, port in (
-                ("ROS-TCP-Endpoint 0.7.0", real_port),
-                ("uwval bridge serve", uw_port),
-            ):
-                out.append((label, name, measure(port, rate, n)))
-                print(label, name, out[-1][2], file=sys.stderr, flush=True)
+        for _ in range(repeat):
+            for label, rate, n in cases:
+                for name, port in (
+                    ("ROS-TCP-Endpoint 0.7.0", real_port),
+                    ("uwval bridge serve", uw_port),
+                ):
+                    m = measure(port, rate, n)
+                    runs.setdefault((label, name), []).append(m)
+                    print(label, name, m, file=sys.stderr, flush=True)
+    out = []
+    for (label, name), ms in runs.items():
+        med = {k: float(np.median([m[k] for m in ms])) for k in ms[0]}
+        med["sent"] = sum(m["sent"] for m in ms)
+        med["received"] = sum(m["received"] for m in ms)
+        out.append((label, name, med))
     return out
 
 
@@ -237,8 +244,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.bench_ros_endpoint")
     parser.add_argument("--quick", action="store_true", help="fewer poses per case")
     parser.add_argument("--markdown", type=Path, default=None, help="also write the table here")
+    parser.add_argument("--repeat", type=int, default=1, help="repetitions (medians reported)")
     args = parser.parse_args(argv)
-    table = markdown(run_all(args.quick))
+    table = markdown(run_all(args.quick, max(1, args.repeat)))
     print(table)
     if args.markdown is not None:
         args.markdown.write_text(table + "\n")
