@@ -183,19 +183,23 @@ def publish_ticks_realtime(
     speed: float = 1.0,
     writer: Any = None,
     start_delay_s: float = 0.0,
+    start_at_ns: int | None = None,
 ) -> int:
-    """Publish precomputed ticks paced to the wall clock (tick time / ``speed``), recording
-    each on ``writer`` (``/gazebo/<name>``, frame ``world``) when given; returns ticks sent.
+    """Publish precomputed ticks paced to the wall clock, recording each on ``writer``
+    (``/gazebo/<name>``, frame ``world``) when given; returns the ticks sent.
 
-    ``start_delay_s`` waits first (reading the endpoint meanwhile): a ROS 1 subscriber needs
-    a moment to connect to the endpoint's new publisher, and ROS 1 drops what is published
-    before it does.
+    The first tick goes out at ``start_at_ns`` (``time.monotonic_ns()`` clock; default now +
+    ``start_delay_s``), tick ``t`` at ``start + (t - t_first) / speed``; ``speed`` 0: as fast
+    as possible. Until the start the endpoint is read (logs, errors): a ROS 1 subscriber needs a
+    moment to connect to the endpoint's new publisher, and ROS 1 drops what is published
+    before it has.
     """
-    t_wall0 = time.perf_counter() + start_delay_s
+    start = time.monotonic_ns() + round(start_delay_s * 1e9) if start_at_ns is None else start_at_ns
     service = getattr(publisher, "service", None)
-    while service is not None and time.perf_counter() < t_wall0:
-        service()
-        time.sleep(0.01)
+    while time.monotonic_ns() < start:
+        if service is not None:
+            service()
+        time.sleep(min(0.01, max(0.0, (start - time.monotonic_ns()) * 1e-9)))
     sent = 0
     t_first: int | None = None
     for tick in ticks:
@@ -203,7 +207,7 @@ def publish_ticks_realtime(
         if t_first is None:
             t_first = t_ns
         if speed > 0:
-            lag = (t_ns - t_first) * 1e-9 / speed - (time.perf_counter() - t_wall0)
+            lag = ((t_ns - t_first) / speed - (time.monotonic_ns() - start)) * 1e-9
             if lag > 0:
                 time.sleep(lag)
         publisher.publish_tick(tick)

@@ -343,7 +343,8 @@ def test_simulate_endpoint_reaches_rospy_bit_exact(
     ros_endpoint: RosEndpoint, tmp_path: Path
 ) -> None:
     """simulate --endpoint publishes into the ROS graph: a rospy subscriber gets the poses the
-    log records, bit-exact, in order, from the first it saw to the last."""
+    log records, bit-exact, in order, from the first it saw to the last; the Unity-like
+    client's side, through the same endpoint, is in the log and compares."""
     topics = "/gazebo/model_rov_pose,/gazebo/gui_camera_pose"
     sub = ros_endpoint.ros_script("sub", SUBSCRIBER, topics, "10")
     _wait_ready(sub)
@@ -364,6 +365,15 @@ def test_simulate_endpoint_reaches_rospy_bit_exact(
         first = _suffix_start(sent, mine)
         assert first <= 5 and first + len(mine) == len(sent)
         assert len({row[2] for row in mine}) > 50  # the vehicle moves
+    # the whole loop: the Unity-like client got them through the same endpoint, on the sim
+    # clock, so the log compares as it is
+    assert {"/unity/model_rov_pose", "/unity/gui_camera_pose"} <= set(recorded)
+    cmp = run_uwval("compare", log, "--json", timeout=60)
+    assert cmp.returncode == 0, cmp.stderr
+    doc = json.loads(cmp.stdout)
+    assert doc["n_samples"] >= 80
+    assert doc["position_error_norm"]["rmse"] < 0.05
+    assert 0 < doc["latency"]["mean_ms"] < 500
 
 
 def test_teleop_endpoint_reaches_rospy(ros_endpoint: RosEndpoint, tmp_path: Path) -> None:

@@ -8,6 +8,7 @@ under ``DIR/runs/`` and ``DIR/manifest.json`` (runs, factor levels, bridge stati
 from __future__ import annotations
 
 import json
+import threading
 import time
 from pathlib import Path
 from typing import Annotated, Any
@@ -227,6 +228,14 @@ def simulate(
             "pose (ROS 1 drops what is published before a subscriber has connected).",
         ),
     ] = 1.0,
+    endpoint_unity: Annotated[
+        bool,
+        typer.Option(
+            "--endpoint-unity/--no-endpoint-unity",
+            help="With --endpoint: also run the Unity-like client through the same endpoint "
+            "and record its side (the whole loop).",
+        ),
+    ] = True,
 ) -> None:
     """Simulate, bridge over TCP and record paired Gazebo/Unity pose logs."""
     if endpoint is not None and experiment is not None:
@@ -287,7 +296,15 @@ def simulate(
     )
     if endpoint is not None:
         _publish_to_endpoint(
-            spec, output, log_format, endpoint, endpoint_namespace, endpoint_wait, as_json
+            spec,
+            output,
+            log_format,
+            endpoint,
+            endpoint_namespace,
+            endpoint_wait,
+            as_json,
+            session,
+            endpoint_unity,
         )
         return
     t0 = time.perf_counter()
@@ -330,6 +347,31 @@ def endpoint_topics(namespace: str) -> dict[str, str]:
     return {t: f"{ns.rstrip('/')}/{t}" if ns else t for t in DEFAULT_TOPICS}
 
 
+class _LockedWriter:
+    """A log writer shared by the publishing loop and the Unity-like client's thread."""
+
+    def __init__(self, writer: Any) -> None:
+        self._writer = writer
+        self._lock = threading.Lock()
+
+    def write_pose(self, *args: Any, **kwargs: Any) -> None:
+        with self._lock:
+            self._writer.write_pose(*args, **kwargs)
+
+    def write_header(self, *args: Any, **kwargs: Any) -> None:
+        with self._lock:
+            self._writer.write_header(*args, **kwargs)
+
+    def flush(self) -> None:
+        flush = getattr(self._writer, "flush", None)
+        if flush is not None:
+            with self._lock:
+                flush()
+
+    def close(self) -> None:  # the publishing side's ``with`` closes the real writer
+        pass
+
+
 def _publish_to_endpoint(
     spec: Any,
     output: Path,
@@ -338,9 +380,19 @@ def _publish_to_endpoint(
     namespace: str,
     wait: float,
     as_json: bool,
+    session: SessionOptions,
+    unity: bool,
 ) -> None:
-    """``simulate --endpoint``: stream the run's ticks into a running endpoint, in real time."""
+    """``simulate --endpoint``: stream the run's ticks into a running endpoint, in real time,
+    and (``unity``) run the Unity-like client through the same endpoint, both sides recorded.
+
+    The Unity client's clock is the sim clock (monotonic time since the first tick was due,
+    plus ``--unity-clock-offset``), as in a virtual ``uwval simulate`` run, so the log compares
+    as it is.
+    """
     from uwval.bridge.gazebo import EndpointPublisher, publish_ticks_realtime
+    from uwval.bridge.recorder import UNITY_PREFIX, BridgeRecorder, log_topic
+    from uwval.bridge.unity_client import UnityClient
     from uwval.cli.pipeline import _ticks_of
     from uwval.io import open_writer
     from uwval.simulator import SimulationStream
@@ -356,22 +408,69 @@ def _publish_to_endpoint(
             errors.append(text)
         console.print(f"endpoint {kind}: {text}", highlight=False, markup=False)
 
+    # The publisher connects first: the real endpoint sends to its newest connection only.
     publisher = EndpointPublisher(host, port, topics=topics, on_message=on_message)
     stream = SimulationStream(spec.vehicle, spec.inputs, spec.duration_s, **spec.simulate_kwargs())
+    start_ns = time.monotonic_ns() + round(wait * 1e9)
+    client: UnityClient | None = None
+    applied = 0
     t0 = time.perf_counter()
     try:
         with open_writer(
             output,
             format=log_format,
             metadata={"run": spec.name, "endpoint": f"{host}:{port}", "topics": json.dumps(topics)},
-        ) as writer:
-            sent = publish_ticks_realtime(
-                _ticks_of(stream), publisher, writer=writer, start_delay_s=wait
-            )
-        publisher.service()
+        ) as raw_writer:
+            writer = _LockedWriter(raw_writer)
+            thread = None
+            stop = threading.Event()
+            if unity:
+                client = UnityClient(
+                    host,
+                    port,
+                    topics=list(topics.values()),
+                    unity_map=session.unity_map,
+                    frame_rate=session.frame_rate,
+                    protocol="auto",
+                    clock="monotonic",
+                    on_message=on_message,
+                )
+                client.scene.offset_ns += round(session.unity_clock_offset_s * 1e9) - start_ns
+                recorder = BridgeRecorder(writer, unity_map=session.unity_map)
+                unity_of = {t: log_topic(UNITY_PREFIX, name) for name, t in topics.items()}
+                run_client = client
+
+                def render() -> None:
+                    nonlocal applied
+                    applied = len(
+                        run_client.run_realtime(
+                            wait + spec.duration_s + 5,
+                            on_frame=lambda tr: recorder.unity_pose(
+                                unity_of.get(tr.topic, tr.topic),
+                                tr.unity_t_ns,
+                                tr.position,
+                                tr.orientation,
+                                tr.applied_stamp_ns,
+                            ),
+                            stop=stop,
+                        )
+                    )
+
+                thread = threading.Thread(target=render, daemon=True)
+                thread.start()
+            try:
+                sent = publish_ticks_realtime(
+                    _ticks_of(stream), publisher, writer=writer, start_at_ns=start_ns
+                )
+                time.sleep(0.3 if unity else 0.0)  # the last poses through the endpoint
+                publisher.service()
+            finally:
+                stop.set()
+                if thread is not None:
+                    thread.join(10)
     finally:
         publisher.close()
-    record = {
+    record: dict[str, Any] = {
         "endpoint": f"{host}:{port}",
         "protocol": publisher.protocol,
         "topics": topics,
@@ -381,12 +480,24 @@ def _publish_to_endpoint(
         "log": str(output),
         "wall_time_s": round(time.perf_counter() - t0, 3),
     }
+    if client is not None:
+        record["unity"] = {
+            "received": client.received,
+            "applied": applied,
+            "connections": client.connection.connects,
+        }
     if as_json:
         typer.echo(json.dumps(record, indent=2))
     else:
         console.print(
             f"[green]published[/] {sent} ticks ({publisher.seq} poses) into {host}:{port} "
-            f"({publisher.protocol}) on {', '.join(topics.values())}; Gazebo side in {output}"
+            f"({publisher.protocol}) on {', '.join(topics.values())}"
+            + (
+                f"; the Unity-like client received {client.received} and applied {applied}"
+                if client is not None
+                else ""
+            )
+            + f"; log {output}"
         )
     if errors:
         console.print(f"[red]error:[/] the endpoint sent {len(errors)} __error message(s)")
