@@ -381,8 +381,8 @@ def test_teleop_endpoint_reaches_rospy(ros_endpoint: RosEndpoint, tmp_path: Path
     _wait_ready(sub)
     rec = tmp_path / "t.mcap"
     res = run_uwval(
-        "teleop", "--endpoint", f"127.0.0.1:{ros_endpoint.port}", "--keys", "i@0:2",
-        "--duration", "2", "--record", rec, timeout=60,
+        "teleop", "--endpoint", f"127.0.0.1:{ros_endpoint.port}", "--keys", "i@0:1.5",
+        "--duration", "1.5", "--record", rec, timeout=60,
     )  # fmt: skip
     assert res.returncode == 0, res.stderr
     got = [ln[1:] for ln in _lines(sub, 30)]
@@ -467,3 +467,85 @@ def test_bridge_unity_topic_options_checked(tmp_path: Path) -> None:
         "simulate", "--endpoint", "nohost", "--duration", "1", "-o", tmp_path / "s.mcap"
     )
     assert res.returncode == 2 and "--endpoint: expected HOST:PORT" in res.stderr
+
+
+# ------------------------------------------------ the same against uwval's own endpoint (CI)
+
+
+def test_protocol_auto_follows_the_handshake() -> None:
+    from uwval.bridge.server import BridgeServer
+    from uwval.bridge.unity_client import UnityConnection
+
+    for proto, nul in (("ROS1", False), ("ROS2", True)):
+        with BridgeServer("127.0.0.1", 0, protocol=proto) as srv:
+            conn = UnityConnection("127.0.0.1", srv.port, protocol="auto")
+            conn.connect(5)
+            assert (conn.protocol, conn.nul, conn.requested_protocol) == (proto, nul, "auto")
+            conn.close()
+
+
+def test_bridge_unity_against_uwval_serve_records_both_sides(tmp_path: Path) -> None:
+    """CLI: host and port, ROS2 from the handshake, an absolute topic: the Gazebo-side poses
+    received are recorded bit-exact under their own name, the Unity side under /unity/."""
+    import numpy as np
+
+    from uwval.bridge import protocol as wire
+    from uwval.bridge.server import BridgeServer
+
+    topic = "/gazebo/model_rov_pose"
+    sent: list[list[str]] = []
+    with BridgeServer("127.0.0.1", 0, protocol="ROS2") as srv:
+        srv.advertise(topic, wire.POSE_STAMPED)
+        stop = threading.Event()
+
+        def publish() -> None:
+            srv.wait_for_subscribers(topic, timeout=30)
+            rng = np.random.default_rng(7)
+            k = 0
+            while not stop.is_set() and k < 40:
+                t_ns = 1_795_000_000_000_000_000 + k * 20_000_000  # epoch-like stamps
+                p, q = rng.normal(size=3), rng.normal(size=4)
+                q /= np.linalg.norm(q)
+                srv.publish(topic, wire.encode_pose_stamped(t_ns, p, q, "world", "ROS2"))
+                sent.append([str(t_ns), "world"] + [float(v).hex() for v in (*p, *q)])
+                k += 1
+                time.sleep(0.02)
+
+        t = threading.Thread(target=publish, daemon=True)
+        t.start()
+        log = tmp_path / "u.mcap"
+        res = run_uwval(
+            "bridge", "unity", "--port", srv.port, "--gazebo-topic", topic, "--duration", "2",
+            "--clock", "monotonic", "-o", log, timeout=60,
+        )  # fmt: skip
+        stop.set()
+        t.join(5)
+    assert res.returncode == 0, res.stderr
+    assert "(ROS2)" in " ".join(res.stderr.split())
+    poses = _mcap_poses(log)
+    assert set(poses) == {topic, "/unity/model_rov_pose", "/unity/model_rov_pose/applied_stamp"}
+    got = poses[topic]
+    assert _suffix_start(sent, got) == 0 and len(got) == len(sent) == 40
+    assert _mcap_metadata(log)["uwval.clock"]["unity_clock"] == "monotonic"
+
+
+def test_bridge_unity_mismatch_against_uwval_serve(tmp_path: Path) -> None:
+    from uwval.bridge.server import BridgeServer
+
+    with BridgeServer("127.0.0.1", 0, protocol="ROS1") as srv:
+        res = run_uwval(
+            "bridge", "unity", "--port", srv.port, "--protocol", "ros2", "--duration", "2",
+            "-o", tmp_path / "u.mcap", timeout=60,
+        )  # fmt: skip
+    err = " ".join(res.stderr.split())
+    assert res.returncode == 2 and "protocol mismatch" in err and "speaks ROS1" in err, err
+    assert "never connected" not in err
+
+
+def test_bridge_unity_never_connected_says_why(tmp_path: Path) -> None:
+    port = _free_port()  # nothing listens there
+    res = run_uwval(
+        "bridge", "unity", "--port", port, "--duration", "0.5", "-o", tmp_path / "u.mcap"
+    )
+    err = " ".join(res.stderr.split())
+    assert res.returncode == 2 and "never connected" in err and "cannot connect" in err, err
