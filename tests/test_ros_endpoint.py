@@ -549,3 +549,28 @@ def test_bridge_unity_never_connected_says_why(tmp_path: Path) -> None:
     )
     err = " ".join(res.stderr.split())
     assert res.returncode == 2 and "never connected" in err and "cannot connect" in err, err
+
+
+def test_simulate_endpoint_into_uwval_serve_bit_exact(tmp_path: Path) -> None:
+    """simulate --endpoint against uwval's own endpoint: every pose published arrives, the
+    bodies decode to exactly what the log records (ROS2 CDR from the handshake)."""
+    from uwval.bridge import protocol as wire
+    from uwval.bridge.server import BridgeServer
+
+    bodies: list[bytes] = []
+    with BridgeServer("127.0.0.1", 0, protocol="ROS2") as srv:
+        srv.on_topic("model_rov_pose", lambda _topic, body, _client: bodies.append(body))
+        log = tmp_path / "s.mcap"
+        res = run_uwval(
+            "simulate", "--endpoint", f"127.0.0.1:{srv.port}", "--no-endpoint-unity",
+            "--endpoint-wait", "0", "--duration", "1", "--force", "5,0,0", "-o", log, "--json",
+            timeout=60,
+        )  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    record = json.loads(res.stdout)
+    assert record["protocol"] == "ROS2" and record["ticks"] == 51 and "unity" not in record
+    got = []
+    for body in bodies:
+        t_ns, p, q, fid = wire.decode_pose_stamped(body, "ROS2")
+        got.append([str(t_ns), fid] + [float(v).hex() for v in (*p, *q)])
+    assert got == _mcap_poses(log)["/gazebo/model_rov_pose"]

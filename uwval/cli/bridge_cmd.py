@@ -4,8 +4,10 @@
   that Unity projects (ROS-TCP-Connector v0.7) connect to.
 - ``uwval bridge replay LOG``: serve a recorded Gazebo-side log to connecting Unity
   clients at recorded or scaled speed.
-- ``uwval bridge unity``: a Unity-like client that connects to an endpoint, renders the
-  received poses at a frame rate and records its transforms (and applied stamps) to a log.
+- ``uwval bridge unity``: a Unity-like client that connects to an endpoint (uwval's or
+  Unity's real ROS-TCP-Endpoint; protocol from its handshake), renders the received poses at
+  a frame rate and records its transforms (and applied stamps), the Gazebo-side poses it
+  received and the clocks' relation (``uwval.clock`` metadata) to one log.
 """
 
 from __future__ import annotations

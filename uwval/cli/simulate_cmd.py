@@ -3,6 +3,8 @@
 One run: ``uwval simulate --force 10,0,0 --duration 20 -o run.mcap``.
 An experiment: ``uwval simulate data/experiments/default.toml -o DIR`` writes one log per run
 under ``DIR/runs/`` and ``DIR/manifest.json`` (runs, factor levels, bridge statistics).
+Into a running ROS-TCP endpoint (a real ROS graph): ``uwval simulate --endpoint HOST:PORT``
+publishes the run's poses there in real time and runs the Unity-like client through it.
 """
 
 from __future__ import annotations
