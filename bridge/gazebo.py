@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import struct
 import time
-from collections.abc import Callable, Iterator, Sequence
-from typing import Any, Protocol
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from typing import Any, Literal, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -104,6 +104,120 @@ class GazeboPublisher:
         return {name: self.publish(name, t_ns, p, q) for name, (p, q) in poses.items()}
 
 
+class EndpointPublisher:
+    """Publish pose ticks INTO a running ROS-TCP endpoint, as a ROS publisher.
+
+    Connects to the endpoint (Unity's ROS-TCP-Endpoint or ``uwval bridge serve``) as a
+    client, registers each topic with ``__publish`` (``geometry_msgs/PoseStamped``) and sends
+    PoseStamped bodies (ENU world / FLU body, ``frame_id`` ``"world"``, header stamp = the
+    tick's time in ns) in the protocol the endpoint's handshake announces (``protocol="auto"``).
+    The endpoint republishes them in the ROS graph, so ROS nodes (rospy, rclpy) receive them.
+    Same interface as :class:`GazeboPublisher` (``publish``, ``publish_tick``, ``seq``).
+
+    Args:
+        host, port: the endpoint.
+        topics: tick name -> ROS topic (default: each of ``DEFAULT_TOPICS`` as it is,
+            relative, which ROS resolves in the endpoint's namespace, e.g. ``/model_rov_pose``).
+        on_message: called with (``__log``/``__warn``/``__error``, text) from the endpoint.
+    """
+
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        *,
+        topics: dict[str, str] | None = None,
+        frame_id: str = "world",
+        protocol: wire.Protocol | Literal["auto"] = "auto",
+        connect_timeout: float = 5.0,
+        on_message: Callable[[str, str], None] | None = None,
+    ) -> None:
+        from uwval.bridge.unity_client import UnityConnection
+
+        self.topics = dict(topics) if topics else {t: t for t in DEFAULT_TOPICS}
+        self.frame_id = frame_id
+        self.seq = 0
+        self.connection = UnityConnection(
+            host,
+            port,
+            publications={t: wire.POSE_STAMPED for t in self.topics.values()},
+            protocol=protocol,
+            on_message=on_message,
+        )
+        self.connection.connect(connect_timeout)
+        self.protocol: wire.Protocol = self.connection.protocol
+        self._encoder = PoseEncoder(frame_id, self.protocol)
+
+    def publish(self, topic: str, t_ns: int, position: F64, quat: F64) -> int:
+        """Send one pose (``topic`` is a tick name); returns 1 (one endpoint)."""
+        self.seq += 1
+        body = self._encoder.encode(t_ns, position, quat, seq=self.seq)
+        self.connection.publish(self.topics.get(topic, topic), body)
+        return 1
+
+    def publish_tick(self, tick: Tick) -> dict[str, int]:
+        """Send every pose of a tick, then read what the endpoint sent (logs, errors)."""
+        t_ns, poses = tick
+        out = {name: self.publish(name, t_ns, p, q) for name, (p, q) in poses.items()}
+        self.service()
+        return out
+
+    def service(self) -> None:
+        """Read what the endpoint sent without waiting (its ``__log``/``__error`` reach
+        ``on_message``; echoed topic messages are discarded) and keep the link alive."""
+        while True:
+            self.connection.poll(0.0)
+            if not self.connection.has_pending:
+                break
+        self.connection.keepalive_if_idle()
+
+    def close(self) -> None:
+        """Close the connection to the endpoint."""
+        self.connection.close()
+
+
+def publish_ticks_realtime(
+    ticks: Iterable[Tick],
+    publisher: EndpointPublisher | GazeboPublisher,
+    *,
+    speed: float = 1.0,
+    writer: Any = None,
+    start_delay_s: float = 0.0,
+    start_at_ns: int | None = None,
+) -> int:
+    """Publish precomputed ticks paced to the wall clock, recording each on ``writer``
+    (``/gazebo/<name>``, frame ``world``) when given; returns the ticks sent.
+
+    The first tick goes out at ``start_at_ns`` (``time.monotonic_ns()`` clock; default now +
+    ``start_delay_s``), tick ``t`` at ``start + (t - t_first) / speed``; ``speed`` 0: as fast
+    as possible. Until the start the endpoint is read (logs, errors): a ROS 1 subscriber needs a
+    moment to connect to the endpoint's new publisher, and ROS 1 drops what is published
+    before it has.
+    """
+    start = time.monotonic_ns() + round(start_delay_s * 1e9) if start_at_ns is None else start_at_ns
+    service = getattr(publisher, "service", None)
+    while time.monotonic_ns() < start:
+        if service is not None:
+            service()
+        time.sleep(min(0.01, max(0.0, (start - time.monotonic_ns()) * 1e-9)))
+    sent = 0
+    t_first: int | None = None
+    for tick in ticks:
+        t_ns, poses = tick
+        if t_first is None:
+            t_first = t_ns
+        if speed > 0:
+            lag = ((t_ns - t_first) / speed - (time.monotonic_ns() - start)) * 1e-9
+            if lag > 0:
+                time.sleep(lag)
+        publisher.publish_tick(tick)
+        sent += 1
+        if writer is not None:
+            for name, (p, q) in poses.items():
+                writer.write_pose(f"/gazebo/{name}", t_ns, p, q, publisher.frame_id)
+    return sent
+
+
 class LiveSimulator(Protocol):
     """What :func:`run_live` steps (``uwval.simulator.Simulator``; the bridge does not import
     the simulator)."""
@@ -113,7 +227,7 @@ class LiveSimulator(Protocol):
 
 def run_live(
     sim: LiveSimulator,
-    publisher: GazeboPublisher,
+    publisher: GazeboPublisher | EndpointPublisher,
     *,
     publish_rate: float,
     duration_s: float = 0.0,

@@ -36,6 +36,15 @@ UNITY_PREFIX = "/unity"
 GAZEBO_FRAME_ID = "world"
 
 
+def log_topic(prefix: str, name: str) -> str:
+    """The recorded topic of ``name``: an absolute name (``/gazebo/model_rov_pose``) is kept
+    as it is; a relative one goes under ``prefix`` (``model_rov_pose`` ->
+    ``/gazebo/model_rov_pose``). Never a double slash."""
+    if name.startswith("/"):
+        return "/" + "/".join(p for p in name.split("/") if p)
+    return "/".join([prefix.rstrip("/"), *(p for p in name.split("/") if p)])
+
+
 class PoseWriter(Protocol):
     """What the recorder needs from a log writer (McapPoseWriter's interface)."""
 
@@ -95,16 +104,24 @@ class BridgeRecorder:
             self.flush()
 
     def gazebo_pose(
-        self, name: str, t_ns: int, position: F64, quat: F64, log_time: int | None = None
+        self,
+        name: str,
+        t_ns: int,
+        position: F64,
+        quat: F64,
+        log_time: int | None = None,
+        frame_id: str = GAZEBO_FRAME_ID,
     ) -> None:
-        """One Gazebo pose (ENU/FLU, sim-time stamp ``t_ns``) on ``/gazebo/<name>``."""
-        topic = f"{GAZEBO_PREFIX}/{name}"
+        """One Gazebo pose (ENU world / FLU body, header stamp ``t_ns`` ns: sim time, or the
+        ROS epoch stamp received) on ``/gazebo/<name>`` (absolute names kept, see
+        :func:`log_topic`)."""
+        topic = log_topic(GAZEBO_PREFIX, name)
         self.writer.write_pose(
             topic,
             int(t_ns),
             position,
             quat,
-            GAZEBO_FRAME_ID,
+            frame_id,
             int(t_ns) if log_time is None else int(log_time),
         )
         self._count(topic)
@@ -112,8 +129,9 @@ class BridgeRecorder:
     def unity_pose(
         self, name: str, unity_t_ns: int, position: F64, quat: F64, applied_stamp_ns: int
     ) -> None:
-        """One Unity frame's transform (Unity axes, Unity clock) and its applied stamp."""
-        topic = f"{UNITY_PREFIX}/{name}"
+        """One Unity frame's transform (Unity axes, Unity clock) and its applied stamp, on
+        ``/unity/<name>`` (absolute names kept, see :func:`log_topic`)."""
+        topic = log_topic(UNITY_PREFIX, name)
         self.writer.write_pose(
             topic, int(unity_t_ns), position, quat, self.unity_map, int(unity_t_ns)
         )

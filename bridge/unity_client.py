@@ -27,6 +27,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -75,6 +76,18 @@ class AppliedTransform:
     applied_stamp_ns: int
 
 
+class ProtocolMismatchError(BridgeError):
+    """The endpoint's handshake names another protocol than the one the client was set to."""
+
+
+def epoch_minus_monotonic_ns() -> int:
+    """Wall clock (Unix epoch) minus ``time.monotonic_ns()`` now, ns (midpoint of two reads)."""
+    m0 = time.monotonic_ns()
+    e = time.time_ns()
+    m1 = time.monotonic_ns()
+    return e - (m0 + m1) // 2
+
+
 class UnityConnection:
     """Client side of ROS-TCP-Connector v0.7 on a real socket.
 
@@ -83,8 +96,11 @@ class UnityConnection:
         subscriptions: topic -> ``pkg/Type`` to register with ``__subscribe``.
         publications: topic -> ``pkg/Type`` to register with ``__publish``.
         protocol: the protocol this "Unity project" was built for; a mismatch with the
-            endpoint's handshake raises :class:`BridgeError` (Unity logs an error there).
-        nul: append Unity's trailing NUL to destinations and JSON (ROS 2 Unity does).
+            endpoint's handshake raises :class:`ProtocolMismatchError` (Unity logs an error
+            there). ``"auto"`` takes the protocol the handshake announces.
+        nul: append Unity's trailing NUL to destinations and JSON (ROS 2 Unity does);
+            None: as the protocol in use does.
+        on_message: called with (``__log``/``__warn``/``__error``, text) as each arrives.
     """
 
     def __init__(
@@ -94,16 +110,26 @@ class UnityConnection:
         *,
         subscriptions: dict[str, str] | None = None,
         publications: dict[str, str] | None = None,
-        protocol: wire.Protocol = "ROS2",
+        protocol: wire.Protocol | Literal["auto"] = "ROS2",
         nul: bool | None = None,
         max_frame: int = wire.MAX_FRAME_BYTES,
+        on_message: Callable[[str, str], None] | None = None,
     ) -> None:
         self.host = host
         self.port = port
         self.subscriptions = dict(subscriptions or {})
         self.publications = dict(publications or {})
-        self.protocol = wire.check_protocol(protocol)
-        self.nul = (protocol == "ROS2") if nul is None else nul
+        #: The protocol asked for (``"auto"``: whatever the endpoint's handshake says).
+        self.requested_protocol: wire.Protocol | Literal["auto"] = (
+            "auto" if protocol == "auto" else wire.check_protocol(protocol)
+        )
+        #: The protocol in use: the requested one, or after an ``auto`` connect the endpoint's.
+        self.protocol: wire.Protocol = "ROS2" if protocol == "auto" else protocol
+        self._nul_option = nul
+        self.nul = (self.protocol == "ROS2") if nul is None else nul
+        self.on_message = on_message
+        #: ``__log`` / ``__warn`` / ``__error`` frames received, per command.
+        self.message_counts: dict[str, int] = {wire.LOG: 0, wire.WARN: 0, wire.ERROR: 0}
         self.max_frame = max_frame
         self.sock: socket.socket | None = None
         self._parser = wire.FrameParser(max_frame)
@@ -142,10 +168,15 @@ class UnityConnection:
             while first.is_keepalive:  # older endpoints send a keepalive before the handshake
                 first = self._next_frame(timeout)
             self.server_version, server_protocol = wire.parse_handshake(first)
-            if server_protocol != self.protocol:
-                raise BridgeError(
-                    f"endpoint {self.host}:{self.port} speaks {server_protocol}, "
-                    f"this client was built for {self.protocol}"
+            if self.requested_protocol == "auto":
+                self.protocol = server_protocol
+                self.nul = (server_protocol == "ROS2") if self._nul_option is None else self.nul
+            elif server_protocol != self.requested_protocol:
+                raise ProtocolMismatchError(
+                    f"protocol mismatch: endpoint {self.host}:{self.port} speaks "
+                    f"{server_protocol}, this client was built for {self.requested_protocol} "
+                    f"(the endpoint's handshake says {server_protocol}; use --protocol "
+                    f"{server_protocol} or auto)"
                 )
             out = [wire.KEEPALIVE]
             for topic, name in self.subscriptions.items():
@@ -247,7 +278,11 @@ class UnityConnection:
                 continue
             if f.is_command:
                 if f.destination in (wire.LOG, wire.WARN, wire.ERROR):
-                    self.messages.append((f.destination, str(f.json().get("text", ""))))
+                    text = str(f.json().get("text", ""))
+                    self.messages.append((f.destination, text))
+                    self.message_counts[f.destination] += 1
+                    if self.on_message is not None:
+                        self.on_message(f.destination, text)
                 else:
                     self.commands.append(f)
                 continue
@@ -461,13 +496,22 @@ class UnityClient:
         frame_rate: float = 60.0,
         frame_jitter_s: float = 0.0,
         clock_offset_s: float = 0.0,
-        protocol: wire.Protocol = "ROS2",
+        protocol: wire.Protocol | Literal["auto"] = "ROS2",
         faults: FaultModel | None = None,
         reconnect_delay_s: float = RECONNECT_DELAY_S,
         seed: int = 0,
+        clock: Literal["monotonic", "epoch"] = "monotonic",
+        on_receive: Callable[[ReceivedPose], None] | None = None,
+        on_message: Callable[[str, str], None] | None = None,
     ) -> None:
+        if clock not in ("monotonic", "epoch"):
+            raise BridgeError(f"Unity clock must be monotonic or epoch, got {clock!r}")
         self.connection = UnityConnection(
-            host, port, subscriptions={t: wire.POSE_STAMPED for t in topics}, protocol=protocol
+            host,
+            port,
+            subscriptions={t: wire.POSE_STAMPED for t in topics},
+            protocol=protocol,
+            on_message=on_message,
         )
         self.scene = RenderLoop(
             topics,
@@ -478,11 +522,27 @@ class UnityClient:
             seed=seed,
         )
         self.faults = faults or FaultModel(seed=seed)
-        self.protocol = protocol
         self.reconnect_delay_s = reconnect_delay_s
+        #: ``time.time_ns() - time.monotonic_ns()`` measured once when the client is made,
+        #: ns: maps the monotonic receive/frame times to Unix epoch time.
+        self.epoch_minus_monotonic_ns = epoch_minus_monotonic_ns()
+        #: ``epoch``: Unity transforms are stamped on the Unix epoch (wall) clock, like ROS
+        #: header stamps (monotonic frame time + :attr:`epoch_minus_monotonic_ns`, so steady);
+        #: ``monotonic``: on ``time.monotonic_ns()`` (seconds since boot). Plus clock_offset_s.
+        self.clock = clock
+        if clock == "epoch":
+            self.scene.offset_ns += self.epoch_minus_monotonic_ns
+        self.on_receive = on_receive
         self.received = 0
         self.dropped = 0
         self.disconnects = 0
+        #: The last connect/link error (why the client is not connected), or "".
+        self.last_error = ""
+
+    @property
+    def protocol(self) -> wire.Protocol:
+        """The protocol in use (after an ``auto`` connect: the endpoint's)."""
+        return self.connection.protocol
 
     def run_realtime(
         self,
@@ -517,20 +577,27 @@ class UnityClient:
                 try:
                     self.connection.connect(connect_timeout)
                     self.faults.reset_connection()
-                except BridgeError:
+                except ProtocolMismatchError:
+                    self.connection.close()
+                    raise  # a setting to change, not a link to retry
+                except BridgeError as exc:
+                    self.last_error = str(exc)
                     next_connect = time.monotonic_ns() + delay_ns
             if self.connection.connected:
                 try:
                     for f in self.connection.poll(0.0):
                         self.received += 1
                         pose = decode_pose_frame(f, self.protocol)
+                        if self.on_receive is not None:
+                            self.on_receive(pose)
                         arr = self.faults.arrival_ns(pose.recv_wall_ns)
                         if arr is None:
                             self.dropped += 1
                         else:
                             self.scene.arrive(pose, arr)
                     self.connection.keepalive_if_idle()
-                except BridgeError:  # lost link or a malformed frame: drop and reconnect
+                except BridgeError as exc:  # lost link or a malformed frame: reconnect
+                    self.last_error = str(exc)
                     self.connection.close()
                     self.disconnects += 1
                     next_connect = time.monotonic_ns() + delay_ns

@@ -4,8 +4,10 @@
   that Unity projects (ROS-TCP-Connector v0.7) connect to.
 - ``uwval bridge replay LOG``: serve a recorded Gazebo-side log to connecting Unity
   clients at recorded or scaled speed.
-- ``uwval bridge unity``: a Unity-like client that connects to an endpoint, renders the
-  received poses at a frame rate and records its transforms (and applied stamps) to a log.
+- ``uwval bridge unity``: a Unity-like client that connects to an endpoint (uwval's or
+  Unity's real ROS-TCP-Endpoint; protocol from its handshake), renders the received poses at
+  a frame rate and records its transforms (and applied stamps), the Gazebo-side poses it
+  received and the clocks' relation (``uwval.clock`` metadata) to one log.
 """
 
 from __future__ import annotations
@@ -13,11 +15,12 @@ from __future__ import annotations
 import logging
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Literal
 
 import typer
 from rich.console import Console
 from rich.logging import RichHandler
+from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from uwval.bridge.errors import BridgeError
@@ -227,50 +230,192 @@ def replay(
     )
 
 
+def _unity_topics(gazebo: list[str] | None, unity: list[str] | None) -> list[tuple[str, str]]:
+    """(ROS topic subscribed, Unity-side log topic) pairs from the options, checked."""
+    from uwval.bridge.options import DEFAULT_TOPICS
+    from uwval.bridge.recorder import UNITY_PREFIX, log_topic
+
+    topics = list(gazebo) if gazebo else list(DEFAULT_TOPICS)
+    for t in topics:
+        if not t.strip("/") or "//" in t or any(c.isspace() for c in t):
+            raise BridgeError(f"--gazebo-topic {t!r}: not a ROS topic name")
+    if unity and len(unity) != len(topics):
+        raise BridgeError(
+            f"--unity-topic given {len(unity)} time(s) for {len(topics)} --gazebo-topic(s): "
+            "give one per Gazebo topic, in the same order"
+        )
+    names = list(unity) if unity else [t.strip("/").split("/")[-1] for t in topics]
+    pairs = [(t, log_topic(UNITY_PREFIX, n)) for t, n in zip(topics, names, strict=True)]
+    seen = [u for _, u in pairs]
+    if len(set(seen)) != len(seen) or len(set(topics)) != len(topics):
+        raise BridgeError(
+            "--gazebo-topic/--unity-topic: each topic once (two Gazebo topics would share "
+            f"Unity topics {seen}); name them with --unity-topic"
+        )
+    return pairs
+
+
 @bridge_app.command("unity")
 def unity(
     output: Annotated[Path, typer.Option("-o", "--output", help="MCAP log to write.")],
     host: HostOpt = "127.0.0.1",
     port: PortOpt = 10000,
-    protocol: ProtocolOpt = "ROS2",
+    protocol: Annotated[
+        str,
+        typer.Option(
+            help="auto (what the endpoint's handshake says), ROS1 or ROS2; an explicit one "
+            "that differs from the endpoint's is an error."
+        ),
+    ] = "auto",
+    gazebo_topic: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="ROS topic (PoseStamped) to subscribe to, repeatable; absolute names "
+            "(/gazebo/model_rov_pose) are used and recorded as they are, relative ones are "
+            "recorded under /gazebo/. Default: model_rov_pose and gui_camera_pose."
+        ),
+    ] = None,
+    unity_topic: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="Log topic of the Unity transforms of each --gazebo-topic (same order); "
+            "default /unity/<last part of the Gazebo topic>."
+        ),
+    ] = None,
+    record_gazebo: Annotated[
+        bool,
+        typer.Option(help="Also record the Gazebo-side poses received, as received."),
+    ] = True,
+    clock: Annotated[
+        str,
+        typer.Option(
+            help="Unity's clock: epoch (Unix time, comparable with ROS header stamps) or "
+            "monotonic (time since boot). The log's 'uwval.clock' metadata maps one to the other."
+        ),
+    ] = "epoch",
     duration: Annotated[float, typer.Option(help="Seconds to run.")] = 10.0,
     frame_rate: Annotated[float, typer.Option(help="Render loop rate, Hz.")] = 60.0,
     unity_map: Annotated[str, typer.Option(help="unity-flu or unity-enu.")] = "unity-flu",
     clock_offset: Annotated[float, typer.Option(help="Unity clock offset, s.")] = 0.0,
 ) -> None:
-    """Run a Unity-like client against an endpoint and record what it renders."""
-    from uwval.bridge.recorder import BridgeRecorder, open_mcap_writer
-    from uwval.bridge.unity_client import UnityClient
+    """Run a Unity-like client against an endpoint (uwval's or Unity's ROS-TCP-Endpoint) and
+    record what it renders, and the Gazebo-side poses it receives, in one log.
+
+    The endpoint's __log/__warn/__error texts are printed as they come; any __error makes
+    the exit status 1. The log's 'uwval.clock' metadata records the Unity clock used and
+    epoch_minus_monotonic_ns (Unix time minus monotonic time, ns), so stamps on either
+    clock can be put on the other.
+    """
+    from uwval.bridge import protocol as wire
+    from uwval.bridge.recorder import BridgeRecorder, log_topic, open_mcap_writer
+    from uwval.bridge.unity_client import (
+        ProtocolMismatchError,
+        ReceivedPose,
+        UnityClient,
+        epoch_minus_monotonic_ns,
+    )
 
     _check_port(port)
     _check_seconds(duration, "--duration", zero_ok=False)
+    proto: Protocol | Literal["auto"] = (
+        "auto" if protocol.lower() == "auto" else _protocol(protocol)
+    )
+    if clock not in ("epoch", "monotonic"):
+        raise BridgeError(f"--clock: expected epoch or monotonic, got {clock!r}")
+    pairs = _unity_topics(gazebo_topic, unity_topic)
+    unity_of = dict(pairs)
+
+    def on_message(kind: str, text: str) -> None:
+        style = {wire.ERROR: "red", wire.WARN: "yellow"}.get(kind, "dim")
+        console.print(f"[{style}]endpoint {kind}:[/] {escape(text)}", highlight=False)
+
     client = UnityClient(
         host,
         port,
+        topics=[t for t, _ in pairs],
         unity_map=unity_map,
         frame_rate=frame_rate,
         clock_offset_s=clock_offset,
-        protocol=_protocol(protocol),
+        protocol=proto,
+        clock="epoch" if clock == "epoch" else "monotonic",
+        on_message=on_message,
     )
-    recorder = BridgeRecorder(open_mcap_writer(output), unity_map=unity_map)
+    e_m = client.epoch_minus_monotonic_ns
+    clock_meta = {
+        "unity_clock": clock,
+        "unity_clock_offset_ns": str(round(clock_offset * 1e9)),
+        "epoch_minus_monotonic_ns": str(e_m),
+        "gazebo_log_time": "epoch receive time",
+    }
+    writer = open_mcap_writer(output)
+    writer.add_metadata("uwval.clock", clock_meta)
+    recorder = BridgeRecorder(writer, unity_map=unity_map)
+    gazebo_of = {t: log_topic("/gazebo", t) for t, _ in pairs}
+
+    def on_receive(pose: ReceivedPose) -> None:
+        recorder.gazebo_pose(
+            gazebo_of.get(pose.topic, pose.topic),
+            pose.stamp_ns,
+            pose.position,
+            pose.orientation,
+            log_time=pose.recv_wall_ns + e_m,
+            frame_id=pose.frame_id,
+        )
+
+    if record_gazebo:
+        client.on_receive = on_receive
+    mismatch = None
     try:
         applied = client.run_realtime(
             duration,
             on_frame=lambda tr: recorder.unity_pose(
-                tr.topic, tr.unity_t_ns, tr.position, tr.orientation, tr.applied_stamp_ns
+                unity_of.get(tr.topic, tr.topic),
+                tr.unity_t_ns,
+                tr.position,
+                tr.orientation,
+                tr.applied_stamp_ns,
             ),
         )
+    except ProtocolMismatchError as exc:
+        mismatch, applied = exc, []
     finally:
+        conn = client.connection
+        writer.add_metadata(
+            "uwval.bridge_unity",
+            {
+                "endpoint": f"{host}:{port}",
+                "protocol": conn.protocol if conn.connects else "",
+                "endpoint_version": conn.server_version,
+                "connections": str(conn.connects),
+                "received": str(client.received),
+                "endpoint_errors": str(conn.message_counts[wire.ERROR]),
+                "endpoint_warnings": str(conn.message_counts[wire.WARN]),
+                "epoch_minus_monotonic_ns_at_end": str(epoch_minus_monotonic_ns()),
+            },
+        )
         recorder.close()
+    if mismatch is not None:
+        raise BridgeError(f"{mismatch} ({output} holds no Unity transforms)")
+    conn = client.connection
+    counts = conn.message_counts
     console.print(
         f"[green]wrote[/] {output}: {len(applied)} transforms, "
-        f"{client.received} messages received, {client.connection.connects} "
-        f"connection(s)"
+        f"{client.received} messages received ({conn.protocol}), {conn.connects} "
+        f"connection(s); endpoint sent {counts[wire.ERROR]} error(s), "
+        f"{counts[wire.WARN]} warning(s), {counts[wire.LOG]} log(s)"
     )
-    if client.connection.connects == 0:
+    if conn.connects == 0:
+        why = f": {client.last_error}" if client.last_error else ""
         raise BridgeError(
-            f"never connected to an endpoint at {host}:{port} ({output} holds no Unity transforms)"
+            f"never connected to an endpoint at {host}:{port}{why} "
+            f"({output} holds no Unity transforms)"
         )
+    if counts[wire.ERROR]:
+        console.print(
+            f"[red]error:[/] the endpoint sent {counts[wire.ERROR]} __error message(s) "
+            "(shown above); exit status 1"
+        )
+        raise typer.Exit(1)
 
 
 @bridge_app.command("scan")

@@ -3,11 +3,14 @@
 One run: ``uwval simulate --force 10,0,0 --duration 20 -o run.mcap``.
 An experiment: ``uwval simulate data/experiments/default.toml -o DIR`` writes one log per run
 under ``DIR/runs/`` and ``DIR/manifest.json`` (runs, factor levels, bridge statistics).
+Into a running ROS-TCP endpoint (a real ROS graph): ``uwval simulate --endpoint HOST:PORT``
+publishes the run's poses there in real time and runs the Unity-like client through it.
 """
 
 from __future__ import annotations
 
 import json
+import threading
 import time
 from pathlib import Path
 from typing import Annotated, Any
@@ -205,8 +208,40 @@ def simulate(
             "vectorised state first (large sweeps of short runs).",
         ),
     ] = False,
+    endpoint: Annotated[
+        str | None,
+        typer.Option(
+            help="One run: publish the simulated Gazebo poses INTO a running ROS-TCP "
+            "endpoint at HOST:PORT (Unity's ROS-TCP-Endpoint or uwval bridge serve) as a ROS "
+            "publisher, in real time; -o records the Gazebo side.",
+        ),
+    ] = None,
+    endpoint_namespace: Annotated[
+        str,
+        typer.Option(
+            help="With --endpoint: ROS namespace of the topics (e.g. /gazebo gives "
+            "/gazebo/model_rov_pose); default relative names model_rov_pose, gui_camera_pose.",
+        ),
+    ] = "",
+    endpoint_wait: Annotated[
+        float,
+        typer.Option(
+            help="With --endpoint: seconds between registering the topics and the first "
+            "pose (ROS 1 drops what is published before a subscriber has connected).",
+        ),
+    ] = 1.0,
+    endpoint_unity: Annotated[
+        bool,
+        typer.Option(
+            "--endpoint-unity/--no-endpoint-unity",
+            help="With --endpoint: also run the Unity-like client through the same endpoint "
+            "and record its side (the whole loop).",
+        ),
+    ] = True,
 ) -> None:
     """Simulate, bridge over TCP and record paired Gazebo/Unity pose logs."""
+    if endpoint is not None and experiment is not None:
+        raise ConfigError("--endpoint publishes one run; it does not take an experiment file")
     session = SessionOptions(
         unity_map=unity_map,
         frame_rate=frame_rate,
@@ -261,6 +296,19 @@ def simulate(
         implicit_added_mass=added_mass == "implicit",
         legacy_coriolis=legacy_coriolis,
     )
+    if endpoint is not None:
+        _publish_to_endpoint(
+            spec,
+            output,
+            log_format,
+            endpoint,
+            endpoint_namespace,
+            endpoint_wait,
+            as_json,
+            session,
+            endpoint_unity,
+        )
+        return
     t0 = time.perf_counter()
     with console.status(f"simulating {duration:g} s and bridging over TCP..."):
         record = run_one(RunJob(spec, str(output), session))
@@ -279,3 +327,180 @@ def simulate(
             else "n/a (nothing rendered)"
         )
     )
+
+
+def parse_endpoint(text: str, option: str = "--endpoint") -> tuple[str, int]:
+    """``"127.0.0.1:10000"`` -> ("127.0.0.1", 10000); a clean error names the option."""
+    host, sep, port = text.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) <= 65535:
+        raise ConfigError(f"{option}: expected HOST:PORT with a port 1-65535, got {text!r}")
+    return host.strip("[]"), int(port)
+
+
+def endpoint_topics(namespace: str) -> dict[str, str]:
+    """Tick name -> ROS topic under ``namespace`` ("" keeps the relative names)."""
+    from uwval.bridge.options import DEFAULT_TOPICS
+
+    ns = namespace.strip()
+    if ns and (not ns.startswith("/") or "//" in ns or any(c.isspace() for c in ns)):
+        raise ConfigError(
+            f"--endpoint-namespace {namespace!r}: expected an absolute ROS namespace like /gazebo"
+        )
+    return {t: f"{ns.rstrip('/')}/{t}" if ns else t for t in DEFAULT_TOPICS}
+
+
+class _LockedWriter:
+    """A log writer shared by the publishing loop and the Unity-like client's thread."""
+
+    def __init__(self, writer: Any) -> None:
+        self._writer = writer
+        self._lock = threading.Lock()
+
+    def write_pose(self, *args: Any, **kwargs: Any) -> None:
+        with self._lock:
+            self._writer.write_pose(*args, **kwargs)
+
+    def write_header(self, *args: Any, **kwargs: Any) -> None:
+        with self._lock:
+            self._writer.write_header(*args, **kwargs)
+
+    def flush(self) -> None:
+        flush = getattr(self._writer, "flush", None)
+        if flush is not None:
+            with self._lock:
+                flush()
+
+    def close(self) -> None:  # the publishing side's ``with`` closes the real writer
+        pass
+
+
+def _publish_to_endpoint(
+    spec: Any,
+    output: Path,
+    log_format: str,
+    endpoint: str,
+    namespace: str,
+    wait: float,
+    as_json: bool,
+    session: SessionOptions,
+    unity: bool,
+) -> None:
+    """``simulate --endpoint``: stream the run's ticks into a running endpoint, in real time,
+    and (``unity``) run the Unity-like client through the same endpoint, both sides recorded.
+
+    The Unity client's clock is the sim clock (monotonic time since the first tick was due,
+    plus ``--unity-clock-offset``), as in a virtual ``uwval simulate`` run, so the log compares
+    as it is.
+    """
+    from uwval.bridge.gazebo import EndpointPublisher, publish_ticks_realtime
+    from uwval.bridge.recorder import UNITY_PREFIX, BridgeRecorder, log_topic
+    from uwval.bridge.unity_client import UnityClient
+    from uwval.cli.pipeline import _ticks_of
+    from uwval.io import open_writer
+    from uwval.simulator import SimulationStream
+
+    host, port = parse_endpoint(endpoint)
+    topics = endpoint_topics(namespace)
+    if not 0 <= wait < float("inf"):
+        raise ConfigError(f"--endpoint-wait must be a finite number of seconds >= 0, got {wait}")
+    errors: list[str] = []
+
+    def on_message(kind: str, text: str) -> None:
+        if kind == "__error":
+            errors.append(text)
+        console.print(f"endpoint {kind}: {text}", highlight=False, markup=False)
+
+    # The publisher connects first: the real endpoint sends to its newest connection only.
+    publisher = EndpointPublisher(host, port, topics=topics, on_message=on_message)
+    stream = SimulationStream(spec.vehicle, spec.inputs, spec.duration_s, **spec.simulate_kwargs())
+    start_ns = time.monotonic_ns() + round(wait * 1e9)
+    client: UnityClient | None = None
+    applied = 0
+    t0 = time.perf_counter()
+    try:
+        with open_writer(
+            output,
+            format=log_format,
+            metadata={"run": spec.name, "endpoint": f"{host}:{port}", "topics": json.dumps(topics)},
+        ) as raw_writer:
+            writer = _LockedWriter(raw_writer)
+            thread = None
+            stop = threading.Event()
+            if unity:
+                client = UnityClient(
+                    host,
+                    port,
+                    topics=list(topics.values()),
+                    unity_map=session.unity_map,
+                    frame_rate=session.frame_rate,
+                    protocol="auto",
+                    clock="monotonic",
+                    on_message=on_message,
+                )
+                client.scene.offset_ns += round(session.unity_clock_offset_s * 1e9) - start_ns
+                recorder = BridgeRecorder(writer, unity_map=session.unity_map)
+                unity_of = {t: log_topic(UNITY_PREFIX, name) for name, t in topics.items()}
+                run_client = client
+
+                def render() -> None:
+                    nonlocal applied
+                    applied = len(
+                        run_client.run_realtime(
+                            wait + spec.duration_s + 5,
+                            on_frame=lambda tr: recorder.unity_pose(
+                                unity_of.get(tr.topic, tr.topic),
+                                tr.unity_t_ns,
+                                tr.position,
+                                tr.orientation,
+                                tr.applied_stamp_ns,
+                            ),
+                            stop=stop,
+                        )
+                    )
+
+                thread = threading.Thread(target=render, daemon=True)
+                thread.start()
+            try:
+                sent = publish_ticks_realtime(
+                    _ticks_of(stream), publisher, writer=writer, start_at_ns=start_ns
+                )
+                time.sleep(0.3 if unity else 0.0)  # the last poses through the endpoint
+                publisher.service()
+            finally:
+                stop.set()
+                if thread is not None:
+                    thread.join(10)
+    finally:
+        publisher.close()
+    record: dict[str, Any] = {
+        "endpoint": f"{host}:{port}",
+        "protocol": publisher.protocol,
+        "topics": topics,
+        "ticks": sent,
+        "poses": publisher.seq,
+        "endpoint_errors": errors,
+        "log": str(output),
+        "wall_time_s": round(time.perf_counter() - t0, 3),
+    }
+    if client is not None:
+        record["unity"] = {
+            "received": client.received,
+            "applied": applied,
+            "connections": client.connection.connects,
+        }
+    if as_json:
+        typer.echo(json.dumps(record, indent=2))
+    else:
+        console.print(
+            f"[green]published[/] {sent} ticks ({publisher.seq} poses) into {host}:{port} "
+            f"({publisher.protocol}) on {', '.join(topics.values())}"
+            + (
+                f"; the Unity-like client received {client.received} and applied {applied}"
+                if client is not None
+                else ""
+            )
+            + f"; log {output}"
+        )
+    if errors:
+        console.print(f"[red]error:[/] the endpoint sent {len(errors)} __error message(s)")
+        raise typer.Exit(1)

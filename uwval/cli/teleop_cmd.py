@@ -25,7 +25,7 @@ import typer
 from rich.console import Console
 
 from uwval.cli import app
-from uwval.cli.simulate_cmd import parse_vector
+from uwval.cli.simulate_cmd import endpoint_topics, parse_endpoint, parse_vector
 from uwval.errors import ConfigError
 
 console = Console()
@@ -83,9 +83,20 @@ def teleop(
     record: Annotated[
         Path | None, typer.Option(help="Also record the Gazebo side here (MCAP).")
     ] = None,
+    endpoint: Annotated[
+        str | None,
+        typer.Option(
+            help="Publish INTO a running ROS-TCP endpoint at HOST:PORT (Unity's "
+            "ROS-TCP-Endpoint) as a ROS publisher, instead of serving on --host/--port.",
+        ),
+    ] = None,
+    endpoint_namespace: Annotated[
+        str,
+        typer.Option(help="With --endpoint: ROS namespace of the topics (e.g. /gazebo)."),
+    ] = "",
 ) -> None:
     """Drive the simulated vehicle live from the keyboard through the TCP bridge."""
-    from uwval.bridge.gazebo import GazeboPublisher, run_live
+    from uwval.bridge.gazebo import EndpointPublisher, GazeboPublisher, run_live
     from uwval.bridge.server import BridgeServer
     from uwval.simulator import InputProfile, Simulator, constant_inputs, load_vehicle
     from uwval.simulator.inputs import KeyboardTeleop
@@ -117,10 +128,27 @@ def teleop(
         from uwval.io import open_writer
 
         writer = open_writer(record, format="mcap", metadata={"run": "teleop"})
-    server = BridgeServer(host, port).start()
-    publisher = GazeboPublisher(server)
-    h, p = server.address
-    console.print(f"endpoint listening on {h}:{p} (connect Unity's ROS-TCP-Connector here)")
+    server: BridgeServer | None = None
+    publisher: GazeboPublisher | EndpointPublisher
+    if endpoint is not None:
+        h, p = parse_endpoint(endpoint)
+        publisher = EndpointPublisher(
+            h,
+            p,
+            topics=endpoint_topics(endpoint_namespace),
+            on_message=lambda kind, text: console.print(
+                f"endpoint {kind}: {text}", highlight=False, markup=False
+            ),
+        )
+        console.print(
+            f"publishing into the endpoint at {h}:{p} ({publisher.protocol}) on "
+            f"{', '.join(publisher.topics.values())}"
+        )
+    else:
+        server = BridgeServer(host, port).start()
+        publisher = GazeboPublisher(server)
+        h, p = server.address
+        console.print(f"endpoint listening on {h}:{p} (connect Unity's ROS-TCP-Connector here)")
     if interactive:
         console.print("keys: i , J L t b j l u o y n | +/- current | k/space stop | q quit")
     every = max(1, round(publish_rate))
@@ -155,7 +183,11 @@ def teleop(
     except KeyboardInterrupt:
         pass
     finally:
-        server.stop()
+        if server is not None:
+            server.stop()
+        else:
+            assert isinstance(publisher, EndpointPublisher)
+            publisher.close()
         if writer is not None:
             writer.close()
     console.print(
