@@ -173,6 +173,23 @@ def ape_statistics(reference: PoseStream, other: PoseStream, relation: str) -> d
     return stats
 
 
+def frame_id_mismatch(reference: PoseStream, other: PoseStream) -> str:
+    """A warning when the two streams' header frame_ids (read from the log) differ, e.g.
+    ``/odom`` (frame_id ``odom``) vs ``/amcl_pose`` (``map``); "" when they agree or are
+    unknown. frame_ids that name a uwval convention (``unity-flu``, ``enu``...) state the
+    axes, not the origin, and are left out."""
+    a = [f for f in reference.frame_ids if f and f not in CONVENTIONS]
+    b = [f for f in other.frame_ids if f and f not in CONVENTIONS]
+    if not a or not b or set(a) == set(b):
+        return ""
+    return (
+        f"the streams are in different frames: {reference.describe()} has frame_id "
+        f"{', '.join(map(repr, a))}, {other.describe()} has {', '.join(map(repr, b))}; "
+        "their poses differ by the transform between the frames (compare topics in one "
+        "frame, or fit it with --align se3)"
+    )
+
+
 def _json_clean(obj: Any) -> Any:
     """NaN/inf -> None (JSON has no NaN), numpy scalars -> Python numbers."""
     if isinstance(obj, dict):
@@ -303,6 +320,9 @@ def compare(
             warnings.append(
                 f"{s.describe()}: {sum(s.dropped.values())} message(s) not used ({causes})"
             )
+    mismatch = frame_id_mismatch(reference, other)
+    if mismatch:
+        warnings.append(mismatch)
     frame_source = "argument" if frame not in (None, "auto") else ("auto" if frame else "stream")
     configured = other.frame if frame in (None, "auto") else get_convention(frame).name
     ref_c = _to_canonical(reference)

@@ -71,6 +71,55 @@ def read_pose_stream(
     return read_stream(path, topic, frame=frame)
 
 
+def pair_label(gazebo_topic: str, unity_topic: str) -> str:
+    """A label for a compared topic pair that does not collide: the path segments the two
+    topics share at their end (``/gazebo/model_rov_pose`` + ``/unity/model_rov_pose`` ->
+    ``model_rov_pose``; ``/model/tethys/pose`` + ``/unity/tethys/pose`` -> ``tethys/pose``),
+    else both names (``odom~amcl_pose``). A TF child (``/tf#base_link``) counts as a segment."""
+    a = gazebo_topic.replace("#", "/").strip("/").split("/")
+    b = unity_topic.replace("#", "/").strip("/").split("/")
+    common: list[str] = []
+    for x, y in zip(reversed(a), reversed(b), strict=False):
+        if x != y:
+            break
+        common.insert(0, x)
+    if common and common != a and common != b:
+        return "/".join(common)
+    if a == b:
+        return "/".join(a)
+    return "/".join(a) + "~" + "/".join(b)
+
+
+def no_pair_message(path: str | Path) -> str:
+    """Why a log has no default topic pair, listing only the topics that hold poses."""
+    from uwval.io import list_topics
+    from uwval.io.decode import POSE_TYPES, TF_TYPES
+
+    infos = list_topics(path)
+    if not infos:
+        return f"{path}: the log is empty (no topics, no messages)"
+    if not any(i.count for i in infos):
+        return f"{path}: the log is empty ({len(infos)} topic(s), no messages)"
+    poses = [
+        f"{i.name} ({i.type.split('/')[-1]}, {i.count})"
+        for i in sorted(infos, key=lambda i: i.name)
+        if i.type in POSE_TYPES and not i.name.endswith("/applied_stamp")
+    ]
+    tfs = [i.name for i in sorted(infos, key=lambda i: i.name) if i.type in TF_TYPES]
+    head = f"{path}: no Gazebo/Unity topic pair ({DEFAULT_GAZEBO_TOPIC} and {DEFAULT_UNITY_TOPIC})"
+    if not poses and not tfs:
+        return f"{head}; the log holds no pose topics ({len(infos)} other topic(s))"
+    parts = []
+    if poses:
+        parts.append("pose topics: " + ", ".join(poses))
+    if tfs:
+        parts.append(
+            "TF topics (name a child frame: TOPIC#CHILD; `uwval inspect` lists them): "
+            + ", ".join(tfs)
+        )
+    return f"{head}; {'; '.join(parts)}; choose with --gazebo-topic / --unity-topic"
+
+
 def _topics_of(path: str | Path) -> set[str]:
     from uwval.io import list_topics
 
@@ -106,7 +155,7 @@ def compare_logs(
         if gazebo_topic or unity_topic:
             g = gazebo_topic or DEFAULT_GAZEBO_TOPIC
             u = unity_topic or DEFAULT_UNITY_TOPIC
-            pairs = [(g.strip("/").split("/")[-1], g, u)]
+            pairs = [(pair_label(g, u), g, u)]
             streams = read_streams(path_a, [g, u])
         else:
             # one pass over the log: every candidate topic, then the pairs that are present
@@ -120,12 +169,7 @@ def compare_logs(
                 if GAZEBO_PREFIX + name in streams and UNITY_PREFIX + name in streams
             ]
             if not pairs:
-                present = _topics_of(path_a)
-                raise LogReadError(
-                    f"{path_a}: no Gazebo/Unity topic pair ({DEFAULT_GAZEBO_TOPIC} and "
-                    f"{DEFAULT_UNITY_TOPIC}); topics: {', '.join(sorted(present))}; "
-                    "choose with --gazebo-topic / --unity-topic"
-                )
+                raise LogReadError(no_pair_message(path_a))
         for name, g, u in pairs:
             ref, oth = streams[g], streams[u]
             if frame not in (None, "auto"):
@@ -136,7 +180,10 @@ def compare_logs(
     ref, oth = _read_pair(
         path_a, path_b, gazebo_topic, unity_topic, fmt, None if frame == "auto" else frame
     )
-    name = (gazebo_topic or unity_topic or VEHICLE).strip("/").split("/")[-1]
+    if gazebo_topic and unity_topic:
+        name = pair_label(gazebo_topic, unity_topic)
+    else:
+        name = (gazebo_topic or unity_topic or VEHICLE).replace("#", "/").strip("/").split("/")[-1]
     if is_tum(path_a, fmt) and not gazebo_topic:
         name = "trajectory"
     results[name] = compare(ref, oth, frame=frame, **options)
