@@ -41,6 +41,14 @@ def _fmt(v: Any, digits: int = 4) -> str:
     return str(v)
 
 
+def _fmt_full(v: Any, digits: int = 10) -> str:
+    """A number with 10 significant digits (tables written to a file or a pipe); ``digits``
+    is accepted for :func:`_fmt`'s signature and not used (never fewer than 10)."""
+    if v is None:
+        return "-"
+    return f"{v:.10g}" if isinstance(v, float) else str(v)
+
+
 def output_console() -> Any:
     """A rich Console for stdout; when stdout is not a terminal (a file, a pipe, a CI log)
     nothing is wrapped or cut: lines and tables keep their full width."""
@@ -63,20 +71,37 @@ def _print_table(doc: dict[str, Any], title: str) -> None:
     elif sync.get("method"):
         title += f"  (sync {sync['method']}: Unity side interpolated at the reference stamps)"
     table = Table(title=escape(title), title_justify="left", box=box.SIMPLE_HEAD, pad_edge=False)
-    # short on purpose (fits 80 columns): p95, std, p-value and CI are in --json
-    for col in ("axis", "MAE", "RMSE", "max", "bias", "Pearson r"):
+    full = not console.is_terminal  # a file or a pipe: every column, every digit
+    cols = ["axis", "MAE", "RMSE", "max", "bias", "Pearson r"]
+    if full:  # fits no 80-column terminal: only where nothing wraps
+        cols += ["p95", "median", "std", "Pearson 95% CI", "Pearson p", "n"]
+    # short on a terminal on purpose (fits 80 columns): the rest is in --json
+    for col in cols:
         table.add_column(col, justify="left" if col == "axis" else "right", no_wrap=True)
+    num = _fmt_full if full else _fmt
     for ax, s in doc["axes"].items():
-        r = f"{s['pearson_r']:.6f}" if s.get("pearson_r") is not None else "n/a"
+        r = s.get("pearson_r")
+        r_text = "n/a" if r is None else (_fmt_full(r) if full else f"{r:.6f}")
         unit = s.get("unit", "")
-        table.add_row(
+        row = [
             escape(f"{ax} [{unit}]") if unit else ax,
-            _fmt(s["mae"]),
-            _fmt(s["rmse"]),
-            _fmt(s["max"]),
-            _fmt(s["bias"]),
-            r,
-        )
+            num(s["mae"]),
+            num(s["rmse"]),
+            num(s["max"]),
+            num(s["bias"]),
+            r_text,
+        ]
+        if full:
+            ci = s.get("pearson_ci")
+            row += [
+                num(s.get("p95")),
+                num(s.get("median")),
+                num(s.get("std")),
+                "n/a" if not ci or None in ci else f"[{_fmt_full(ci[0])}, {_fmt_full(ci[1])}]",
+                num(s.get("pearson_p")),
+                str(s.get("pearson_n", "")),
+            ]
+        table.add_row(*row)
     console.print(table)
     undefined = [ax for ax, s in doc["axes"].items() if s.get("pearson_r") is None]
     if undefined:
@@ -92,9 +117,9 @@ def _print_table(doc: dict[str, Any], title: str) -> None:
         f"{doc['frame']['configured']}; align {doc['alignment']['mode']}"
     )
     console.print(
-        f"position error norm [m]: rmse {_fmt(pn['rmse'])} mean {_fmt(pn['mean'])} "
-        f"median {_fmt(pn['median'])} max {_fmt(pn['max'])}; rotation [deg]: rmse "
-        f"{_fmt(rot['rmse'])} max {_fmt(rot['max'])}",
+        f"position error norm [m]: rmse {num(pn['rmse'])} mean {num(pn['mean'])} "
+        f"median {num(pn['median'])} max {num(pn['max'])}; rotation [deg]: rmse "
+        f"{num(rot['rmse'])} max {num(rot['max'])}",
         markup=False,
     )
     ape = doc.get("ape")
@@ -108,12 +133,12 @@ def _print_table(doc: dict[str, Any], title: str) -> None:
             highlight=False,
         )
     off = doc["offset"]
-    line = f"clock offset {_fmt(off['applied_s'], 6)} s"
+    line = f"clock offset {num(off['applied_s'], 6)} s"
     if off.get("estimate"):
-        line += f" (estimated, +/- {_fmt(off['estimate']['uncertainty_s'], 3)} s)"
+        line += f" (estimated, +/- {num(off['estimate']['uncertainty_s'], 3)} s)"
     if doc.get("latency"):
         lat = doc["latency"]
-        line += f"; latency {_fmt(lat['mean_ms'])} ms mean, {_fmt(lat['p95_ms'])} ms p95"
+        line += f"; latency {num(lat['mean_ms'])} ms mean, {num(lat['p95_ms'])} ms p95"
     console.print(line)
     for w in doc.get("warnings", []):
         console.print(f"[yellow]warning:[/] {escape(w)}", highlight=False)
