@@ -7,7 +7,7 @@ import shlex
 import sys
 import warnings
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.console import Console
@@ -20,6 +20,76 @@ from uwval.errors import ConfigError
 console = Console()
 err_console = Console(stderr=True)
 
+#: Suffixes of one results file that is not a log: tables and JSON results.
+_RESULT_SUFFIXES = (".json", ".csv", ".parquet")
+
+
+def _compare_opts(
+    gazebo_topic: str | None,
+    unity_topic: str | None,
+    fmt: str | None,
+    frame: str | None,
+    sync: str | None,
+    max_diff: float | None,
+    offset: str | None,
+    align: str | None,
+) -> dict[str, Any]:
+    """The compare options given on the command line (as ``uwval compare`` takes them)."""
+    from uwval.cli.compare_run import _parse_offset
+
+    opts: dict[str, Any] = {
+        "gazebo_topic": gazebo_topic,
+        "unity_topic": unity_topic,
+        "fmt": fmt,
+        "frame": frame,
+        "sync": sync,
+        "max_diff": max_diff,
+        "offset": None if offset is None else _parse_offset(offset),
+        "align": align,
+    }
+    return {k: v for k, v in opts.items() if v is not None}
+
+
+def _compare_json(path: Path) -> dict[str, Any] | None:
+    """The result of ``uwval compare -o`` / ``--json`` in ``path``, or None if it is not one."""
+    if path.suffix.lower() != ".json" or not path.is_file():
+        return None
+    try:
+        obj = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return None  # not ours to judge: the results loader gives its own error
+    if isinstance(obj, dict) and "axes" in obj and "runs" not in obj:
+        return obj
+    return None
+
+
+def _one_run(
+    source: Path, other: Path | None, opts: dict[str, Any]
+) -> tuple[str, dict[str, Any], Path | None] | None:
+    """A single comparison to report or gate: (run name, compare JSON, log to re-read for
+    the plots), when ``source`` is one log, a trajectory file (with ``other``) or a saved
+    compare result; None for results locations (experiment or results directory, tables)."""
+    from uwval.comparison import compare_logs
+
+    saved = _compare_json(source)
+    if saved is not None:
+        if other is not None:
+            raise ConfigError(f"{other}: a saved compare result ({source}) takes no second file")
+        return source.stem, saved, None
+    is_results = source.is_dir() and not (source / "metadata.yaml").is_file()
+    if other is None and (is_results or source.suffix.lower() in _RESULT_SUFFIXES):
+        return None
+    with warnings_as_notes():
+        lc = compare_logs(source, other, **opts)
+    return source.stem if source.is_file() else source.name, lc.to_json(), source
+
+
+def _is_log(path: Path) -> bool:
+    """One log file or rosbag2 directory (as the report builder reads them)."""
+    from uwval.reports.builder import is_log
+
+    return is_log(path)
+
 
 @app.command()
 def report(
@@ -30,6 +100,10 @@ def report(
             "(manifest.json), results/ (comparisons.json, results.csv) or a results file."
         ),
     ],
+    other: Annotated[
+        Path | None,
+        typer.Argument(help="Second file of a pair (SOURCE is then the reference), as compare"),
+    ] = None,
     output: Annotated[Path, typer.Option("-o", "--output", help="HTML file to write.")] = Path(
         "report.html"
     ),
@@ -59,21 +133,58 @@ def report(
             "--results", help="Also save the results table here (.csv/.json/.parquet or a dir)."
         ),
     ] = None,
+    fmt: Annotated[
+        str | None, typer.Option("--format", help="Input format (tum, kitti, euroc...), as compare")
+    ] = None,
+    frame: Annotated[
+        str | None, typer.Option(help="Convention of the second stream, as compare")
+    ] = None,
+    sync: Annotated[str | None, typer.Option(help="interp or nearest, as compare")] = None,
+    max_diff: Annotated[
+        float | None, typer.Option("--max-diff", "--t_max_diff", help="nearest: max dt (s)")
+    ] = None,
+    offset: Annotated[
+        str | None, typer.Option("--offset", "--t_offset", help="Clock offset (s) or 'auto'")
+    ] = None,
+    align: Annotated[
+        str | None, typer.Option(help="none, se3, sim3, origin or scale, as compare")
+    ] = None,
 ) -> None:
-    """Write a self-contained HTML report (and optionally a PDF) of pose correspondence."""
+    """Write a self-contained HTML report (and optionally a PDF) of pose correspondence.
+
+    SOURCE: an experiment or results location, one log, a saved ``uwval compare -o`` JSON,
+    or a reference trajectory file with OTHER (as ``uwval compare gt.txt est.txt``).
+    """
+    import tempfile
+
     from uwval.reports import build_report
 
-    opts = {
-        k: v
-        for k, v in (("gazebo_topic", gazebo_topic), ("unity_topic", unity_topic))
-        if v is not None
-    }
+    opts = _compare_opts(gazebo_topic, unity_topic, fmt, frame, sync, max_diff, offset, align)
     th = None if thresholds.lower() == "none" else thresholds
-    with console.status(f"building the report of {source}..."), warnings.catch_warnings():
+    scratch = tempfile.TemporaryDirectory(prefix="uwval-report-")
+    one = None
+    if other is not None or _compare_json(source) is not None or not _is_log(source):
+        one = _one_run(source, other, opts)
+    if one is not None:  # one comparison: reported as a one-run comparisons.json
+        name, doc, log = one
+        where = Path(scratch.name) / "run" / "results"
+        where.mkdir(parents=True)
+        rec = {"name": name, "factors": {}, "comparison": doc, "log": str(log) if log else None}
+        (where / "comparisons.json").write_text(json.dumps({"runs": [rec], "failed": []}))
+        source_for_report = where / "comparisons.json"
+        if other is not None:
+            opts["path_b"] = other  # the plots re-read the pair
+    else:
+        source_for_report = source
+    with (
+        scratch,
+        console.status(f"building the report of {source}..."),
+        warnings.catch_warnings(),
+    ):
         # build_report collects what the readers warned about into outcome.warnings
         warnings.simplefilter("ignore")
         outcome = build_report(
-            source,
+            source_for_report,
             output,
             pdf=pdf,
             manifest=manifest,
@@ -114,9 +225,14 @@ def check(
     results: Annotated[
         Path,
         typer.Argument(
-            help="Results: experiment dir, results/ dir, results.csv/json or comparisons.json."
+            help="Results: experiment dir, results/ dir, results.csv/json or comparisons.json; "
+            "or one log, a saved `uwval compare -o` JSON, or a trajectory file with OTHER."
         ),
     ],
+    other: Annotated[
+        Path | None,
+        typer.Argument(help="Second file of a pair (RESULTS is then the reference), as compare"),
+    ] = None,
     thresholds: Annotated[Path | None, typer.Option(help="Thresholds TOML (see docs).")] = None,
     baseline: Annotated[
         Path | None, typer.Option(help="Golden baseline (results JSON/CSV).")
@@ -129,6 +245,24 @@ def check(
             help="Write these results as a golden baseline (JSON/CSV) instead of checking."
         ),
     ] = None,
+    gazebo_topic: Annotated[str | None, typer.Option(help="Reference topic (one log).")] = None,
+    unity_topic: Annotated[str | None, typer.Option(help="Unity topic (one log).")] = None,
+    fmt: Annotated[
+        str | None, typer.Option("--format", help="Input format (tum, kitti, euroc...), as compare")
+    ] = None,
+    frame: Annotated[
+        str | None, typer.Option(help="Convention of the second stream, as compare")
+    ] = None,
+    sync: Annotated[str | None, typer.Option(help="interp or nearest, as compare")] = None,
+    max_diff: Annotated[
+        float | None, typer.Option("--max-diff", "--t_max_diff", help="nearest: max dt (s)")
+    ] = None,
+    offset: Annotated[
+        str | None, typer.Option("--offset", "--t_offset", help="Clock offset (s) or 'auto'")
+    ] = None,
+    align: Annotated[
+        str | None, typer.Option(help="none, se3, sim3, origin or scale, as compare")
+    ] = None,
 ) -> None:
     """CI gate: exit 1 and list what regressed when a threshold or the baseline is broken.
 
@@ -139,8 +273,17 @@ def check(
 
     if thresholds is None and baseline is None and write_baseline is None:
         raise ConfigError("uwval check needs --thresholds FILE.toml and/or --baseline FILE.json")
-    exp = load_experiment_results(results)
-    if exp.table.df.empty and any(r.log is not None for r in exp.runs):
+    opts = _compare_opts(gazebo_topic, unity_topic, fmt, frame, sync, max_diff, offset, align)
+    one = _one_run(results, other, opts)
+    if one is not None:  # one log, a pair of files or a saved compare result
+        from uwval.results import ExperimentResults, ResultsTable, RunRecord
+
+        name, doc, log = one
+        table = ResultsTable.from_comparisons([(name, {}, doc)])
+        exp = ExperimentResults(table, [RunRecord(name, log, {}, {}, doc)], None, [results])
+    else:
+        exp = load_experiment_results(results)
+    if one is None and exp.table.df.empty and any(r.log is not None for r in exp.runs):
         with console.status(f"comparing {len(exp.runs)} logs of {results}..."), warnings_as_notes():
             exp = compare_pending(exp)
     if exp.table.df.empty:
