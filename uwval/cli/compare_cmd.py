@@ -82,6 +82,7 @@ def compare_command(**kwargs: Any) -> None:
         output = opts.pop("output")
         opts.pop("as_json")
         opts.pop("verbose")
+        opts.pop("config")
         opts["align"] = _align_mode(
             opts["align"],
             opts.pop("evo_align"),
@@ -104,7 +105,9 @@ def compare_command(**kwargs: Any) -> None:
             options=opts,
         )
         return
-    run_compare(log_a, log_b, **opts)
+    # only what the user gave (not typer's defaults), so that uwval.toml fills the rest
+    defaults = {o.dest: o.default for o in COMPARE_OPTIONS}
+    run_compare(log_a, log_b, **{k: v for k, v in opts.items() if v != defaults.get(k)})
 
 
 _signature = inspect.Signature(_compare_parameters(), return_annotation=None)

@@ -273,9 +273,24 @@ def _plot(result: Any, save_plot: Path | None) -> list[Path]:
 
 
 def run_compare(
+    log_a: Path, log_b: Path | None = None, *, config: Path | None = None, **given: Any
+) -> None:
+    """What ``uwval compare`` does: ``given`` holds the options the user gave (keywords of
+    :func:`_run_compare`); the project file (``--config``, or ``./uwval.toml``) fills the
+    others (:mod:`uwval.config`)."""
+    from uwval.config import load_config, merged_options
+
+    opts = merged_options(given, load_config(config))
+    if "offset" in opts:
+        opts["offset"] = str(opts["offset"])
+    _run_compare(log_a, log_b, **opts)
+
+
+def _run_compare(
     log_a: Path,
     log_b: Path | None = None,
     *,
+    pairs: Any = None,
     gazebo_topic: str | None = None,
     unity_topic: str | None = None,
     fmt: str | None = None,
@@ -328,6 +343,7 @@ def run_compare(
             max_offset=max_offset,
             align=mode,
             n_to_align=n_to_align,
+            pairs=pairs,
         )
     if pose_relation is not None:
         from uwval.comparison.engine import ape_statistics
@@ -521,6 +537,14 @@ COMPARE_OPTIONS: tuple[CompareOption, ...] = (
         "uwval.json (the full result) and errors.csv; any other suffix: the JSON result",
     ),
     CompareOption("as_json", ("--json",), bool, False, "Print the JSON result"),
+    CompareOption(
+        "config",
+        ("--config",),
+        Path,
+        None,
+        "Project file naming pairs, frames and option defaults (default: ./uwval.toml when "
+        "present; options given here win)",
+    ),
     CompareOption(
         "output",
         ("-o", "--output"),

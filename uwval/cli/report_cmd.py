@@ -33,21 +33,28 @@ def _compare_opts(
     max_diff: float | None,
     offset: str | None,
     align: str | None,
+    project: Any = None,
 ) -> dict[str, Any]:
-    """The compare options given on the command line (as ``uwval compare`` takes them)."""
+    """The compare options given on the command line (as ``uwval compare`` takes them),
+    completed by the project file ``project`` (:class:`uwval.config.ProjectConfig`)."""
     from uwval.cli.compare_run import _parse_offset
+    from uwval.config import merged_options
 
-    opts: dict[str, Any] = {
+    given: dict[str, Any] = {
         "gazebo_topic": gazebo_topic,
         "unity_topic": unity_topic,
         "fmt": fmt,
         "frame": frame,
         "sync": sync,
         "max_diff": max_diff,
-        "offset": None if offset is None else _parse_offset(offset),
+        "offset": offset,
         "align": align,
     }
-    return {k: v for k, v in opts.items() if v is not None}
+    opts = merged_options({k: v for k, v in given.items() if v is not None}, project)
+    opts.pop("pose_relation", None)  # compare's printout only: not part of the results
+    if "offset" in opts:
+        opts["offset"] = _parse_offset(str(opts["offset"]))
+    return opts
 
 
 def _compare_json(path: Path) -> dict[str, Any] | None:
@@ -149,6 +156,10 @@ def report(
     align: Annotated[
         str | None, typer.Option(help="none, se3, sim3, origin or scale, as compare")
     ] = None,
+    config: Annotated[
+        Path | None,
+        typer.Option(help="Project file: pairs, frames, thresholds (default: ./uwval.toml)"),
+    ] = None,
 ) -> None:
     """Write a self-contained HTML report (and optionally a PDF) of pose correspondence.
 
@@ -157,9 +168,15 @@ def report(
     """
     import tempfile
 
+    from uwval.config import load_config
     from uwval.reports import build_report
 
-    opts = _compare_opts(gazebo_topic, unity_topic, fmt, frame, sync, max_diff, offset, align)
+    project = load_config(config)
+    opts = _compare_opts(
+        gazebo_topic, unity_topic, fmt, frame, sync, max_diff, offset, align, project
+    )
+    if thresholds == "default" and project is not None and project.thresholds is not None:
+        thresholds = str(project.thresholds)
     th = None if thresholds.lower() == "none" else thresholds
     scratch = tempfile.TemporaryDirectory(prefix="uwval-report-")
     one = None
@@ -263,17 +280,30 @@ def check(
     align: Annotated[
         str | None, typer.Option(help="none, se3, sim3, origin or scale, as compare")
     ] = None,
+    config: Annotated[
+        Path | None,
+        typer.Option(help="Project file: pairs, frames, thresholds (default: ./uwval.toml)"),
+    ] = None,
 ) -> None:
     """CI gate: exit 1 and list what regressed when a threshold or the baseline is broken.
 
     Exit codes: 0 pass, 1 regression, 2 bad input (unreadable results or thresholds).
     """
+    from uwval.config import load_config
     from uwval.gate import check as run_check
     from uwval.results import compare_pending, load_experiment_results
 
+    project = load_config(config)
+    if thresholds is None and project is not None:
+        thresholds = project.thresholds
     if thresholds is None and baseline is None and write_baseline is None:
-        raise ConfigError("uwval check needs --thresholds FILE.toml and/or --baseline FILE.json")
-    opts = _compare_opts(gazebo_topic, unity_topic, fmt, frame, sync, max_diff, offset, align)
+        raise ConfigError(
+            "uwval check needs --thresholds FILE.toml and/or --baseline FILE.json "
+            "(or thresholds = ... in uwval.toml)"
+        )
+    opts = _compare_opts(
+        gazebo_topic, unity_topic, fmt, frame, sync, max_diff, offset, align, project
+    )
     one = _one_run(results, other, opts)
     if one is not None:  # one log, a pair of files or a saved compare result
         from uwval.results import ExperimentResults, ResultsTable, RunRecord
@@ -285,7 +315,7 @@ def check(
         exp = load_experiment_results(results)
     if one is None and exp.table.df.empty and any(r.log is not None for r in exp.runs):
         with console.status(f"comparing {len(exp.runs)} logs of {results}..."), warnings_as_notes():
-            exp = compare_pending(exp)
+            exp = compare_pending(exp, opts)
     if exp.table.df.empty:
         raise ConfigError(f"{results}: no compared results and no logs to compare")
     if write_baseline is not None:

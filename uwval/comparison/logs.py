@@ -4,6 +4,7 @@ run :func:`uwval.comparison.compare` per topic pair (vehicle and camera), collec
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -134,6 +135,7 @@ def compare_logs(
     unity_topic: str | None = None,
     fmt: str | None = None,
     frame: str | None = None,
+    pairs: Sequence[Any] | None = None,
     **options: Any,
 ) -> LogComparison:
     """Compare the Gazebo (reference) and Unity streams of one log, or of two files.
@@ -143,19 +145,26 @@ def compare_logs(
     Two files: the reference is read from ``path_a`` (``gazebo_topic``), the other from
     ``path_b`` (``unity_topic``); TUM text by ``fmt='tum'`` or suffix. ``frame`` states the
     other stream's convention (default: from the log; ``enu`` for TUM); other ``options`` go
-    to :func:`compare`.
+    to :func:`compare`. ``pairs`` (a project file's :class:`uwval.config.TopicPair` list:
+    ``name``, ``reference``, ``other``, ``frame``) names the pairs of one log to compare when
+    no topic is given; with two logs the first pair's topics are read.
     """
     results: dict[str, ComparisonResult] = {}
     if path_b is None:
         if is_tum(path_a, fmt):
             raise LogReadError(f"{path_a}: a TUM file holds one trajectory; give two files")
-        pairs: list[tuple[str, str, str]]
+        pairs_l: list[tuple[str, str, str]]
         from uwval.io import read_streams
 
-        if gazebo_topic or unity_topic:
+        frames: dict[str, str | None] = {}
+        if pairs and not (gazebo_topic or unity_topic):
+            pairs_l = [(p.name, p.reference, p.other) for p in pairs]
+            frames = {p.name: p.frame for p in pairs}
+            streams = read_streams(path_a, [t for _, g, u in pairs_l for t in (g, u)])
+        elif gazebo_topic or unity_topic:
             g = gazebo_topic or DEFAULT_GAZEBO_TOPIC
             u = unity_topic or DEFAULT_UNITY_TOPIC
-            pairs = [(pair_label(g, u), g, u)]
+            pairs_l = [(pair_label(g, u), g, u)]
             streams = read_streams(path_a, [g, u])
         else:
             # one pass over the log: every candidate topic, then the pairs that are present
@@ -163,19 +172,26 @@ def compare_logs(
                 p + name for name in (VEHICLE, CAMERA) for p in (GAZEBO_PREFIX, UNITY_PREFIX)
             ]
             streams = read_streams(path_a, candidates, skip_missing=True)
-            pairs = [
+            pairs_l = [
                 (name, GAZEBO_PREFIX + name, UNITY_PREFIX + name)
                 for name in (VEHICLE, CAMERA)
                 if GAZEBO_PREFIX + name in streams and UNITY_PREFIX + name in streams
             ]
-            if not pairs:
+            if not pairs_l:
                 raise LogReadError(no_pair_message(path_a))
-        for name, g, u in pairs:
+        for name, g, u in pairs_l:
             ref, oth = streams[g], streams[u]
-            if frame not in (None, "auto"):
-                oth = oth.with_(frame=frame)
-            results[name] = compare(ref, oth, frame=frame, **options)
-        return LogComparison(results, pairs[0][0], [str(path_a)])
+            pair_frame = frames.get(name) or frame
+            if pair_frame not in (None, "auto"):
+                oth = oth.with_(frame=pair_frame)
+            results[name] = compare(ref, oth, frame=pair_frame, **options)
+        return LogComparison(results, pairs_l[0][0], [str(path_a)])
+
+    pair_name = None
+    if pairs and not (gazebo_topic or unity_topic) and not is_tum(path_a, fmt):
+        first = pairs[0]
+        gazebo_topic, unity_topic, pair_name = first.reference, first.other, first.name
+        frame = first.frame or frame
 
     ref, oth = _read_pair(
         path_a, path_b, gazebo_topic, unity_topic, fmt, None if frame == "auto" else frame
@@ -186,6 +202,7 @@ def compare_logs(
         name = (gazebo_topic or unity_topic or VEHICLE).replace("#", "/").strip("/").split("/")[-1]
     if is_tum(path_a, fmt) and not gazebo_topic:
         name = "trajectory"
+    name = pair_name or name
     results[name] = compare(ref, oth, frame=frame, **options)
     return LogComparison(results, name, [str(path_a), str(path_b)])
 
