@@ -211,3 +211,18 @@ def test_plot_writes_pngs_and_says_where(fr1: tuple[Path, Path], tmp_path: Path)
     for png in pngs:
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
         assert f"wrote {png.name}" in p.stdout
+
+
+def test_bare_align_is_evos_se3_flag(fr1: tuple[Path, Path]) -> None:
+    from uwval.cli.compare_run import _bare_align
+
+    assert _bare_align(["a", "b", "--align"]) == ["a", "b", "-a"]
+    assert _bare_align(["--align", "sim3", "--align", "--json"]) == [
+        "--align",
+        "sim3",
+        "-a",
+        "--json",
+    ]
+    doc = _json(*fr1, "--align", "--sync", "nearest")
+    assert doc["alignment"]["mode"] == "se3"
+    assert doc["position_error_norm"]["rmse"] == pytest.approx(0.013470088849733684, abs=1e-9)

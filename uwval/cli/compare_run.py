@@ -459,7 +459,8 @@ COMPARE_OPTIONS: tuple[CompareOption, ...] = (
         ("--align",),
         str,
         "none",
-        "none, se3, sim3 (Umeyama), origin or scale (evo's -s alone)",
+        "none, se3, sim3 (Umeyama), origin or scale (evo's -s alone); --align with no "
+        "value (last, or before another option) is evo's flag: se3",
     ),
     CompareOption(
         "evo_align",
@@ -591,6 +592,16 @@ _FAST_OPTIONS: dict[str, tuple[str, type]] = {
 _PLAIN_FLOAT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
 
 
+def _bare_align(argv: list[str]) -> list[str]:
+    """evo's ``--align`` is a flag (SE(3)); uwval's takes a value. ``--align`` last or
+    followed by another option is evo's flag: rewritten to ``-a``."""
+    out = list(argv)
+    for i, arg in enumerate(out):
+        if arg == "--align" and (i + 1 == len(out) or out[i + 1].startswith("-")):
+            out[i] = "-a"
+    return out
+
+
 def _expand_short_flags(argv: list[str]) -> list[str]:
     """``-as`` -> ``-a -s``, ``-va`` -> ``-v -a`` (click's clustering of short flags), when
     every letter is a known short flag of :data:`COMPARE_OPTIONS` (anything else is left)."""
@@ -620,7 +631,7 @@ def fast_compare(argv: list[str]) -> bool:
     """
     kwargs: dict[str, Any] = {}
     positional: list[str] = []
-    args = iter(_expand_short_flags(argv))
+    args = iter(_expand_short_flags(_bare_align(argv)))
     for arg in args:
         if arg.startswith("-") and not _PLAIN_FLOAT.fullmatch(arg):
             name, has_value, value = arg.partition("=")
