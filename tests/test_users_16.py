@@ -226,3 +226,13 @@ def test_bare_align_is_evos_se3_flag(fr1: tuple[Path, Path]) -> None:
     doc = _json(*fr1, "--align", "--sync", "nearest")
     assert doc["alignment"]["mode"] == "se3"
     assert doc["position_error_norm"]["rmse"] == pytest.approx(0.013470088849733684, abs=1e-9)
+
+
+def test_save_plot_names_the_trajectory_png(fr1: tuple[Path, Path], tmp_path: Path) -> None:
+    target = tmp_path / "figs" / "fr1.png"
+    p = run_uwval("compare", *fr1, "--save_plot", target, "--json")
+    assert p.returncode == 0, p.stderr
+    assert json.loads(p.stdout)["n_samples"] > 0  # stdout stays pure JSON
+    for png in (target, target.with_name("fr1_errors.png")):
+        assert png.read_bytes()[:4] == b"\x89PNG"
+        assert f"wrote {png}" in p.stderr

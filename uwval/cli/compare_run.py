@@ -241,6 +241,12 @@ def _save_results_zip(path: Path, result: Any, doc: dict[str, Any], relation: st
     return buf.getvalue()
 
 
+def _short(stream: Any) -> str:
+    """A stream named by its file's name (no folders) and topic: fits a figure's title."""
+    name = Path(stream.source).name if stream.source else ""
+    return f"{name} [{stream.topic}]" if stream.topic else name
+
+
 def _plot(result: Any, save_plot: Path | None) -> list[Path]:
     """--plot: the trajectory and error-over-time figures of every topic as PNG files."""
     try:
@@ -253,7 +259,7 @@ def _plot(result: Any, save_plot: Path | None) -> list[Path]:
     written = []
     for name, path in _label_paths(base, list(result.results), result.primary).items():
         res = result.results[name]
-        title = f"{name}: {res.other.describe()} vs {res.reference.describe()}"
+        title = f"{name}: {_short(res.other)} vs {_short(res.reference)}"
         stem = path.with_suffix("")
         targets = (
             (trajectory_figure, path if save_plot else Path(f"{stem}_trajectory.png")),
