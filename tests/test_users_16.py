@@ -200,17 +200,21 @@ def test_save_errors_csv_one_row_per_aligned_sample(fr1: tuple[Path, Path], tmp_
     )
 
 
-def test_plot_writes_pngs_and_says_where(fr1: tuple[Path, Path], tmp_path: Path) -> None:
-    p = run_uwval("compare", *fr1, "--sync", "nearest", "--plot", cwd=tmp_path)
-    assert p.returncode == 0, p.stderr
-    pngs = sorted(tmp_path.glob("*.png"))
-    assert [x.name for x in pngs] == [
-        "uwval_trajectory_errors.png",
-        "uwval_trajectory_trajectory.png",
+def test_plot_file_names() -> None:
+    from uwval.cli.compare_run import plot_targets
+
+    assert plot_targets(["trajectory"], "trajectory", None) == [
+        ("trajectory", Path("uwval_trajectory_trajectory.png"), Path("uwval_trajectory_errors.png"))
     ]
-    for png in pngs:
-        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-        assert f"wrote {png.name}" in p.stdout
+    two = plot_targets(["model_rov_pose", "gui_camera_pose"], "model_rov_pose", Path("o/f.png"))
+    assert two == [
+        ("model_rov_pose", Path("o/f.png"), Path("o/f_errors.png")),
+        (
+            "gui_camera_pose",
+            Path("o/f.gui_camera_pose.png"),
+            Path("o/f.gui_camera_pose_errors.png"),
+        ),
+    ]
 
 
 def test_bare_align_is_evos_se3_flag(fr1: tuple[Path, Path]) -> None:

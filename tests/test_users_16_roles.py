@@ -11,7 +11,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_runner import run_uwval
 
 from uwval.comparison import compare_logs
 from uwval.errors import ConfigError
@@ -123,19 +122,3 @@ def test_role_rules_parse_and_skip_when_no_topic_has_the_role(tmp_path: Path) ->
 )
 def test_topic_role(topic: str, role: str) -> None:
     assert topic_role(topic) == role
-
-
-def test_report_of_a_renamed_log_passes(tmp_path: Path) -> None:
-    log = _log(tmp_path / "renamed.mcap", "/model/tethys/pose", "/unity/tethys/pose")
-    p = run_uwval(
-        "report",
-        log,
-        "--gazebo-topic",
-        "/model/tethys/pose",
-        "--unity-topic",
-        "/unity/tethys/pose",
-        "-o",
-        tmp_path / "r.html",
-    )
-    assert p.returncode == 0, p.stderr
-    assert "verdict PASS" in p.stdout

@@ -247,24 +247,36 @@ def _short(stream: Any) -> str:
     return f"{name} [{stream.topic}]" if stream.topic else name
 
 
+def plot_targets(
+    names: list[str], primary: str, save_plot: Path | None
+) -> list[tuple[str, Path, Path]]:
+    """Per topic: (name, trajectory PNG, error-over-time PNG) written by ``--plot``.
+
+    Default ``uwval_<topic>_trajectory.png`` / ``uwval_<topic>_errors.png`` in the current
+    folder; with ``--save_plot P.png``: P.png and P_errors.png (other topics: P.<topic>.png).
+    """
+    base = save_plot or Path(f"uwval_{primary.strip('/').replace('/', '_')}.png")
+    if base.suffix.lower() != ".png":
+        base = base.with_name(base.name + ".png")
+    out = []
+    for name, path in _label_paths(base, names, primary).items():
+        stem = path.with_suffix("")
+        traj = path if save_plot else Path(f"{stem}_trajectory.png")
+        out.append((name, traj, Path(f"{stem}_errors.png")))
+    return out
+
+
 def _plot(result: Any, save_plot: Path | None) -> list[Path]:
     """--plot: the trajectory and error-over-time figures of every topic as PNG files."""
     try:
         from uwval.reports.plots import timeseries_figure, trajectory_figure
     except ImportError as exc:  # matplotlib missing
         raise ConfigError(f"--plot needs matplotlib ({exc})") from None
-    base = save_plot or Path(f"uwval_{result.primary.strip('/').replace('/', '_')}.png")
-    if base.suffix.lower() != ".png":
-        base = base.with_name(base.name + ".png")
     written = []
-    for name, path in _label_paths(base, list(result.results), result.primary).items():
+    for name, traj, errs in plot_targets(list(result.results), result.primary, save_plot):
         res = result.results[name]
         title = f"{name}: {_short(res.other)} vs {_short(res.reference)}"
-        stem = path.with_suffix("")
-        targets = (
-            (trajectory_figure, path if save_plot else Path(f"{stem}_trajectory.png")),
-            (timeseries_figure, Path(f"{stem}_errors.png")),
-        )
+        targets = ((trajectory_figure, traj), (timeseries_figure, errs))
         for make, target in targets:
             fig = make(res, title)
             try:
