@@ -137,3 +137,15 @@ def test_labels_of_renamed_topics_do_not_collide(tmp_path: Path) -> None:
 )
 def test_pair_label(g: str, u: str, label: str) -> None:
     assert pair_label(g, u) == label
+
+
+def test_frame_ids_that_name_a_convention_do_not_warn() -> None:
+    from uwval.comparison.engine import frame_id_mismatch
+
+    s = _helix()
+    assert frame_id_mismatch(s.with_(frame_ids=("world",)), s.with_(frame_ids=("unity-flu",))) == ""
+    assert frame_id_mismatch(s.with_(frame_ids=("ENU",)), s.with_(frame_ids=("map",))) == ""
+    assert frame_id_mismatch(s.with_(frame_ids=("odom",)), s.with_(frame_ids=("odom",))) == ""
+    assert "different frames" in frame_id_mismatch(
+        s.with_(frame_ids=("odom",)), s.with_(frame_ids=("map",))
+    )

@@ -31,7 +31,7 @@ from uwval.comparison.sync import (
     nominal_period_ns,
 )
 from uwval.compat import StrEnum
-from uwval.errors import AlignmentError, PoseStreamError
+from uwval.errors import AlignmentError, PoseStreamError, UwvalError
 from uwval.frames import CONVENTIONS, convert_stream, get_convention
 from uwval.posestream import MAX_ABS_STAMP_S, PoseStream
 from uwval.rotations import geodesic_angle, rpy_from_quat, wrap_deg
@@ -173,13 +173,22 @@ def ape_statistics(reference: PoseStream, other: PoseStream, relation: str) -> d
     return stats
 
 
+def _names_convention(frame_id: str) -> bool:
+    """Whether a frame_id is a uwval convention name or alias (it states axes, not origin)."""
+    try:
+        get_convention(frame_id)
+    except UwvalError:  # FrameError: not a convention name
+        return False
+    return True
+
+
 def frame_id_mismatch(reference: PoseStream, other: PoseStream) -> str:
     """A warning when the two streams' header frame_ids (read from the log) differ, e.g.
     ``/odom`` (frame_id ``odom``) vs ``/amcl_pose`` (``map``); "" when they agree or are
     unknown. frame_ids that name a uwval convention (``unity-flu``, ``enu``...) state the
     axes, not the origin, and are left out."""
-    a = [f for f in reference.frame_ids if f and f not in CONVENTIONS]
-    b = [f for f in other.frame_ids if f and f not in CONVENTIONS]
+    a = [f for f in reference.frame_ids if f and not _names_convention(f)]
+    b = [f for f in other.frame_ids if f and not _names_convention(f)]
     if not a or not b or set(a) == set(b):
         return ""
     return (
