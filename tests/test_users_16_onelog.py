@@ -82,7 +82,7 @@ def test_report_a_saved_compare_result_and_a_pair(tmp_path: Path) -> None:
     assert p.returncode == 0, p.stderr
     assert "(1 run(s)); verdict PASS" in p.stdout
     html = (tmp_path / "saved.html").read_text()
-    assert "fr" in html and "log not available" in html  # a saved result has no series
+    assert html.count("<img") >= 2  # its files are re-read for the plots
     q = run_uwval("report", a, b, "--align", "sim3", "--sync", "nearest", "-o", tmp_path / "p.html")
     assert q.returncode == 0, q.stderr
     assert "verdict PASS" in q.stdout
@@ -94,3 +94,20 @@ def test_one_trajectory_file_alone_is_a_one_line_error(tmp_path: Path) -> None:
     p = run_uwval("check", a, "--thresholds", THRESHOLDS)
     assert p.returncode == 2
     assert "give two files" in p.stderr and "Traceback" not in p.stderr
+
+
+def test_saved_result_inputs_are_recovered_or_dropped(tmp_path: Path) -> None:
+    from uwval.cli.report_cmd import _saved_inputs
+
+    a, b = _pair(tmp_path)
+    out = tmp_path / "fr.json"
+    args = ("compare", a, b, "--sync", "nearest", "-as", "--offset", "0.001", "-o", out)
+    assert run_uwval(*args).returncode == 0
+    doc = json.loads(out.read_text())
+    log, opts = _saved_inputs(doc)
+    assert log == a
+    assert opts == {
+        "sync": "nearest", "offset": 0.001, "align": "sim3", "max_diff": 0.01, "path_b": b
+    }  # fmt: skip
+    b.unlink()  # a file is gone: no plots, and the report says why
+    assert _saved_inputs(doc) == (None, {})

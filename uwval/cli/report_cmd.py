@@ -70,6 +70,32 @@ def _compare_json(path: Path) -> dict[str, Any] | None:
     return None
 
 
+def _saved_inputs(doc: dict[str, Any]) -> tuple[Path | None, dict[str, Any]]:
+    """The files and compare options of a saved ``uwval compare -o`` result, so that its
+    report can plot the aligned series again: (first file or None, options). None when a
+    file is gone (the report then says that the plots need the log)."""
+    sources = [Path(str(p)) for p in doc.get("sources") or []]
+    if not sources or len(sources) > 2 or not all(p.exists() for p in sources):
+        return None, {}
+    sync = doc.get("sync") or {}
+    opts: dict[str, Any] = {
+        "sync": sync.get("method", "interp"),
+        "offset": float((doc.get("offset") or {}).get("applied_s") or 0.0),
+        "align": (doc.get("alignment") or {}).get("mode", "none"),
+    }
+    if sync.get("method") == "nearest" and sync.get("max_diff_s") is not None:
+        opts["max_diff"] = float(sync["max_diff_s"])
+    frame = doc.get("frame") or {}
+    if frame.get("source") in ("argument", "auto"):
+        opts["frame"] = frame.get("configured")
+    if len(sources) == 2:
+        opts["path_b"] = sources[1]
+    if all(_is_log(p) for p in sources) and doc.get("topics") and len(doc["topics"]) == 1:
+        opts["gazebo_topic"] = (doc.get("reference") or {}).get("topic")
+        opts["unity_topic"] = (doc.get("other") or {}).get("topic")
+    return sources[0], {k: v for k, v in opts.items() if v is not None}
+
+
 def _one_run(
     source: Path, other: Path | None, opts: dict[str, Any]
 ) -> tuple[str, dict[str, Any], Path | None] | None:
@@ -186,11 +212,14 @@ def report(
         name, doc, log = one
         where = Path(scratch.name) / "run" / "results"
         where.mkdir(parents=True)
+        if log is None:  # a saved result: re-read its files for the plots, as compared
+            log, saved_opts = _saved_inputs(doc)
+            opts = {**saved_opts, **opts}
+        elif other is not None:
+            opts["path_b"] = other  # the plots re-read the pair
         rec = {"name": name, "factors": {}, "comparison": doc, "log": str(log) if log else None}
         (where / "comparisons.json").write_text(json.dumps({"runs": [rec], "failed": []}))
         source_for_report = where / "comparisons.json"
-        if other is not None:
-            opts["path_b"] = other  # the plots re-read the pair
     else:
         source_for_report = source
     with (
