@@ -431,8 +431,16 @@ FRAME_HELP = (
 
 #: Every option of ``uwval compare``, in ``--help`` order.
 COMPARE_OPTIONS: tuple[CompareOption, ...] = (
-    CompareOption("gazebo_topic", ("--gazebo-topic",), str, None, "Reference topic"),
-    CompareOption("unity_topic", ("--unity-topic",), str, None, "Other (Unity) topic"),
+    CompareOption(
+        "gazebo_topic",
+        ("--gazebo-topic",),
+        str,
+        None,
+        "Reference topic (a TF topic's transform: /tf#CHILD; `uwval inspect` lists them)",
+    ),
+    CompareOption(
+        "unity_topic", ("--unity-topic",), str, None, "Other (Unity) topic (/tf#CHILD too)"
+    ),
     CompareOption(
         "fmt",
         ("--format",),
