@@ -143,7 +143,11 @@ def _tf_pairs(log: Path, summary: LogSummary) -> dict[str, list[tuple[str, str, 
     from uwval.io.decode import TF_TYPES
     from uwval.io.reader import tf_pairs
 
-    return {t.name: tf_pairs(log, t.name) for t in summary.topics if t.type in TF_TYPES and t.count}
+    with warnings.catch_warnings():  # what the log's reader warns about is in summary.warnings
+        warnings.simplefilter("ignore")
+        return {
+            t.name: tf_pairs(log, t.name) for t in summary.topics if t.type in TF_TYPES and t.count
+        }
 
 
 def _fmt(x: Any, spec: str) -> str:
