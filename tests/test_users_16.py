@@ -164,6 +164,7 @@ def test_save_results_zip_has_evos_layout_and_values(
     out = tmp_path / "res" / "fr1.zip"
     p = run_uwval("compare", *fr1, "--sync", "nearest", "-r", "full", "--save_results", out)
     assert p.returncode == 0, p.stderr
+    assert f"wrote {out}" in p.stdout
     with zipfile.ZipFile(out) as zf:
         assert {"stats.json", "info.json", "uwval.json", "errors.csv"} <= set(zf.namelist())
         stats = json.loads(zf.read("stats.json"))
@@ -208,7 +209,12 @@ def test_plot_file_names() -> None:
     assert plot_targets(["trajectory"], "trajectory", None) == [
         ("trajectory", Path("uwval_trajectory_trajectory.png"), Path("uwval_trajectory_errors.png"))
     ]
-    two = plot_targets(["model_rov_pose", "gui_camera_pose"], "model_rov_pose", Path("o/f.png"))
+    names = ["model_rov_pose", "gui_camera_pose"]
+    assert [t[1].name for t in plot_targets(names, "model_rov_pose", None)] == [
+        "uwval_model_rov_pose_trajectory.png",
+        "uwval_gui_camera_pose_trajectory.png",
+    ]
+    two = plot_targets(names, "model_rov_pose", Path("o/f.png"))
     assert two == [
         ("model_rov_pose", Path("o/f.png"), Path("o/f_errors.png")),
         (

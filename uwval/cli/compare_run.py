@@ -255,15 +255,21 @@ def plot_targets(
     Default ``uwval_<topic>_trajectory.png`` / ``uwval_<topic>_errors.png`` in the current
     folder; with ``--save_plot P.png``: P.png and P_errors.png (other topics: P.<topic>.png).
     """
-    base = save_plot or Path(f"uwval_{primary.strip('/').replace('/', '_')}.png")
+    if save_plot is None:
+        out = []
+        for name in names:
+            safe = name.strip("/").replace("/", "_") or "topic"
+            out.append(
+                (name, Path(f"uwval_{safe}_trajectory.png"), Path(f"uwval_{safe}_errors.png"))
+            )
+        return out
+    base = save_plot
     if base.suffix.lower() != ".png":
         base = base.with_name(base.name + ".png")
-    out = []
-    for name, path in _label_paths(base, names, primary).items():
-        stem = path.with_suffix("")
-        traj = path if save_plot else Path(f"{stem}_trajectory.png")
-        out.append((name, traj, Path(f"{stem}_errors.png")))
-    return out
+    return [
+        (name, path, Path(f"{path.with_suffix('')}_errors.png"))
+        for name, path in _label_paths(base, names, primary).items()
+    ]
 
 
 def _plot(result: Any, save_plot: Path | None) -> list[Path]:
@@ -380,7 +386,7 @@ def _run_compare(
         else:
             data = text + "\n"
         _write_output(save_results, data, "the results")
-    saved: list[Path] = []
+    saved: list[Path] = [save_results] if save_results is not None else []
     if save_errors is not None:
         for name, path in _label_paths(save_errors, list(result.results), result.primary).items():
             _write_output(path, errors_csv(result.results[name]), "the per-sample errors")
