@@ -66,6 +66,8 @@ EVO_SCALE_ONLY_RMSE = 0.017197598502046683
 # evo_ape tum ... -a --n_to_align 100 --t_max_diff 0.01
 EVO_N_TO_ALIGN_100_RMSE = 0.020597402691654682
 EVO_N_TO_ALIGN_100_MAX = 0.048331698296105424
+# evo_ape tum ... --t_offset 0.05 --t_max_diff 0.01   (rmse, sse)
+EVO_T_OFFSET_005 = (0.024555262669026735, 0.47272136500000006)
 # evo_ape tum ... -as --t_max_diff 0.01 (as in test_evo_crosscheck.py)
 EVO_SIM3_RMSE = 0.013389384904168201
 
@@ -121,6 +123,8 @@ def test_evo_alignment_flags_and_clusters(fr1: tuple[Path, Path]) -> None:
     n100 = _json(*fr1, "--sync", "nearest", "-a", "--n_to_align", "100")
     assert n100["position_error_norm"]["rmse"] == pytest.approx(EVO_N_TO_ALIGN_100_RMSE, abs=1e-9)
     assert n100["position_error_norm"]["max"] == pytest.approx(EVO_N_TO_ALIGN_100_MAX, abs=1e-9)
+    shifted = _json(*fr1, "--sync", "nearest", "--t_offset", "0.05")["position_error_norm"]
+    assert (shifted["rmse"], shifted["sse"]) == pytest.approx(EVO_T_OFFSET_005, abs=1e-12)
     p = run_uwval("compare", *fr1, "--sync", "nearest", "-va")
     assert p.returncode == 0, p.stderr
     assert "align se3" in p.stdout and "alignment se3: scale 1," in p.stdout
