@@ -149,3 +149,15 @@ def test_frame_ids_that_name_a_convention_do_not_warn() -> None:
     assert "different frames" in frame_id_mismatch(
         s.with_(frame_ids=("odom",)), s.with_(frame_ids=("map",))
     )
+
+
+def test_two_logs_without_topics_list_pose_topics_only(nav2: Path, tmp_path: Path) -> None:
+    bag = tmp_path / "talker_mcap"
+    shutil.copytree(_shared("bags", "rosbag2", "talker_mcap"), bag)
+    p = run_uwval("compare", bag, nav2)
+    assert p.returncode == 2
+    assert "talker_mcap: name the topic to compare" in p.stderr
+    assert "pose topics: none (3 other topic(s))" in p.stderr and "/rosout" not in p.stderr
+    q = run_uwval("compare", nav2, nav2, "--unity-topic", "/odom")
+    assert q.returncode == 2
+    assert "pose topics: /amcl_pose, /odom, /tf#CHILD" in q.stderr

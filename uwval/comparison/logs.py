@@ -61,14 +61,24 @@ def read_pose_stream(
     from uwval.io import list_topics, read_stream
 
     if topic is None:
-        topics = [t.name for t in list_topics(path)]
-        candidates = [t for t in topics if not t.endswith("/applied_stamp")]
-        if len(candidates) != 1:
+        from uwval.io.decode import POSE_TYPES, TF_TYPES
+
+        infos = list_topics(path)
+        if not any(i.count for i in infos):
+            raise LogReadError(f"{path}: the log is empty ({len(infos)} topic(s), no messages)")
+        poses = sorted(
+            i.name
+            for i in infos
+            if i.type in POSE_TYPES and i.count and not i.name.endswith("/applied_stamp")
+        )
+        tfs = sorted(i.name + "#CHILD" for i in infos if i.type in TF_TYPES and i.count)
+        if len(poses) != 1 or tfs:
+            listed = ", ".join(poses + tfs) or f"none ({len(infos)} other topic(s))"
             raise LogReadError(
                 f"{path}: name the topic to compare (--gazebo-topic / "
-                f"--unity-topic); topics: {', '.join(sorted(topics))}"
+                f"--unity-topic); pose topics: {listed}"
             )
-        topic = candidates[0]
+        topic = poses[0]
     return read_stream(path, topic, frame=frame)
 
 
