@@ -61,6 +61,7 @@ class PoseStream:
     repairs: dict[str, int] = field(default_factory=dict)
     dropped: dict[str, int] = field(default_factory=dict)
     warnings: tuple[str, ...] = ()
+    frame_ids: tuple[str, ...] = ()  # header frame_id(s) in the log (TF: the parent frame)
 
     def __post_init__(self) -> None:
         n = self.t.shape[0] if self.t.ndim == 1 else -1

@@ -22,10 +22,21 @@ from uwval.cli import app
 from uwval.cli.compare_run import (  # noqa: F401  (fast path re-exported for callers)
     _FAST_OPTIONS,
     COMPARE_OPTIONS,
+    _align_mode,
     _parse_offset,
     fast_compare,
     run_compare,
 )
+from uwval.errors import ConfigError
+
+#: Options of one comparison that --batch refuses (one line, exit 2), by keyword.
+_SINGLE_RUN_ONLY = {
+    "pose_relation": "--pose_relation",
+    "plot": "--plot",
+    "save_plot": "--save_plot",
+    "save_errors": "--save-errors",
+    "save_results": "--save_results",
+}
 
 
 def _compare_parameters() -> list[inspect.Parameter]:
@@ -70,6 +81,19 @@ def compare_command(**kwargs: Any) -> None:
     if kwargs["batch"]:
         output = opts.pop("output")
         opts.pop("as_json")
+        opts.pop("verbose")
+        opts.pop("config")
+        opts["align"] = _align_mode(
+            opts["align"],
+            opts.pop("evo_align"),
+            opts.pop("correct_scale"),
+            opts.pop("align_origin"),
+        )
+        if opts["n_to_align"] == -1:
+            opts.pop("n_to_align")
+        for key, flag in _SINGLE_RUN_ONLY.items():
+            if opts.pop(key):
+                raise ConfigError(f"{flag} applies to one comparison, not to --batch")
         opts["offset"] = _parse_offset(opts["offset"])
         _batch(
             log_a,
@@ -81,7 +105,9 @@ def compare_command(**kwargs: Any) -> None:
             options=opts,
         )
         return
-    run_compare(log_a, log_b, **opts)
+    # only what the user gave (not typer's defaults), so that uwval.toml fills the rest
+    defaults = {o.dest: o.default for o in COMPARE_OPTIONS}
+    run_compare(log_a, log_b, **{k: v for k, v in opts.items() if v != defaults.get(k)})
 
 
 _signature = inspect.Signature(_compare_parameters(), return_annotation=None)

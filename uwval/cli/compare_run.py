@@ -41,33 +41,67 @@ def _fmt(v: Any, digits: int = 4) -> str:
     return str(v)
 
 
+def _fmt_full(v: Any, digits: int = 10) -> str:
+    """A number with 10 significant digits (tables written to a file or a pipe); ``digits``
+    is accepted for :func:`_fmt`'s signature and not used (never fewer than 10)."""
+    if v is None:
+        return "-"
+    return f"{v:.10g}" if isinstance(v, float) else str(v)
+
+
+def output_console() -> Any:
+    """A rich Console for stdout; when stdout is not a terminal (a file, a pipe, a CI log)
+    nothing is wrapped or cut: lines and tables keep their full width."""
+    from rich.console import Console
+
+    if sys.stdout is not None and sys.stdout.isatty():
+        return Console()
+    return Console(width=100_000, soft_wrap=True)
+
+
 def _print_table(doc: dict[str, Any], title: str) -> None:
     from rich import box
-    from rich.console import Console
     from rich.markup import escape
     from rich.table import Table
 
-    console = Console()
+    console = output_console()
     sync = doc.get("sync") or {}
     if sync.get("method") == "nearest":  # evo's association: say its parameter too
         title += f"  (sync nearest, max diff {sync.get('max_diff_s', 0.01):g} s, as evo)"
     elif sync.get("method"):
         title += f"  (sync {sync['method']}: Unity side interpolated at the reference stamps)"
     table = Table(title=escape(title), title_justify="left", box=box.SIMPLE_HEAD, pad_edge=False)
-    # short on purpose (fits 80 columns): p95, std, p-value and CI are in --json
-    for col in ("axis", "MAE", "RMSE", "max", "bias", "Pearson r"):
+    full = not console.is_terminal  # a file or a pipe: every column, every digit
+    cols = ["axis", "MAE", "RMSE", "max", "bias", "Pearson r"]
+    if full:  # fits no 80-column terminal: only where nothing wraps
+        cols += ["p95", "median", "std", "Pearson 95% CI", "Pearson p", "n"]
+    # short on a terminal on purpose (fits 80 columns): the rest is in --json
+    for col in cols:
         table.add_column(col, justify="left" if col == "axis" else "right", no_wrap=True)
+    num = _fmt_full if full else _fmt
     for ax, s in doc["axes"].items():
-        r = f"{s['pearson_r']:.6f}" if s.get("pearson_r") is not None else "n/a"
+        r = s.get("pearson_r")
+        r_text = "n/a" if r is None else (_fmt_full(r) if full else f"{r:.6f}")
         unit = s.get("unit", "")
-        table.add_row(
+        row = [
             escape(f"{ax} [{unit}]") if unit else ax,
-            _fmt(s["mae"]),
-            _fmt(s["rmse"]),
-            _fmt(s["max"]),
-            _fmt(s["bias"]),
-            r,
-        )
+            num(s["mae"]),
+            num(s["rmse"]),
+            num(s["max"]),
+            num(s["bias"]),
+            r_text,
+        ]
+        if full:
+            ci = s.get("pearson_ci")
+            row += [
+                num(s.get("p95")),
+                num(s.get("median")),
+                num(s.get("std")),
+                "n/a" if not ci or None in ci else f"[{_fmt_full(ci[0])}, {_fmt_full(ci[1])}]",
+                num(s.get("pearson_p")),
+                str(s.get("pearson_n", "")),
+            ]
+        table.add_row(*row)
     console.print(table)
     undefined = [ax for ax, s in doc["axes"].items() if s.get("pearson_r") is None]
     if undefined:
@@ -83,27 +117,204 @@ def _print_table(doc: dict[str, Any], title: str) -> None:
         f"{doc['frame']['configured']}; align {doc['alignment']['mode']}"
     )
     console.print(
-        f"position error norm [m]: rmse {_fmt(pn['rmse'])} mean {_fmt(pn['mean'])} "
-        f"median {_fmt(pn['median'])} max {_fmt(pn['max'])}; rotation [deg]: rmse "
-        f"{_fmt(rot['rmse'])} max {_fmt(rot['max'])}",
+        f"position error norm [m]: rmse {num(pn['rmse'])} mean {num(pn['mean'])} "
+        f"median {num(pn['median'])} max {num(pn['max'])}; rotation [deg]: rmse "
+        f"{num(rot['rmse'])} max {num(rot['max'])}",
         markup=False,
     )
+    ape = doc.get("ape")
+    if ape:  # -r/--pose_relation: evo_ape's statistics, all digits (as evo prints them)
+        console.print(
+            f"APE w.r.t. {ape['pose_relation']} [{ape['unit']}]: "
+            + " ".join(
+                f"{k} {ape[k]:.9g}" for k in ("rmse", "mean", "median", "std", "min", "max", "sse")
+            ),
+            markup=False,
+            highlight=False,
+        )
     off = doc["offset"]
-    line = f"clock offset {_fmt(off['applied_s'], 6)} s"
+    line = f"clock offset {num(off['applied_s'], 6)} s"
     if off.get("estimate"):
-        line += f" (estimated, +/- {_fmt(off['estimate']['uncertainty_s'], 3)} s)"
+        line += f" (estimated, +/- {num(off['estimate']['uncertainty_s'], 3)} s)"
     if doc.get("latency"):
         lat = doc["latency"]
-        line += f"; latency {_fmt(lat['mean_ms'])} ms mean, {_fmt(lat['p95_ms'])} ms p95"
+        line += f"; latency {num(lat['mean_ms'])} ms mean, {num(lat['p95_ms'])} ms p95"
     console.print(line)
     for w in doc.get("warnings", []):
         console.print(f"[yellow]warning:[/] {escape(w)}", highlight=False)
 
 
+def _align_mode(align: str, evo_align: bool, correct_scale: bool, align_origin: bool) -> str:
+    """--align VALUE and evo's flags (-a, -s, -as, --align_origin) -> one alignment mode."""
+    flags = [f for f, on in (("-a", evo_align), ("-s", correct_scale)) if on]
+    if align_origin:
+        flags.append("--align_origin")
+    if not flags:
+        return align
+    if align_origin and (evo_align or correct_scale):
+        raise ConfigError("--align_origin cannot be combined with -a / -s (as in evo_ape)")
+    mode = "origin" if align_origin else ("sim3" if correct_scale else "se3")
+    if not evo_align and correct_scale:
+        mode = "scale"
+    if align not in ("none", mode):
+        raise ConfigError(f"--align {align} contradicts {' '.join(flags)} (which means {mode})")
+    return mode
+
+
+def _write_output(path: Path, data: bytes | str, what: str) -> None:
+    """Write a file the user asked for; a failure is a one-line ConfigError naming it."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if isinstance(data, bytes):
+            path.write_bytes(data)
+        else:
+            path.write_text(data)
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot write {what}: {exc.strerror or exc}") from None
+
+
+#: Columns of ``--save-errors`` (after the stamps): signed errors other - reference.
+ERROR_COLUMNS = ("x", "y", "z", "roll", "pitch", "yaw", "position_norm", "rotation_angle")
+
+
+def errors_csv(result: Any) -> str:
+    """The per-sample errors of one :class:`ComparisonResult` as CSV text.
+
+    One row per aligned sample: ``t_ns`` (int, reference clock), ``t_s``, then the signed
+    errors other - reference: x y z (m, ENU world), roll pitch yaw (deg, wrapped), the
+    position-error norm (m) and the geodesic rotation angle (deg).
+    """
+    import io
+
+    import numpy as np
+
+    errs = result.errors
+    cols = np.column_stack([result.t * 1e-9] + [errs[c] for c in ERROR_COLUMNS])
+    buf = io.StringIO()
+    header = "t_ns,t_s," + ",".join(
+        f"err_{c}_{'m' if c in ('x', 'y', 'z', 'position_norm') else 'deg'}" for c in ERROR_COLUMNS
+    )
+    buf.write(header + "\n")
+    body = io.StringIO()
+    np.savetxt(body, cols, fmt="%.17g", delimiter=",")
+    stamps = result.t.astype(str)
+    lines = body.getvalue().splitlines()
+    buf.write("".join(f"{s},{line}\n" for s, line in zip(stamps, lines, strict=True)))
+    return buf.getvalue()
+
+
+def _label_paths(base: Path, names: list[str], primary: str) -> dict[str, Path]:
+    """One output path per topic: ``base`` for the primary topic, base.<name>.suffix else."""
+    out = {}
+    for name in names:
+        if name == primary:
+            out[name] = base
+        else:
+            safe = name.strip("/").replace("/", "_") or "topic"
+            out[name] = base.with_name(f"{base.stem}.{safe}{base.suffix}")
+    return out
+
+
+def _save_results_zip(path: Path, result: Any, doc: dict[str, Any], relation: str) -> bytes:
+    """evo's --save_results layout (stats.json, info.json) plus uwval.json and errors.csv."""
+    import io
+    import zipfile
+
+    from uwval.comparison.engine import ape_statistics
+
+    res = result.vehicle
+    ape = res.stats.get("ape") or ape_statistics(res.reference, res.other, relation)
+    stats = {k: ape[k] for k in ("rmse", "mean", "median", "std", "min", "max", "sse")}
+    info = {
+        "title": f"APE w.r.t. {ape['pose_relation']} ({ape['unit']})",
+        "ref_name": result.sources[0] if result.sources else "",
+        "est_name": result.sources[-1] if result.sources else "",
+        "label": f"APE ({ape['unit']})",
+        "alignment": res.alignment.mode,
+    }
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr("stats.json", json.dumps(stats, allow_nan=False))
+        zf.writestr("info.json", json.dumps(info))
+        zf.writestr("uwval.json", json.dumps(doc, indent=1, allow_nan=False))
+        zf.writestr("errors.csv", errors_csv(res))
+    return buf.getvalue()
+
+
+def _short(stream: Any) -> str:
+    """A stream named by its file's name (no folders) and topic: fits a figure's title."""
+    name = Path(stream.source).name if stream.source else ""
+    return f"{name} [{stream.topic}]" if stream.topic else name
+
+
+def plot_targets(
+    names: list[str], primary: str, save_plot: Path | None
+) -> list[tuple[str, Path, Path]]:
+    """Per topic: (name, trajectory PNG, error-over-time PNG) written by ``--plot``.
+
+    Default ``uwval_<topic>_trajectory.png`` / ``uwval_<topic>_errors.png`` in the current
+    folder; with ``--save_plot P.png``: P.png and P_errors.png (other topics: P.<topic>.png).
+    """
+    if save_plot is None:
+        out = []
+        for name in names:
+            safe = name.strip("/").replace("/", "_") or "topic"
+            out.append(
+                (name, Path(f"uwval_{safe}_trajectory.png"), Path(f"uwval_{safe}_errors.png"))
+            )
+        return out
+    base = save_plot
+    if base.suffix.lower() != ".png":
+        base = base.with_name(base.name + ".png")
+    return [
+        (name, path, Path(f"{path.with_suffix('')}_errors.png"))
+        for name, path in _label_paths(base, names, primary).items()
+    ]
+
+
+def _plot(result: Any, save_plot: Path | None) -> list[Path]:
+    """--plot: the trajectory and error-over-time figures of every topic as PNG files."""
+    try:
+        from uwval.reports.plots import timeseries_figure, trajectory_figure
+    except ImportError as exc:  # matplotlib missing
+        raise ConfigError(f"--plot needs matplotlib ({exc})") from None
+    written = []
+    for name, traj, errs in plot_targets(list(result.results), result.primary, save_plot):
+        res = result.results[name]
+        title = f"{name}: {_short(res.other)} vs {_short(res.reference)}"
+        targets = ((trajectory_figure, traj), (timeseries_figure, errs))
+        for make, target in targets:
+            fig = make(res, title)
+            try:
+                target.parent.mkdir(parents=True, exist_ok=True)
+                fig.savefig(target, dpi=100)
+            except OSError as exc:
+                raise ConfigError(
+                    f"{target}: cannot write the plot: {exc.strerror or exc}"
+                ) from None
+            written.append(target)
+    return written
+
+
 def run_compare(
+    log_a: Path, log_b: Path | None = None, *, config: Path | None = None, **given: Any
+) -> None:
+    """What ``uwval compare`` does: ``given`` holds the options the user gave (keywords of
+    :func:`_run_compare`); the project file (``--config``, or ``./uwval.toml``) fills the
+    others (:mod:`uwval.config`)."""
+    from uwval.config import load_config, merged_options
+
+    opts = merged_options(given, load_config(config))
+    if "offset" in opts:
+        opts["offset"] = str(opts["offset"])
+    _run_compare(log_a, log_b, **opts)
+
+
+def _run_compare(
     log_a: Path,
     log_b: Path | None = None,
     *,
+    pairs: Any = None,
     gazebo_topic: str | None = None,
     unity_topic: str | None = None,
     fmt: str | None = None,
@@ -114,6 +325,16 @@ def run_compare(
     offset: str = "0",
     max_offset: float | None = None,
     align: str = "none",
+    evo_align: bool = False,
+    correct_scale: bool = False,
+    align_origin: bool = False,
+    n_to_align: int = -1,
+    pose_relation: str | None = None,
+    verbose: bool = False,
+    plot: bool = False,
+    save_plot: Path | None = None,
+    save_errors: Path | None = None,
+    save_results: Path | None = None,
     as_json: bool = False,
     output: Path | None = None,
 ) -> None:
@@ -121,6 +342,16 @@ def run_compare(
     from uwval.cli.notes import warnings_as_notes
     from uwval.comparison.logs import compare_logs
 
+    mode = _align_mode(align, evo_align, correct_scale, align_origin)
+    if n_to_align != -1 and n_to_align < 1:
+        raise ConfigError(f"--n_to_align must be >= 1 (or -1 for all), got {n_to_align}")
+    if pose_relation is not None:
+        from uwval.comparison.engine import APE_RELATIONS
+
+        if pose_relation not in APE_RELATIONS:
+            raise ConfigError(
+                f"--pose_relation {pose_relation!r}: choose one of {', '.join(APE_RELATIONS)}"
+            )
     with warnings_as_notes():
         result = compare_logs(
             log_a,
@@ -134,23 +365,52 @@ def run_compare(
             max_diff=max_diff,
             offset=_parse_offset(offset),
             max_offset=max_offset,
-            align=align,
+            align=mode,
+            n_to_align=n_to_align,
+            pairs=pairs,
         )
+    if pose_relation is not None:
+        from uwval.comparison.engine import ape_statistics
+
+        for res in result.results.values():
+            res.stats["ape"] = ape_statistics(res.reference, res.other, pose_relation)
     doc = result.to_json()
     text = json.dumps(doc, indent=1, allow_nan=False)
     if output is not None:
-        try:
-            output.parent.mkdir(parents=True, exist_ok=True)
-            output.write_text(text + "\n")
-        except OSError as exc:
-            raise ConfigError(
-                f"{output}: cannot write the JSON result: {exc.strerror or exc}"
-            ) from None
+        _write_output(output, text + "\n", "the JSON result")
+    if save_results is not None:
+        if save_results.suffix.lower() == ".zip":
+            data: bytes | str = _save_results_zip(
+                save_results, result, doc, pose_relation or "trans_part"
+            )
+        else:
+            data = text + "\n"
+        _write_output(save_results, data, "the results")
+    saved: list[Path] = [save_results] if save_results is not None else []
+    if save_errors is not None:
+        for name, path in _label_paths(save_errors, list(result.results), result.primary).items():
+            _write_output(path, errors_csv(result.results[name]), "the per-sample errors")
+            saved.append(path)
+    if plot or save_plot is not None:
+        saved += _plot(result, save_plot)
     if as_json:
         sys.stdout.write(text + "\n")
+        for path in saved:  # stdout holds the JSON alone
+            sys.stderr.write(f"wrote {path}\n")
         return
     for name, res in result.results.items():
         _print_table(res.to_json(), f"{name}: {res.other.describe()} vs {res.reference.describe()}")
+        if verbose and res.alignment.mode != "none":
+            import numpy as np
+
+            al = res.alignment
+            sys.stdout.write(
+                f"alignment {al.mode}: scale {al.scale:.9g}, translation (m) "
+                f"{np.array2string(al.translation, precision=9)}, rotation\n"
+                f"{np.array2string(al.rotation, precision=9)}\n"
+            )
+    for path in saved:
+        sys.stdout.write(f"wrote {path}\n")
 
 
 @dataclass(frozen=True)
@@ -177,8 +437,16 @@ FRAME_HELP = (
 
 #: Every option of ``uwval compare``, in ``--help`` order.
 COMPARE_OPTIONS: tuple[CompareOption, ...] = (
-    CompareOption("gazebo_topic", ("--gazebo-topic",), str, None, "Reference topic"),
-    CompareOption("unity_topic", ("--unity-topic",), str, None, "Other (Unity) topic"),
+    CompareOption(
+        "gazebo_topic",
+        ("--gazebo-topic",),
+        str,
+        None,
+        "Reference topic (a TF topic's transform: /tf#CHILD; `uwval inspect` lists them)",
+    ),
+    CompareOption(
+        "unity_topic", ("--unity-topic",), str, None, "Other (Unity) topic (/tf#CHILD too)"
+    ),
     CompareOption(
         "fmt",
         ("--format",),
@@ -202,17 +470,114 @@ COMPARE_OPTIONS: tuple[CompareOption, ...] = (
         None,
         "interp: mask samples in gaps longer than this (s; default 5 periods)",
     ),
-    CompareOption("max_diff", ("--max-diff",), float, 0.01, "nearest: max stamp difference (s)"),
+    CompareOption(
+        "max_diff",
+        ("--max-diff", "--t_max_diff", "--t-max-diff"),
+        float,
+        0.01,
+        "nearest: max stamp difference (s; --t_max_diff is evo's spelling)",
+    ),
     CompareOption(
         "offset",
-        ("--offset",),
+        ("--offset", "--t_offset", "--t-offset"),
         str,
         "0",
-        "Clock offset added to the second stream's stamps (s), or 'auto' to estimate it",
+        "Clock offset added to the second stream's stamps (s), or 'auto' to estimate it "
+        "(--t_offset is evo's spelling, same sign)",
     ),
     CompareOption("max_offset", ("--max-offset",), float, None, "Bound for --offset auto (s)"),
-    CompareOption("align", ("--align",), str, "none", "none, se3, sim3 (Umeyama) or origin"),
+    CompareOption(
+        "align",
+        ("--align",),
+        str,
+        "none",
+        "none, se3, sim3 (Umeyama), origin or scale (evo's -s alone); --align with no "
+        "value (last, or before another option) is evo's flag: se3",
+    ),
+    CompareOption(
+        "evo_align",
+        ("-a",),
+        bool,
+        False,
+        "evo's -a: SE(3) Umeyama alignment (= --align se3; -as: Sim(3), = --align sim3)",
+    ),
+    CompareOption(
+        "correct_scale",
+        ("-s", "--correct_scale", "--correct-scale"),
+        bool,
+        False,
+        "evo's -s: correct the scale (with -a: Sim(3); alone: scale only)",
+    ),
+    CompareOption(
+        "align_origin",
+        ("--align_origin", "--align-origin"),
+        bool,
+        False,
+        "evo's --align_origin: = --align origin",
+    ),
+    CompareOption(
+        "n_to_align",
+        ("--n_to_align", "--n-to-align"),
+        int,
+        -1,
+        "Fit the alignment on the first N aligned samples only, apply it to all (-1: all)",
+    ),
+    CompareOption(
+        "pose_relation",
+        ("-r", "--pose_relation", "--pose-relation"),
+        str,
+        None,
+        "Also give evo_ape's statistics of this pose relation: trans_part, rot_part, full, "
+        "angle_deg, angle_rad or point_distance (printed, and under 'ape' in the JSON)",
+    ),
+    CompareOption(
+        "verbose",
+        ("-v", "--verbose"),
+        bool,
+        False,
+        "evo's -v: also print the alignment (rotation, translation, scale)",
+    ),
+    CompareOption(
+        "plot",
+        ("--plot",),
+        bool,
+        False,
+        "Write the trajectory and error-over-time plots as PNG files (no window opens): "
+        "to --save_plot, else uwval_<topic>_{trajectory,errors}.png in the current folder",
+    ),
+    CompareOption(
+        "save_plot",
+        ("--save_plot", "--save-plot"),
+        Path,
+        None,
+        "PNG path of the trajectory plot (the error plot goes beside it, *_errors.png); "
+        "implies --plot",
+    ),
+    CompareOption(
+        "save_errors",
+        ("--save-errors", "--save_errors"),
+        Path,
+        None,
+        "Write the per-sample signed errors as CSV: one row per aligned sample (stamp, "
+        "x y z m, roll pitch yaw deg, position norm m, rotation angle deg)",
+    ),
+    CompareOption(
+        "save_results",
+        ("--save_results", "--save-results"),
+        Path,
+        None,
+        "evo's --save_results: a .zip holds stats.json and info.json (evo's keys), "
+        "uwval.json (the full result) and errors.csv; any other suffix: the JSON result",
+    ),
     CompareOption("as_json", ("--json",), bool, False, "Print the JSON result"),
+    CompareOption(
+        "config",
+        ("--config",),
+        Path,
+        None,
+        "Project file naming pairs, frames and option defaults (default: ./uwval.toml when "
+        "present; options given here win)",
+    ),
     CompareOption(
         "output",
         ("-o", "--output"),
@@ -259,6 +624,35 @@ _FAST_OPTIONS: dict[str, tuple[str, type]] = {
 _PLAIN_FLOAT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
 
 
+def _bare_align(argv: list[str]) -> list[str]:
+    """evo's ``--align`` is a flag (SE(3)); uwval's takes a value. ``--align`` last or
+    followed by another option is evo's flag: rewritten to ``-a``."""
+    out = list(argv)
+    for i, arg in enumerate(out):
+        if arg == "--align" and (i + 1 == len(out) or out[i + 1].startswith("-")):
+            out[i] = "-a"
+    return out
+
+
+def _expand_short_flags(argv: list[str]) -> list[str]:
+    """``-as`` -> ``-a -s``, ``-va`` -> ``-v -a`` (click's clustering of short flags), when
+    every letter is a known short flag of :data:`COMPARE_OPTIONS` (anything else is left)."""
+    out: list[str] = []
+    for arg in argv:
+        letters = arg[1:]
+        if (
+            arg.startswith("-")
+            and not arg.startswith("--")
+            and len(letters) > 1
+            and arg not in _FAST_OPTIONS
+            and all(_FAST_OPTIONS.get("-" + c, ("", None))[1] is bool for c in letters)
+        ):
+            out.extend("-" + c for c in letters)
+        else:
+            out.append(arg)
+    return out
+
+
 def fast_compare(argv: list[str]) -> bool:
     """Run ``uwval compare`` from the arguments after ``compare``, if they are plain.
 
@@ -269,9 +663,9 @@ def fast_compare(argv: list[str]) -> bool:
     """
     kwargs: dict[str, Any] = {}
     positional: list[str] = []
-    args = iter(argv)
+    args = iter(_expand_short_flags(_bare_align(argv)))
     for arg in args:
-        if arg.startswith("-"):
+        if arg.startswith("-") and not _PLAIN_FLOAT.fullmatch(arg):
             name, has_value, value = arg.partition("=")
             spec = _FAST_OPTIONS.get(name)
             if spec is None or spec[0] in kwargs:
@@ -290,6 +684,10 @@ def fast_compare(argv: list[str]) -> bool:
                 if not _PLAIN_FLOAT.fullmatch(value):
                     return False
                 kwargs[dest] = float(value)
+            elif kind is int:
+                if not re.fullmatch(r"[-+]?\d+", value):
+                    return False
+                kwargs[dest] = int(value)
             elif kind is str or kind is Path:
                 kwargs[dest] = kind(value)
             else:  # a kind the light parser does not convert: typer's job

@@ -16,6 +16,7 @@ from rich.console import Console
 from rich.table import Table
 
 from uwval.cli import app
+from uwval.cli.compare_run import output_console
 from uwval.cli.pipeline import SessionOptions
 from uwval.cli.simulate_cmd import run_experiment
 from uwval.resources import data_path
@@ -54,6 +55,7 @@ def demo(
     batch.save(results_dir)
     console.print(f"[green]compared[/] {len(batch.runs)} logs: results in {results_dir}")
     _print_summary(batch.runs)
+    console.print(f"full results table (every metric and axis): {results_dir / 'results.csv'}")
 
     from uwval.reports import build_report
 
@@ -100,4 +102,4 @@ def _print_summary(runs: list[dict[str, Any]]) -> None:
             "n/a" if rx is None else f"{rx:.5f}",
             f"{c['position_error_norm']['max']:.2e}",
         )
-    console.print(table)
+    output_console().print(table)  # a file or a pipe: the full width, no cell cut to "1.2e-…"

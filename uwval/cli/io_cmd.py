@@ -96,8 +96,14 @@ def inspect_cmd(
 ) -> None:
     """Show a log's topics, types, message counts, rates, time span and largest gaps."""
     summary = summarize(log, gaps)
+    tf = _tf_pairs(log, summary)
     if as_json:
-        typer.echo(json.dumps(asdict(summary), indent=2))
+        doc = asdict(summary)
+        doc["tf_pairs"] = {
+            name: [{"parent": a, "child": b, "count": n} for a, b, n in pairs]
+            for name, pairs in tf.items()
+        }
+        typer.echo(json.dumps(doc, indent=2))
         return
     console = Console()
     if not console.is_terminal:  # pipes get the full table, not an 80-column wrap
@@ -125,8 +131,23 @@ def inspect_cmd(
             gap,
         )
     console.print(table)
+    for name, pairs in tf.items():  # compare takes one of them as TOPIC#CHILD
+        listed = ", ".join(f"{a}->{b} ({n})" for a, b, n in pairs) or "none"
+        console.print(f"{name} parent->child: {listed}", highlight=False, markup=False)
     for note in summary.warnings:
         console.print(f"[yellow]warning:[/] {note}", highlight=False)
+
+
+def _tf_pairs(log: Path, summary: LogSummary) -> dict[str, list[tuple[str, str, int]]]:
+    """parent->child pairs (with counts) of every TFMessage topic of the log."""
+    from uwval.io.decode import TF_TYPES
+    from uwval.io.reader import tf_pairs
+
+    with warnings.catch_warnings():  # what the log's reader warns about is in summary.warnings
+        warnings.simplefilter("ignore")
+        return {
+            t.name: tf_pairs(log, t.name) for t in summary.topics if t.type in TF_TYPES and t.count
+        }
 
 
 def _fmt(x: Any, spec: str) -> str:

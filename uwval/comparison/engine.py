@@ -31,7 +31,7 @@ from uwval.comparison.sync import (
     nominal_period_ns,
 )
 from uwval.compat import StrEnum
-from uwval.errors import AlignmentError, PoseStreamError
+from uwval.errors import AlignmentError, PoseStreamError, UwvalError
 from uwval.frames import CONVENTIONS, convert_stream, get_convention
 from uwval.posestream import MAX_ABS_STAMP_S, PoseStream
 from uwval.rotations import geodesic_angle, rpy_from_quat, wrap_deg
@@ -128,6 +128,77 @@ class ComparisonResult:
         return pd.DataFrame(data)
 
 
+#: evo's APE pose relations (``evo_ape -r``) and the unit of each error.
+APE_RELATIONS = {
+    "trans_part": "m",
+    "rot_part": "none",
+    "full": "none",
+    "angle_deg": "deg",
+    "angle_rad": "rad",
+    "point_distance": "m",
+}
+
+
+def ape_errors(reference: PoseStream, other: PoseStream, relation: str) -> F64:
+    """Absolute pose error per aligned sample under evo's pose ``relation`` (``evo_ape -r``).
+
+    With E = Q^-1 P (Q the reference pose, P the other, both ENU world / FLU body on the same
+    stamps): ``trans_part`` and ``point_distance`` |p - q| (m); ``angle_rad`` / ``angle_deg``
+    the rotation angle of R_E; ``rot_part`` |R_E - I|_F = 2 sqrt(2) |sin(angle / 2)|
+    (unitless); ``full`` |E - I|_F = sqrt(rot_part^2 + |p - q|^2) (as evo's 4x4 matrices).
+    Vectorized over samples, no 4x4 matrices.
+    """
+    if relation not in APE_RELATIONS:
+        raise AlignmentError(
+            f"--pose_relation {relation!r}: choose one of {', '.join(APE_RELATIONS)}"
+        )
+    if relation in ("trans_part", "point_distance"):
+        return _position_norm(reference.position, other.position)
+    angle = geodesic_angle(other.orientation, reference.orientation)
+    if relation == "angle_rad":
+        return angle
+    if relation == "angle_deg":
+        return np.degrees(angle)
+    rot = 2.0 * math.sqrt(2.0) * np.abs(np.sin(angle / 2.0))
+    if relation == "rot_part":
+        return rot
+    trans = _position_norm(reference.position, other.position)
+    return np.sqrt(rot * rot + trans * trans)
+
+
+def ape_statistics(reference: PoseStream, other: PoseStream, relation: str) -> dict[str, Any]:
+    """evo_ape's statistics (rmse, mean, median, std, min, max, sse) of :func:`ape_errors`."""
+    stats: dict[str, Any] = {"pose_relation": relation, "unit": APE_RELATIONS.get(relation, "")}
+    stats.update(norm_stats(ape_errors(reference, other, relation)))
+    return stats
+
+
+def _names_convention(frame_id: str) -> bool:
+    """Whether a frame_id is a uwval convention name or alias (it states axes, not origin)."""
+    try:
+        get_convention(frame_id)
+    except UwvalError:  # FrameError: not a convention name
+        return False
+    return True
+
+
+def frame_id_mismatch(reference: PoseStream, other: PoseStream) -> str:
+    """A warning when the two streams' header frame_ids (read from the log) differ, e.g.
+    ``/odom`` (frame_id ``odom``) vs ``/amcl_pose`` (``map``); "" when they agree or are
+    unknown. frame_ids that name a uwval convention (``unity-flu``, ``enu``...) state the
+    axes, not the origin, and are left out."""
+    a = [f for f in reference.frame_ids if f and not _names_convention(f)]
+    b = [f for f in other.frame_ids if f and not _names_convention(f)]
+    if not a or not b or set(a) == set(b):
+        return ""
+    return (
+        f"the streams are in different frames: {reference.describe()} has frame_id "
+        f"{', '.join(map(repr, a))}, {other.describe()} has {', '.join(map(repr, b))}; "
+        "their poses differ by the transform between the frames (compare topics in one "
+        "frame, or fit it with --align se3)"
+    )
+
+
 def _json_clean(obj: Any) -> Any:
     """NaN/inf -> None (JSON has no NaN), numpy scalars -> Python numbers."""
     if isinstance(obj, dict):
@@ -203,6 +274,7 @@ def compare(
     align: AlignMode | str = AlignMode.NONE,
     min_samples: int = 2,
     check_frame: bool | None = None,
+    n_to_align: int = -1,
 ) -> ComparisonResult:
     """Compare ``other`` (e.g. Unity) against ``reference`` (Gazebo, the truth).
 
@@ -215,7 +287,10 @@ def compare(
             or ``"nearest"`` (evo's association within ``max_diff`` seconds).
         offset: seconds added to the other stream's stamps (evo's ``offset_2`` sign), or
             ``"auto"`` to estimate it from the motion (bounded by ``max_offset`` if given).
-        align: ``none``, ``se3``, ``sim3`` (Umeyama, as evo) or ``origin``.
+        align: ``none``, ``se3``, ``sim3`` (Umeyama, as evo), ``origin``, or ``scale``
+            (evo's ``-s`` alone: the Sim(3) scale only, no rotation or translation).
+        n_to_align: fit the alignment on the first ``n_to_align`` aligned samples only
+            (evo's ``--n_to_align``; -1: all), then apply it to every sample.
         min_samples: fewer aligned samples than this is an :class:`AlignmentError`.
         check_frame: run the frame doctor (cheap, subsampled) and warn when the configured
             convention fits worse than another one; default: when the other stream is in a
@@ -254,6 +329,9 @@ def compare(
             warnings.append(
                 f"{s.describe()}: {sum(s.dropped.values())} message(s) not used ({causes})"
             )
+    mismatch = frame_id_mismatch(reference, other)
+    if mismatch:
+        warnings.append(mismatch)
     frame_source = "argument" if frame not in (None, "auto") else ("auto" if frame else "stream")
     configured = other.frame if frame in (None, "auto") else get_convention(frame).name
     ref_c = _to_canonical(reference)
@@ -363,7 +441,12 @@ def compare(
         )
 
     # ---- spatial alignment
-    alignment = estimate_alignment(align, ref_pos, ref_quat, oth_pos, oth_quat)
+    if n_to_align == -1 and align != "scale":
+        alignment = estimate_alignment(align, ref_pos, ref_quat, oth_pos, oth_quat)
+    else:  # evo's -s alone / --n_to_align: the same helper as uwval rpe
+        from uwval.comparison.rpe import _alignment
+
+        alignment = _alignment(str(align), n_to_align, ref_pos, ref_quat, oth_pos, oth_quat)
     oth_pos, oth_quat = alignment.apply(oth_pos, oth_quat)
 
     # ---- errors: statistics axis by axis; the series themselves are recomputed on demand

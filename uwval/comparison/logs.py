@@ -4,6 +4,7 @@ run :func:`uwval.comparison.compare` per topic pair (vehicle and camera), collec
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -60,15 +61,74 @@ def read_pose_stream(
     from uwval.io import list_topics, read_stream
 
     if topic is None:
-        topics = [t.name for t in list_topics(path)]
-        candidates = [t for t in topics if not t.endswith("/applied_stamp")]
-        if len(candidates) != 1:
+        from uwval.io.decode import POSE_TYPES, TF_TYPES
+
+        infos = list_topics(path)
+        if not any(i.count for i in infos):
+            raise LogReadError(f"{path}: the log is empty ({len(infos)} topic(s), no messages)")
+        poses = sorted(
+            i.name
+            for i in infos
+            if i.type in POSE_TYPES and i.count and not i.name.endswith("/applied_stamp")
+        )
+        tfs = sorted(i.name + "#CHILD" for i in infos if i.type in TF_TYPES and i.count)
+        if len(poses) != 1 or tfs:
+            listed = ", ".join(poses + tfs) or f"none ({len(infos)} other topic(s))"
             raise LogReadError(
                 f"{path}: name the topic to compare (--gazebo-topic / "
-                f"--unity-topic); topics: {', '.join(sorted(topics))}"
+                f"--unity-topic); pose topics: {listed}"
             )
-        topic = candidates[0]
+        topic = poses[0]
     return read_stream(path, topic, frame=frame)
+
+
+def pair_label(gazebo_topic: str, unity_topic: str) -> str:
+    """A label for a compared topic pair that does not collide: the path segments the two
+    topics share at their end (``/gazebo/model_rov_pose`` + ``/unity/model_rov_pose`` ->
+    ``model_rov_pose``; ``/model/tethys/pose`` + ``/unity/tethys/pose`` -> ``tethys/pose``),
+    else both names (``odom~amcl_pose``). A TF child (``/tf#base_link``) counts as a segment."""
+    a = gazebo_topic.replace("#", "/").strip("/").split("/")
+    b = unity_topic.replace("#", "/").strip("/").split("/")
+    common: list[str] = []
+    for x, y in zip(reversed(a), reversed(b), strict=False):
+        if x != y:
+            break
+        common.insert(0, x)
+    if common and common != a and common != b:
+        return "/".join(common)
+    if a == b:
+        return "/".join(a)
+    return "/".join(a) + "~" + "/".join(b)
+
+
+def no_pair_message(path: str | Path) -> str:
+    """Why a log has no default topic pair, listing only the topics that hold poses."""
+    from uwval.io import list_topics
+    from uwval.io.decode import POSE_TYPES, TF_TYPES
+
+    infos = list_topics(path)
+    if not infos:
+        return f"{path}: the log is empty (no topics, no messages)"
+    if not any(i.count for i in infos):
+        return f"{path}: the log is empty ({len(infos)} topic(s), no messages)"
+    poses = [
+        f"{i.name} ({i.type.split('/')[-1]}, {i.count})"
+        for i in sorted(infos, key=lambda i: i.name)
+        if i.type in POSE_TYPES and not i.name.endswith("/applied_stamp")
+    ]
+    tfs = [i.name for i in sorted(infos, key=lambda i: i.name) if i.type in TF_TYPES]
+    head = f"{path}: no Gazebo/Unity topic pair ({DEFAULT_GAZEBO_TOPIC} and {DEFAULT_UNITY_TOPIC})"
+    if not poses and not tfs:
+        return f"{head}; the log holds no pose topics ({len(infos)} other topic(s))"
+    parts = []
+    if poses:
+        parts.append("pose topics: " + ", ".join(poses))
+    if tfs:
+        parts.append(
+            "TF topics (name a child frame: TOPIC#CHILD; `uwval inspect` lists them): "
+            + ", ".join(tfs)
+        )
+    return f"{head}; {'; '.join(parts)}; choose with --gazebo-topic / --unity-topic"
 
 
 def _topics_of(path: str | Path) -> set[str]:
@@ -85,6 +145,7 @@ def compare_logs(
     unity_topic: str | None = None,
     fmt: str | None = None,
     frame: str | None = None,
+    pairs: Sequence[Any] | None = None,
     **options: Any,
 ) -> LogComparison:
     """Compare the Gazebo (reference) and Unity streams of one log, or of two files.
@@ -94,19 +155,26 @@ def compare_logs(
     Two files: the reference is read from ``path_a`` (``gazebo_topic``), the other from
     ``path_b`` (``unity_topic``); TUM text by ``fmt='tum'`` or suffix. ``frame`` states the
     other stream's convention (default: from the log; ``enu`` for TUM); other ``options`` go
-    to :func:`compare`.
+    to :func:`compare`. ``pairs`` (a project file's :class:`uwval.config.TopicPair` list:
+    ``name``, ``reference``, ``other``, ``frame``) names the pairs of one log to compare when
+    no topic is given; with two logs the first pair's topics are read.
     """
     results: dict[str, ComparisonResult] = {}
     if path_b is None:
         if is_tum(path_a, fmt):
             raise LogReadError(f"{path_a}: a TUM file holds one trajectory; give two files")
-        pairs: list[tuple[str, str, str]]
+        pairs_l: list[tuple[str, str, str]]
         from uwval.io import read_streams
 
-        if gazebo_topic or unity_topic:
+        frames: dict[str, str | None] = {}
+        if pairs and not (gazebo_topic or unity_topic):
+            pairs_l = [(p.name, p.reference, p.other) for p in pairs]
+            frames = {p.name: p.frame for p in pairs}
+            streams = read_streams(path_a, [t for _, g, u in pairs_l for t in (g, u)])
+        elif gazebo_topic or unity_topic:
             g = gazebo_topic or DEFAULT_GAZEBO_TOPIC
             u = unity_topic or DEFAULT_UNITY_TOPIC
-            pairs = [(g.strip("/").split("/")[-1], g, u)]
+            pairs_l = [(pair_label(g, u), g, u)]
             streams = read_streams(path_a, [g, u])
         else:
             # one pass over the log: every candidate topic, then the pairs that are present
@@ -114,31 +182,37 @@ def compare_logs(
                 p + name for name in (VEHICLE, CAMERA) for p in (GAZEBO_PREFIX, UNITY_PREFIX)
             ]
             streams = read_streams(path_a, candidates, skip_missing=True)
-            pairs = [
+            pairs_l = [
                 (name, GAZEBO_PREFIX + name, UNITY_PREFIX + name)
                 for name in (VEHICLE, CAMERA)
                 if GAZEBO_PREFIX + name in streams and UNITY_PREFIX + name in streams
             ]
-            if not pairs:
-                present = _topics_of(path_a)
-                raise LogReadError(
-                    f"{path_a}: no Gazebo/Unity topic pair ({DEFAULT_GAZEBO_TOPIC} and "
-                    f"{DEFAULT_UNITY_TOPIC}); topics: {', '.join(sorted(present))}; "
-                    "choose with --gazebo-topic / --unity-topic"
-                )
-        for name, g, u in pairs:
+            if not pairs_l:
+                raise LogReadError(no_pair_message(path_a))
+        for name, g, u in pairs_l:
             ref, oth = streams[g], streams[u]
-            if frame not in (None, "auto"):
-                oth = oth.with_(frame=frame)
-            results[name] = compare(ref, oth, frame=frame, **options)
-        return LogComparison(results, pairs[0][0], [str(path_a)])
+            pair_frame = frames.get(name) or frame
+            if pair_frame not in (None, "auto"):
+                oth = oth.with_(frame=pair_frame)
+            results[name] = compare(ref, oth, frame=pair_frame, **options)
+        return LogComparison(results, pairs_l[0][0], [str(path_a)])
+
+    pair_name = None
+    if pairs and not (gazebo_topic or unity_topic) and not is_tum(path_a, fmt):
+        first = pairs[0]
+        gazebo_topic, unity_topic, pair_name = first.reference, first.other, first.name
+        frame = first.frame or frame
 
     ref, oth = _read_pair(
         path_a, path_b, gazebo_topic, unity_topic, fmt, None if frame == "auto" else frame
     )
-    name = (gazebo_topic or unity_topic or VEHICLE).strip("/").split("/")[-1]
+    if gazebo_topic and unity_topic:
+        name = pair_label(gazebo_topic, unity_topic)
+    else:
+        name = (gazebo_topic or unity_topic or VEHICLE).replace("#", "/").strip("/").split("/")[-1]
     if is_tum(path_a, fmt) and not gazebo_topic:
         name = "trajectory"
+    name = pair_name or name
     results[name] = compare(ref, oth, frame=frame, **options)
     return LogComparison(results, name, [str(path_a), str(path_b)])
 

@@ -12,6 +12,9 @@ Thresholds live in a TOML file (format documented in ``THRESHOLDS_FORMAT`` and
     metric = "mae"                     # a results-table metric (mae, max, rmse, p95, pearson_r...)
     axes = ["x", "y", "z"]             # default: all of x y z roll pitch yaw
     topics = ["model_rov_pose"]        # fnmatch patterns; default ["*"]
+    # roles = ["vehicle"]              # or ["camera"], ["any"]: by role, not name (a topic
+                                       # label naming a camera is the camera, any other
+                                       # the vehicle); no topic of the role: rule skipped
     max = 0.05                         # fail when value > max (units of the axis: m or deg)
     # min = 0.99                       # fail when value < min
     # factors = { current = 0.2 }      # only runs at these factor levels
@@ -26,7 +29,8 @@ Thresholds live in a TOML file (format documented in ``THRESHOLDS_FORMAT`` and
     r_min = 0.9                        # baseline r below this (noise-level axis): not gated
     metrics = ["mae", "rmse", "max", "p95", "pearson_r"]
 
-A rule that matches no row is itself a failure (a typo must not pass silently), and so is a
+A rule that matches no row is itself a failure (a typo must not pass silently; a rule keyed
+by ``roles`` is skipped instead, with a note), and so is a
 run the rule should cover (by its factor levels) that has no row for one of its axes.
 A gated value that is NaN or missing fails, unless it may be undefined by definition: a
 Pearson statistic the engine left undefined with its reason (fewer than 3 samples, a

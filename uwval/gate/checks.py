@@ -3,7 +3,6 @@ warnings and missing runs, each returning a :class:`~uwval.gate.verdict.GateResu
 
 from __future__ import annotations
 
-import fnmatch
 import math
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -68,7 +67,7 @@ def check_thresholds(table: ResultsTable, thresholds: Thresholds) -> GateResult:
                     f"{thresholds.source}: rule [{rule.label()}] filters on factor "
                     f"{f!r}, which the results lack (factors: {table.factors})"
                 )
-        want_topics = [t for t in topics if any(fnmatch.fnmatchcase(t, p) for p in rule.topics)]
+        want_topics = [t for t in topics if rule.applies_to(t)]
         in_scope = pd.Series(True, index=df.index)
         for f, level in rule.factors.items():
             in_scope &= df[f].map(lambda c, lv=level: _level_matches(c, lv))
@@ -79,6 +78,12 @@ def check_thresholds(table: ResultsTable, thresholds: Thresholds) -> GateResult:
             & df["topic"].isin(want_topics)
         )
         rows = df[mask]
+        if rows.empty and rule.roles:  # keyed by role: no such topic here is not a failure
+            result.skipped.append(
+                f"rule [{rule.label()}]: no {' or '.join(rule.roles)} topic with "
+                f"{rule.metric} on {', '.join(rule.axes)} in these results"
+            )
+            continue
         if rows.empty:
             result.violations.append(
                 Violation(

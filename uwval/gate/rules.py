@@ -53,6 +53,18 @@ class ThresholdRule:
     factors: dict[str, Any] = field(default_factory=dict)
     undefined: UndefinedPolicy = UndefinedPolicy.SKIP
     name: str = ""
+    #: Roles the rule applies to (``vehicle``, ``camera``); empty: by ``topics`` only. A
+    #: role-keyed rule that finds no topic of its role is skipped, never a failure: results
+    #: are not judged by how their topics are named.
+    roles: tuple[str, ...] = ()
+
+    def applies_to(self, topic: str) -> bool:
+        """Whether ``topic`` (a results-table topic label) is in this rule's scope."""
+        import fnmatch
+
+        if not any(fnmatch.fnmatchcase(topic, p) for p in self.topics):
+            return False
+        return not self.roles or topic_role(topic) in self.roles
 
     def label(self) -> str:
         if self.name:
@@ -63,6 +75,17 @@ class ThresholdRule:
         if self.min is not None:
             parts.append(f">= {self.min:g}")
         return " ".join(parts)
+
+
+#: Roles a rule may be keyed by (``any`` = every role).
+ROLES = ("vehicle", "camera")
+
+
+def topic_role(topic: str) -> str:
+    """The role of a compared topic pair from its label: ``camera`` when the label names a
+    camera (``gui_camera_pose``, ``/camera/pose``...), else ``vehicle`` (the tracked body:
+    ``model_rov_pose``, ``tethys/pose``, ``groundtruth~ORB-SLAM``)."""
+    return "camera" if "camera" in topic.lower() else "vehicle"
 
 
 @dataclass(frozen=True)
@@ -144,6 +167,8 @@ def _parse_rule(r: Any, where: str) -> ThresholdRule:
         "min",
         "factors",
         "undefined",
+        "role",
+        "roles",
     }
     extra = sorted(set(r) - allowed)
     if extra:
@@ -175,6 +200,15 @@ def _parse_rule(r: Any, where: str) -> ThresholdRule:
     except ValueError:
         raise ConfigError(f'{where}: \'undefined\' must be "skip" or "fail"') from None
     name = r.get("name", "")
+    roles: list[str] = []
+    if "roles" in r or "role" in r:
+        roles = _str_list(r.get("roles", r.get("role")), f"{where}: roles")
+        bad = sorted(set(roles) - {*ROLES, "any"})
+        if bad:
+            raise ConfigError(
+                f"{where}: unknown role(s) {bad}; choose from {', '.join((*ROLES, 'any'))}"
+            )
+        roles = list(ROLES) if "any" in roles else roles
     return ThresholdRule(
         metric,
         tuple(axes),
@@ -184,6 +218,7 @@ def _parse_rule(r: Any, where: str) -> ThresholdRule:
         dict(factors),
         undefined,
         str(name),
+        tuple(roles),
     )
 
 

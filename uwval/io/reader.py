@@ -133,7 +133,7 @@ def read_streams(
         raise LogReadError(f"{p}: unknown read option(s): {', '.join(sorted(opts))}")
     if time_src not in ("header", "log"):
         raise LogReadError(f"{p}: time must be 'header' or 'log', not {time_src!r}")
-    wanted = {norm_topic(t) for t in topics}
+    wanted = {norm_topic(split_child(t)[0]) for t in topics}
     extra = {t + APPLIED_SUFFIX for t in wanted}
     if tf_static:
         extra.add("/tf_static")
@@ -141,7 +141,8 @@ def read_streams(
     log.warn_lost()
     out: dict[str, PoseStream] = {}
     for t in topics:
-        name = norm_topic(t)
+        bare, topic_child = split_child(t)
+        name = norm_topic(bare)
         raw = log.raw.get(name)
         if raw is None:
             if skip_missing and not any(i.name == name for i in log.topics):
@@ -155,15 +156,47 @@ def read_streams(
                 raw,
                 log,
                 frame=frame,
-                child=child_frame,
+                child=topic_child or child_frame,
                 parent=parent_frame,
                 time_src=time_src,
                 tf_static=tf_static,
                 fast=fast,
             )
+            if topic_child:  # the stream is named as asked: /tf#turtle1
+                out[t] = out[t].with_(topic=f"{name}#{topic_child}")
         except PoseStreamError as exc:
             raise LogReadError(f"{p}: topic {name!r}: {exc}") from exc
     return out
+
+
+def split_child(topic: str) -> tuple[str, str | None]:
+    """``/tf#turtle1`` -> (``/tf``, ``turtle1``): a topic name may carry the child frame to
+    take from a TFMessage topic (or to filter an Odometry / TransformStamped topic on)."""
+    name, sep, child = topic.partition("#")
+    return name, (child.strip("/") or None) if sep else None
+
+
+def tf_pairs(path: str | Path, topic: str) -> list[tuple[str, str, int]]:
+    """(parent, child, number of transforms) of every pair a TFMessage ``topic`` carries."""
+    p = Path(path)
+    _check_path(p)
+    name = norm_topic(split_child(topic)[0])
+    log = scan_log(p, [name])
+    raw = log.raw.get(name)
+    if raw is None:
+        raise LogReadError(_missing(p, topic, log))
+    if raw.msgtype not in TF_TYPES:
+        raise LogReadError(f"{p}: topic {name!r} is {raw.msgtype}, not a TF topic")
+    dec, _bad = decode_tf(raw, errors="drop")
+    pairs: dict[tuple[str, str], int] = {}
+    if len(dec.stamp):
+        codes, counts = np.unique(
+            np.stack([dec.frame_code, dec.child_code], axis=1), axis=0, return_counts=True
+        )
+        for (a, b), n in zip(codes, counts, strict=True):
+            key = (dec.names[int(a)], dec.names[int(b)])
+            pairs[key] = pairs.get(key, 0) + int(n)
+    return [(a, b, n) for (a, b), n in sorted(pairs.items())]
 
 
 def _missing(p: Path, topic: str, log: RawLog) -> str:
@@ -249,7 +282,7 @@ def _to_stream(
             f"{p} [{raw.name}]: stamps are not in order ({s.repairs['sorted']} step(s) back "
             "in time); the samples were sorted by stamp"
         )
-    return s.with_(dropped=dropped, warnings=tuple(warns))
+    return s.with_(dropped=dropped, warnings=tuple(warns), frame_ids=tuple(frame_id))
 
 
 def _applied(p: Path, comp: RawTopic, log_time: I64) -> tuple[I64 | None, str]:
@@ -347,8 +380,9 @@ def _tf_pose(
         kids = sorted({c for _, c in edges if parent_n is None or _ == parent_n})
         if len(kids) != 1:
             raise LogReadError(
-                f"{p}: topic {raw.name!r} carries several transforms; choose child_frame "
-                f"(parent->child pairs: {', '.join(f'{a}->{b}' for a, b in edges)})"
+                f"{p}: topic {raw.name!r} carries several transforms; choose the child frame "
+                f"as {raw.name}#CHILD (parent->child pairs: "
+                f"{', '.join(f'{a}->{b}' for a, b in edges)})"
             )
         child_n = kids[0]
     # Walk up from the child through static transforms to a dynamically published frame.
