@@ -97,6 +97,41 @@ CLOSED_STATS_KEPT = 64
 #: Seconds accepting pauses after an accept failure (e.g. out of file descriptors).
 ACCEPT_BACKOFF_S = 0.05
 
+#: Server behaviours: uwval's own (forgiving, several clients) and ROS-TCP-Endpoint 0.7.0's.
+COMPAT_MODES = ("uwval", "real-endpoint")
+#: Message packages a stock ROS install resolves (the real endpoint imports ``pkg.msg``);
+#: more with ``known_packages`` or :meth:`BridgeServer.advertise`.
+STANDARD_MSG_PACKAGES = frozenset(
+    {
+        "actionlib_msgs",
+        "builtin_interfaces",
+        "diagnostic_msgs",
+        "geometry_msgs",
+        "nav_msgs",
+        "rosgraph_msgs",
+        "sensor_msgs",
+        "shape_msgs",
+        "std_msgs",
+        "std_srvs",
+        "stereo_msgs",
+        "tf2_msgs",
+        "trajectory_msgs",
+        "visualization_msgs",
+    }
+)
+#: The real endpoint's SysCommands: ``__<name>`` calls ``SysCommands.<name>(**params)``, so an
+#: unknown command (AttributeError) or a missing or extra key (TypeError) ends its client
+#: thread and closes the connection. Values: (required keys, optional keys).
+_REAL_SYSCOMMANDS: dict[str, tuple[frozenset[str], frozenset[str]]] = {
+    wire.SUBSCRIBE: (frozenset({"topic", "message_name"}), frozenset()),
+    wire.PUBLISH: (frozenset({"topic", "message_name"}), frozenset({"queue_size", "latch"})),
+    wire.ROS_SERVICE: (frozenset({"topic", "message_name"}), frozenset()),
+    wire.UNITY_SERVICE: (frozenset({"topic", "message_name"}), frozenset()),
+    wire.REQUEST: (frozenset({"srv_id"}), frozenset()),
+    wire.RESPONSE: (frozenset({"srv_id"}), frozenset()),
+    wire.TOPIC_LIST: (frozenset(), frozenset()),
+}
+
 log = logging.getLogger("uwval.bridge.server")
 
 #: Selector keys' data for the listening socket and the wake-up socket.
@@ -290,6 +325,18 @@ class BridgeServer:
             it is closed; ``None`` (default) keeps it.
         evict_silent: seconds of silence after which an unused connection gives its slot to
             a new one when all ``max_clients`` slots are taken.
+        compat: ``"uwval"`` (default) or ``"real-endpoint"``: behave as ROS-TCP-Endpoint
+            0.7.0 does where it is stricter, so that a Unity app tested here does not break
+            on the real one: an unknown system command, a client-sent ``__handshake`` or
+            ``__remove_subscriber``, or a missing or extra JSON key closes the connection; a
+            message class outside the known packages gets ``__error`` and is not
+            registered; registrations belong to the endpoint, not the connection (kept
+            across reconnects, and a client's publications come back to it when it also
+            subscribes); ``__topic_list`` answers the published topics of the ROS graph.
+            Several clients are still served at once (the real endpoint sends everything to
+            its newest connection).
+        known_packages: message packages resolvable besides ``STANDARD_MSG_PACKAGES``
+            (``compat="real-endpoint"`` only).
     """
 
     def __init__(
@@ -304,6 +351,8 @@ class BridgeServer:
         unused_timeout: float | None = DEFAULT_UNUSED_TIMEOUT_S,
         idle_timeout: float | None = None,
         evict_silent: float = EVICT_SILENT_S,
+        compat: str = "uwval",
+        known_packages: frozenset[str] | set[str] = frozenset(),
     ) -> None:
         self.host = host
         self.port = port
@@ -322,6 +371,13 @@ class BridgeServer:
                 raise BridgeError(f"{what} must be a positive number of seconds, got {value}")
         if not evict_silent >= 0:
             raise BridgeError(f"evict_silent must be >= 0 s, got {evict_silent}")
+        if compat not in COMPAT_MODES:
+            raise BridgeError(f"compat must be one of {', '.join(COMPAT_MODES)}, got {compat!r}")
+        self.compat = compat
+        self.known_packages = STANDARD_MSG_PACKAGES | frozenset(known_packages)
+        # real-endpoint mode: registrations of the endpoint (topic -> message name)
+        self._endpoint_subs: dict[str, str] = {}
+        self._endpoint_pubs: dict[str, str] = {}
         self.unused_timeout = unused_timeout
         self.evict_silent = float(evict_silent)
         self.idle_timeout = idle_timeout
@@ -427,7 +483,10 @@ class BridgeServer:
         it was queued to (0 when nobody subscribes, as a ROS publisher with no peers).
         """
         with self._lock:
-            targets = [c for c in self._clients.values() if topic in c.subscriptions]
+            if topic in self._endpoint_subs:  # real-endpoint mode: the endpoint subscribed
+                targets = list(self._clients.values())
+            else:
+                targets = [c for c in self._clients.values() if topic in c.subscriptions]
         if not targets:
             return 0
         frame = wire.encode_frame(topic, body)
@@ -849,6 +908,9 @@ class BridgeServer:
             self._command(c, frame)
             return
         topic = frame.destination
+        if self.compat == "real-endpoint":
+            self._dispatch_real(c, topic, frame.payload)
+            return
         if topic not in c.publications:
             self._reply(
                 c,
@@ -869,6 +931,85 @@ class BridgeServer:
             data = wire.encode_frame(topic, frame.payload)
             for o in others:
                 o.enqueue(data)
+
+    def _dispatch_real(self, c: _Client, topic: str, payload: bytes) -> None:
+        """A client's message as ROS-TCP-Endpoint handles it: published into ROS by the
+        endpoint's publisher, so the endpoint's own subscriber (if any) sends it back."""
+        with self._lock:
+            registered = topic in self._endpoint_pubs
+            pubs = list(self._endpoint_pubs)
+            callbacks = list(self._callbacks.get(topic, ()))
+            echo = topic in self._endpoint_subs
+            targets = list(self._clients.values()) if echo else []
+        if not registered:
+            self._reply(
+                c,
+                wire.ERROR,
+                {
+                    "text": f"Not registered to publish topic '{topic}'! Valid publish topics "
+                    f"are: dict_keys({pubs!r}) "
+                },
+            )
+            return
+        for cb in callbacks:
+            cb(topic, payload, c.client_id)
+        if targets:
+            data = wire.encode_frame(topic, payload)
+            for o in targets:
+                o.enqueue(data)
+
+    def _command_real(self, c: _Client, cmd: str, params: Any) -> bool:
+        """Checks of the real endpoint's ``SysCommands`` dispatch. Returns False when the
+        command was handled here (the connection closed, or an ``__error`` sent)."""
+        spec = _REAL_SYSCOMMANDS.get(cmd)
+        if spec is None:
+            self._close(
+                c,
+                f"real-endpoint compat: {cmd} is not a command of ROS-TCP-Endpoint 0.7.0, "
+                "which closes the connection here (AttributeError in its client thread)",
+            )
+            return False
+        required, optional = spec
+        keys = set(params) if isinstance(params, dict) else set()
+        missing, extra = sorted(required - keys), sorted(keys - required - optional)
+        if not isinstance(params, dict) or missing or extra:
+            what = (
+                "parameters are not a JSON object"
+                if not isinstance(params, dict)
+                else "; ".join(
+                    x
+                    for x in (
+                        f"missing key(s) {', '.join(missing)}" if missing else "",
+                        f"unexpected key(s) {', '.join(extra)}" if extra else "",
+                    )
+                    if x
+                )
+            )
+            self._close(
+                c,
+                f"real-endpoint compat: {cmd}: {what}; ROS-TCP-Endpoint 0.7.0 closes the "
+                "connection here (TypeError in its client thread)",
+            )
+            return False
+        if cmd in (wire.SUBSCRIBE, wire.PUBLISH, wire.ROS_SERVICE, wire.UNITY_SERVICE):
+            topic, name = str(params["topic"]), str(params["message_name"])
+            pkg, _, cls = name.partition("/")
+            with self._lock:
+                advertised = name in self._advertised.values()
+            if topic and not advertised and not (pkg in self.known_packages and cls.isidentifier()):
+                text = {
+                    wire.SUBSCRIBE: f"SysCommand.subscribe - Unknown message class '{name}'",
+                    wire.PUBLISH: f"SysCommand.publish - Unknown message class '{name}'",
+                    wire.ROS_SERVICE: (
+                        f"RegisterRosService({topic}, {name}) - Unknown service class '{name}'"
+                    ),
+                    wire.UNITY_SERVICE: (
+                        f"RegisterUnityService({topic}, {name}) - Unknown service class '{name}'"
+                    ),
+                }[cmd]
+                self._reply(c, wire.ERROR, {"text": text})
+                return False
+        return True
 
     def _serve_request(self, c: _Client, srv_id: int, frame: wire.Frame) -> None:
         name = frame.destination
@@ -899,6 +1040,8 @@ class BridgeServer:
         cmd = frame.destination
         params = frame.json()
         where = f"client {c.client_id}: {cmd}"
+        if self.compat == "real-endpoint" and not self._command_real(c, cmd, params):
+            return
         if cmd in (wire.SUBSCRIBE, wire.PUBLISH, wire.ROS_SERVICE, wire.UNITY_SERVICE):
             topic = str(params.get("topic", ""))
             name = str(params.get("message_name", ""))
@@ -950,6 +1093,11 @@ class BridgeServer:
                 return
             with self._lock:
                 table[topic] = name
+                if self.compat == "real-endpoint":  # the endpoint's, kept across reconnects
+                    if cmd == wire.SUBSCRIBE:
+                        self._endpoint_subs[topic] = name
+                    elif cmd == wire.PUBLISH:
+                        self._endpoint_pubs[topic] = name
                 self._sub_cond.notify_all()
             self._event(f"{where} {topic} ({name})")
         elif cmd in (wire.REQUEST, wire.RESPONSE):
@@ -963,6 +1111,12 @@ class BridgeServer:
         elif cmd == wire.TOPIC_LIST:
             with self._lock:
                 topics = dict(self._advertised)
+                if self.compat == "real-endpoint":
+                    # rospy.get_published_topics(): the graph's published topics, among
+                    # them the endpoint's own /rosout and its registered publishers
+                    topics.setdefault("/rosout", "rosgraph_msgs/Log")
+                    for t, n in self._endpoint_pubs.items():
+                        topics.setdefault(t, n)
                 for o in self._clients.values():
                     for t, n in o.publications.items():
                         topics.setdefault(t, n)

@@ -75,6 +75,14 @@ def _protocol(name: str) -> Protocol:
         raise BridgeError(f"--protocol: {exc}") from None
 
 
+def _compat(name: str) -> str:
+    from uwval.bridge.server import COMPAT_MODES
+
+    if name not in COMPAT_MODES:
+        raise BridgeError(f"--compat must be one of {', '.join(COMPAT_MODES)}, got {name!r}")
+    return name
+
+
 @bridge_app.command("serve")
 def serve(
     host: HostOpt = "127.0.0.1",
@@ -106,6 +114,22 @@ def serve(
             "one every second) for this many seconds (0: never)."
         ),
     ] = 0.0,
+    compat: Annotated[
+        str,
+        typer.Option(
+            help="uwval (forgiving) or real-endpoint: behave as Unity's ROS-TCP-Endpoint 0.7.0 "
+            "where it is stricter (closes on unknown commands and JSON keys, __error for "
+            "unknown message classes, registrations kept across reconnects, own publications "
+            "echoed), so an app tested here does not break on the real one."
+        ),
+    ] = "uwval",
+    known_package: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="With --compat real-endpoint: a message package the ROS side resolves besides "
+            "the standard ones (repeatable)."
+        ),
+    ] = None,
     duration: Annotated[
         float, typer.Option(help="Stop after this many seconds (0: run until Ctrl-C).")
     ] = 0.0,
@@ -138,10 +162,13 @@ def serve(
         max_clients=max_clients,
         unused_timeout=unused_timeout or None,
         idle_timeout=idle_timeout or None,
+        compat=_compat(compat),
+        known_packages=frozenset(known_package or ()),
     ).start()
     console.print(
         f"[green]ROS-TCP endpoint[/] listening on {host}:{server.port} "
-        f"({server.protocol}); Ctrl-C to stop"
+        f"({server.protocol}{', as ROS-TCP-Endpoint 0.7.0' if compat != 'uwval' else ''}); "
+        "Ctrl-C to stop"
     )
     t_end = time.monotonic() + duration if duration > 0 else float("inf")
     try:
