@@ -124,9 +124,10 @@ def test_offset_auto_finds_epoch_size_offsets(clock_offset: float) -> None:
 
 
 def test_offset_auto_says_when_the_motion_repeats() -> None:
-    """The synthetic path repeats every 800 pi s: over an hour two offsets fit equally."""
+    """The synthetic path repeats every 800 pi s: over an hour two offsets fit equally.
+    (Without applied stamps, which would give the offset whatever the motion.)"""
     g = vehicle_motion(180_000)  # one hour at 50 Hz
-    u = unity_view(g, clock_offset=1.8e9)
+    u = unity_view(g, clock_offset=1.8e9).with_(applied_stamp=None)
     r = compare(g, u, offset="auto")
     assert any("the motion repeats" in w for w in r.warnings)
     assert "the motion repeats" in r.to_json()["offset"]["estimate"]["note"]
@@ -205,3 +206,20 @@ def test_options_are_enums_and_their_strings_still_work() -> None:
     assert EXECUTORS == ("local", "dask", "inline") and Executor("dask") == "dask"
     with pytest.raises(AlignmentError, match="unknown sync method"):
         compare(g, u, sync="linear")
+
+
+def test_cli_offset_auto_uses_applied_stamps_when_the_motion_cannot_tell(tmp_path: Path) -> None:
+    """Issue 17: Unity on an epoch clock, Gazebo on sim time, a vehicle at constant speed (no
+    motion feature to lock on). The log's applied stamps give the offset directly."""
+    log = tmp_path / "p.mcap"
+    run_uwval(
+        "simulate", "--duration", "5", "--unity-clock-offset", "1800000000", "-o", log, check=True
+    )
+    result = run_uwval("compare", log, "--offset", "auto", "--json")
+    assert result.returncode == 0, result.stderr
+    doc = json.loads(result.stdout)
+    for row in doc["comparisons"] if "comparisons" in doc else [doc]:
+        est = row["offset"]["estimate"]
+        assert est["signal"] == "applied_stamps"
+        assert abs(row["offset"]["applied_s"] + 1.8e9) < 0.02  # minus the median latency
+        assert "applied stamp" in est["method"]

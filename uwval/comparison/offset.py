@@ -39,7 +39,7 @@ class OffsetEstimate:
     uncertainty: float
     coarse_offset: float
     correlation: float  # normalised cross-correlation of the speed profiles at the peak
-    signal: str  # "speed" or "angular_speed"
+    signal: str  # "velocity", "speed", "angular_speed" or "applied_stamps"
     grid_step: float  # s
     note: str | None = None  # set when the estimate is doubtful (the search could not decide)
 
@@ -51,7 +51,13 @@ class OffsetEstimate:
             "speed_correlation": self.correlation,
             "signal": self.signal,
             "grid_step_s": self.grid_step,
-            "method": f"{self.signal} cross-correlation + golden-section least squares",
+            "method": (
+                "median of (other stamp - applied stamp): each Unity frame's own stamp "
+                "against the Gazebo stamp it showed, so the estimate absorbs the median "
+                "latency"
+                if self.signal == "applied_stamps"
+                else f"{self.signal} cross-correlation + golden-section least squares"
+            ),
             "note": self.note,
         }
 
@@ -116,6 +122,9 @@ def estimate_offset(
         raise AlignmentError(
             f"max_offset must be a positive number of seconds (or none), got {max_offset}"
         )
+    from_stamps = _offset_from_applied_stamps(reference, other, max_offset)
+    if from_stamps is not None:
+        return from_stamps
     per_ref = float(np.median(np.diff(reference.t))) * 1e-9
     per_oth = float(np.median(np.diff(other.t))) * 1e-9
     dt = min(per_ref, per_oth)
@@ -170,6 +179,35 @@ def estimate_offset(
     window = max(2 * max(dt, per_oth, per_ref) * span, 0.02 * overlap)
     fine, sigma, note = _refine(reference, other, coarse, window)
     return OffsetEstimate(fine, sigma, coarse, corr, signal, dt, note)
+
+
+def _offset_from_applied_stamps(
+    reference: PoseStream, other: PoseStream, max_offset: float | None
+) -> OffsetEstimate | None:
+    """The offset from the recorded clocks, when the other stream carries applied stamps.
+
+    Each Unity frame records the header stamp of the Gazebo pose it showed (on the
+    reference's clock) beside its own stamp (on Unity's clock): their difference is the clock
+    offset plus that frame's latency, whatever the motion (a vehicle at constant speed gives
+    the motion-based search nothing to lock on). Used when most applied stamps fall inside the
+    reference's time span (the two are on one clock); None otherwise, or when fewer than 4
+    frames have one. Integer nanoseconds throughout: epoch-size offsets keep full precision.
+    """
+    applied = other.applied_stamp
+    if applied is None or len(reference) < 2:
+        return None
+    inside = (applied >= reference.t[0]) & (applied <= reference.t[-1])
+    n = int(inside.sum())
+    if n < 4 or n < 0.5 * len(other):
+        return None
+    d = np.sort(other.t[inside] - applied[inside])  # int64 ns: offset + latency per frame
+    med = int(d[n // 2]) if n % 2 else (int(d[n // 2 - 1]) + int(d[n // 2])) // 2
+    offset = -med * 1e-9
+    if max_offset is not None and abs(offset) > max_offset:
+        return None  # outside the allowed bound: let the motion decide within it
+    mad = float(np.median(np.abs(d - med))) * 1e-9
+    sigma = 1.2533 * 1.4826 * mad / math.sqrt(n)  # standard error of a median
+    return OffsetEstimate(offset, sigma, offset, 1.0, "applied_stamps", 0.0, None)
 
 
 def _lag_axis(na: int, nb: int, size: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
@@ -279,13 +317,27 @@ def _best_lag(a: F64, b: F64, max_lag: int | None, base: float) -> tuple[int, fl
 def _position_cost(ref_t: F64, ref_p: F64, oth_t: F64, oth_p: F64, offset: float) -> float:
     """Mean squared demeaned position error with the other stream shifted by ``offset``."""
     tq = ref_t - offset
-    ok = (tq >= oth_t[0]) & (tq <= oth_t[-1])
-    if ok.sum() < 4:
+    # ref_t is sorted: the overlap is one slice, found by two binary searches
+    lo = int(np.searchsorted(tq, oth_t[0], side="left"))
+    hi = int(np.searchsorted(tq, oth_t[-1], side="right"))
+    m = hi - lo
+    if m < 4:
         return math.inf
-    e = np.column_stack([np.interp(tq[ok], oth_t, oth_p[:, j]) for j in range(3)]) - ref_p[ok]
+    tq = tq[lo:hi]
+    # one search for all three axes (np.interp would search once per axis), then lerp
+    k = np.clip(np.searchsorted(oth_t, tq, side="right"), 1, len(oth_t) - 1)
+    t0, t1 = oth_t[k - 1], oth_t[k]
+    w = ((tq - t0) / np.where(t1 > t0, t1 - t0, 1.0))[:, None]
+    p0 = oth_p[k - 1]
+    e = p0 + w * (oth_p[k] - p0) - ref_p[lo:hi]
     e -= e.mean(axis=0)
-    return float(np.einsum("ij,ij->", e, e)) / int(ok.sum())
+    return float(np.einsum("ij,ij->", e, e)) / m
 
+
+#: The window scan uses every ``_SCAN_THIN``-th reference sample (when that leaves at least
+#: ``_SCAN_MIN``): it only picks the cell the golden section then refines on all of them.
+_SCAN_THIN = 10
+_SCAN_MIN = 2_000
 
 #: Golden-section steps at most (each shrinks the bracket by 0.618: 80 steps reach 1e-17 of
 #: the scan cell, far below any tolerance, so the cap only guards against a stalled bracket).
@@ -315,10 +367,18 @@ def _refine(
     def cost(delta: float) -> float:
         return _position_cost(ref_t, ref_p, oth_t, oth_p, delta + base)
 
+    # the scan only has to find the best cell: a tenth of the samples is plenty
+    scan_t, scan_p = ref_t[::_SCAN_THIN], ref_p[::_SCAN_THIN]
+    if len(scan_t) < _SCAN_MIN:
+        scan_t, scan_p = ref_t, ref_p
+
+    def scan_cost(delta: float) -> float:
+        return _position_cost(scan_t, scan_p, oth_t, oth_p, delta + base)
+
     # scan (the coarse stage is only good to its smoothing span), then golden-section
     # inside the best scan cell
     scan = np.linspace(-window, window, 121)
-    costs = np.array([cost(float(x)) for x in scan])
+    costs = np.array([scan_cost(float(x)) for x in scan])
     if not np.isfinite(costs).any():
         return (
             coarse,
