@@ -574,3 +574,47 @@ def test_simulate_endpoint_into_uwval_serve_bit_exact(tmp_path: Path) -> None:
         t_ns, p, q, fid = wire.decode_pose_stamped(body, "ROS2")
         got.append([str(t_ns), fid] + [float(v).hex() for v in (*p, *q)])
     assert got == _mcap_poses(log)["/gazebo/model_rov_pose"]
+
+
+def test_compare_uses_the_recorded_clock_of_a_monotonic_unity_log(tmp_path: Path) -> None:
+    """Issue 17, real clocks: Gazebo-side stamps on the epoch clock (as ROS's), the Unity side
+    on the monotonic clock (``--clock monotonic``). With no --offset, compare puts the Unity
+    stamps on the epoch clock with the log's ``uwval.clock`` metadata and says so; the
+    latency from the applied stamps is then the real few milliseconds, not 1.8e9 s."""
+    import numpy as np
+
+    from uwval.bridge import protocol as wire
+    from uwval.bridge.server import BridgeServer
+
+    topic = "/gazebo/model_rov_pose"
+    with BridgeServer("127.0.0.1", 0, protocol="ROS2") as srv:
+        srv.advertise(topic, wire.POSE_STAMPED)
+        stop = threading.Event()
+
+        def publish() -> None:
+            srv.wait_for_subscribers(topic, timeout=30)
+            k = 0
+            while not stop.is_set() and k < 100:
+                p = np.array([0.01 * k, np.sin(0.1 * k), 0.0])
+                q = np.array([0.0, 0.0, np.sin(0.01 * k), np.cos(0.01 * k)])
+                body = wire.encode_pose_stamped(time.time_ns(), p, q, "world", "ROS2")
+                srv.publish(topic, body)
+                k += 1
+                time.sleep(0.02)
+
+        t = threading.Thread(target=publish, daemon=True)
+        t.start()
+        log = tmp_path / "u.mcap"
+        res = run_uwval(
+            "bridge", "unity", "--port", srv.port, "--gazebo-topic", topic, "--duration", "2.5",
+            "--clock", "monotonic", "-o", log, timeout=60,
+        )  # fmt: skip
+        stop.set()
+        t.join(5)
+    assert res.returncode == 0, res.stderr
+    out = run_uwval("compare", log, "--json")
+    assert out.returncode == 0, out.stderr
+    doc = json.loads(out.stdout)
+    assert any("uwval.clock metadata" in w for w in doc["warnings"])
+    assert abs(doc["offset"]["applied_s"]) > 1e3  # epoch minus monotonic: days at least
+    assert 0 <= doc["latency"]["mean_ms"] < 200, doc["latency"]

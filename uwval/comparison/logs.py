@@ -189,12 +189,28 @@ def compare_logs(
             ]
             if not pairs_l:
                 raise LogReadError(no_pair_message(path_a))
+        clock_offset = _recorded_clock_offset(path_a)
         for name, g, u in pairs_l:
             ref, oth = streams[g], streams[u]
             pair_frame = frames.get(name) or frame
             if pair_frame not in (None, "auto"):
                 oth = oth.with_(frame=pair_frame)
-            results[name] = compare(ref, oth, frame=pair_frame, **options)
+            pair_options, note = options, None
+            if (
+                clock_offset is not None
+                and options.get("offset", 0.0) in (0, 0.0, None)
+                and len(ref)
+                and len(oth)
+                and (oth.t[0] > ref.t[-1] or oth.t[-1] < ref.t[0])  # two clocks, no overlap
+            ):
+                pair_options = {**options, "offset": clock_offset}
+                note = (
+                    f"clock offset {clock_offset:+.9f} s from the log's uwval.clock metadata "
+                    "(the Unity side was stamped on the monotonic clock)"
+                )
+            results[name] = compare(ref, oth, frame=pair_frame, **pair_options)
+            if note:
+                results[name].warnings.insert(0, note)
         return LogComparison(results, pairs_l[0][0], [str(path_a)])
 
     pair_name = None
@@ -215,6 +231,28 @@ def compare_logs(
     name = pair_name or name
     results[name] = compare(ref, oth, frame=frame, **options)
     return LogComparison(results, name, [str(path_a), str(path_b)])
+
+
+def _recorded_clock_offset(path: str | Path) -> float | None:
+    """Seconds to add to the Unity stamps of a log ``uwval bridge unity --clock monotonic``
+    wrote, from its ``uwval.clock`` metadata (Unix time minus monotonic time, and any
+    Unity clock offset); None for any other log, or one whose summary cannot be read."""
+    if Path(path).suffix != ".mcap":
+        return None
+    try:
+        from mcap.reader import make_reader
+
+        with open(path, "rb") as fh:
+            for record in make_reader(fh).iter_metadata():
+                if record.name == "uwval.clock" and record.metadata.get("unity_clock") == (
+                    "monotonic"
+                ):
+                    e_m = int(record.metadata["epoch_minus_monotonic_ns"])
+                    off = int(record.metadata.get("unity_clock_offset_ns", "0"))
+                    return (e_m - off) * 1e-9
+    except Exception:  # an unfinished or damaged summary: nothing recorded to use
+        return None
+    return None
 
 
 def _read_pair(
