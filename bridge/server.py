@@ -28,9 +28,10 @@ never dies:
   takes the slot of the longest-silent connection that has registered nothing and sent
   nothing for ``EVICT_SILENT_S`` (a socket held open and never used); otherwise it is closed
   at once and counted in :attr:`BridgeServer.refused`;
-- a connection that registers nothing within ``unused_timeout`` (default 10 s) is closed, and
-  with ``idle_timeout`` set, any connection silent (not even a keepalive; ROS-TCP-Connector
-  sends one every second) for that long;
+- a connection that sends nothing at all (not a frame, not a keepalive) and registers
+  nothing within ``unused_timeout`` (default 10 s) is closed, and with ``idle_timeout`` set,
+  any connection silent (not even a keepalive; ROS-TCP-Connector sends one every second) for
+  that long;
 - a system command's payload is at most ``protocol.MAX_COMMAND_BYTES`` (64 KiB), a frame's
   destination ``MAX_DESTINATION_BYTES`` (1 KiB); a registered topic or message name is at
   most ``MAX_NAME_BYTES`` (1 KiB, a longer topic could never be a frame's destination), and
@@ -78,6 +79,9 @@ DEFAULT_UNUSED_TIMEOUT_S = 10.0
 #: Seconds of silence after which an unused connection gives its slot to a new one when all
 #: ``max_clients`` slots are taken (ROS-TCP-Connector sends a keepalive every second).
 EVICT_SILENT_S = 2.0
+#: Registrations the endpoint itself holds in ``compat="real-endpoint"`` mode (they outlive
+#: connections there, so they are bounded on their own).
+MAX_ENDPOINT_REGISTRATIONS = 4096
 #: Registrations (subscribe, publish, services) one client may hold.
 MAX_REGISTRATIONS = 256
 #: Longest topic, service or message name accepted in a registration (bytes of UTF-8).
@@ -319,8 +323,8 @@ class BridgeServer:
         queue_size: bound of each client's outgoing queue (items).
         max_frame: cap on one incoming frame's payload, bytes.
         max_clients: bound on simultaneous connections (see the module's eviction rule).
-        unused_timeout: seconds a connection may stay without registering anything (a topic,
-            a publisher, a service) before it is closed; ``None`` keeps it.
+        unused_timeout: seconds a connection may stay without sending any frame (a keepalive
+            counts) or registering anything before it is closed; ``None`` keeps it.
         idle_timeout: seconds any connection may stay silent (no frame, no keepalive) before
             it is closed; ``None`` (default) keeps it.
         evict_silent: seconds of silence after which an unused connection gives its slot to
@@ -713,12 +717,14 @@ class BridgeServer:
             elif (
                 self.unused_timeout is not None
                 and not c.registered
+                and c.stats is not None
+                and c.stats.frames_in == 0
                 and now - c.connected_at > self.unused_timeout
             ):
                 self._close(
                     c,
-                    f"registered nothing within {self.unused_timeout:g} s of connecting "
-                    "(the unused-connection timeout)",
+                    f"sent nothing and registered nothing within {self.unused_timeout:g} s of "
+                    "connecting (the unused-connection timeout)",
                 )
 
     def _accept_some(self) -> None:
@@ -793,11 +799,12 @@ class BridgeServer:
         client.parser = wire.FrameParser(max_frame=self.max_frame)
         assert self._selector is not None
         self._selector.register(conn, selectors.EVENT_READ, client)
+        # The endpoint's first frame is the handshake (version + protocol): queued before the
+        # client is visible to publish()/send_log() on other threads, so nothing overtakes it.
+        client.enqueue(wire.handshake_frame(self.protocol))
         with self._lock:
             self._clients[cid] = client
         self._event(f"client {cid} connected from {address}")
-        # The endpoint's first frame is the handshake (version + protocol).
-        client.enqueue(wire.handshake_frame(self.protocol))
 
     def _read(self, c: _Client) -> None:
         """Read what one readable client sent and dispatch its complete frames."""
@@ -993,6 +1000,20 @@ class BridgeServer:
             return False
         if cmd in (wire.SUBSCRIBE, wire.PUBLISH, wire.ROS_SERVICE, wire.UNITY_SERVICE):
             topic, name = str(params["topic"]), str(params["message_name"])
+            with self._lock:
+                held = len(self._endpoint_subs) + len(self._endpoint_pubs)
+                new = topic not in self._endpoint_subs and topic not in self._endpoint_pubs
+            if new and held >= MAX_ENDPOINT_REGISTRATIONS:
+                # the endpoint's registrations outlive connections: bounded on their own
+                self._reply(
+                    c,
+                    wire.ERROR,
+                    {
+                        "text": f"{cmd}({topic}): the endpoint holds {held} registrations "
+                        "(the limit)"
+                    },
+                )
+                return False
             pkg, _, cls = name.partition("/")
             with self._lock:
                 advertised = name in self._advertised.values()

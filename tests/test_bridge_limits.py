@@ -137,6 +137,14 @@ def test_unused_and_idle_timeouts_close_with_the_reason() -> None:
         _wait(lambda: len(s.clients()) == 1, "the unused client to be closed")
         assert "registered nothing within 0.3 s" in s.closed_clients()[0].closed_reason
         assert s.subscriber_count("/x") == 1
+        # a client that only sends keepalives (and registers later) is in use: kept
+        late = RawClient(s.port)
+        _handshake(late)
+        for _ in range(6):
+            late.send_raw(wire.KEEPALIVE)
+            time.sleep(0.1)
+        late.command(wire.SUBSCRIBE, {"topic": "/late", "message_name": "std_msgs/String"})
+        s.wait_for_subscribers("/late")
     with BridgeServer(port=0, idle_timeout=0.4, unused_timeout=None) as s:
         talking, silent = RawClient(s.port), RawClient(s.port)
         _handshake(talking)

@@ -103,8 +103,8 @@ def serve(
     unused_timeout: Annotated[
         float,
         typer.Option(
-            help="Close a connection that registers no topic or service within this many "
-            "seconds (0: never)."
+            help="Close a connection that sends nothing (not even a keepalive) and registers "
+            "no topic or service within this many seconds (0: never)."
         ),
     ] = 10.0,
     idle_timeout: Annotated[

@@ -43,6 +43,7 @@ def _compare_parameters() -> list[inspect.Parameter]:
     """The typer signature of ``compare``: two arguments, then :data:`COMPARE_OPTIONS`."""
     kw = inspect.Parameter.KEYWORD_ONLY
     params = [
+        inspect.Parameter("ctx", kw, annotation=typer.Context),
         inspect.Parameter(
             "log_a",
             kw,
@@ -75,6 +76,7 @@ def _compare_parameters() -> list[inspect.Parameter]:
 
 def compare_command(**kwargs: Any) -> None:
     """Compare the Gazebo and Unity pose streams: per-axis errors, Pearson r, evo's APE stats."""
+    ctx = kwargs.pop("ctx")
     batch_keys = {o.dest for o in COMPARE_OPTIONS if not o.fast}
     opts = {k: v for k, v in kwargs.items() if k not in batch_keys}
     log_a, log_b = opts.pop("log_a"), opts.pop("log_b")
@@ -82,7 +84,11 @@ def compare_command(**kwargs: Any) -> None:
         output = opts.pop("output")
         opts.pop("as_json")
         opts.pop("verbose")
-        opts.pop("config")
+        if opts.pop("config") is not None:
+            raise ConfigError(
+                "--config applies to one comparison; --batch takes its options from the "
+                "command line"
+            )
         opts["align"] = _align_mode(
             opts["align"],
             opts.pop("evo_align"),
@@ -105,9 +111,14 @@ def compare_command(**kwargs: Any) -> None:
             options=opts,
         )
         return
-    # only what the user gave (not typer's defaults), so that uwval.toml fills the rest
-    defaults = {o.dest: o.default for o in COMPARE_OPTIONS}
-    run_compare(log_a, log_b, **{k: v for k, v in opts.items() if v != defaults.get(k)})
+    # only what the user gave (not typer's defaults), so that uwval.toml fills the rest; an
+    # option given with its default value (--offset 0) is still given
+    given = {
+        k: v
+        for k, v in opts.items()
+        if getattr(ctx.get_parameter_source(k), "name", "DEFAULT") != "DEFAULT"
+    }
+    run_compare(log_a, log_b, **given)
 
 
 _signature = inspect.Signature(_compare_parameters(), return_annotation=None)

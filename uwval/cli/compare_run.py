@@ -307,6 +307,12 @@ def run_compare(
     opts = merged_options(given, load_config(config))
     if "offset" in opts:
         opts["offset"] = str(opts["offset"])
+    else:  # no offset given: a log's recorded clock relation may supply it
+        opts["recorded_clock"] = True
+    if "max_diff" in given and "sync" not in opts:
+        # evo associates by nearest stamp within --t_max_diff; a max diff given without a
+        # sync method means that association (under interp it would be silently unused)
+        opts["sync"] = "nearest"
     _run_compare(log_a, log_b, **opts)
 
 
@@ -323,6 +329,7 @@ def _run_compare(
     max_gap: float | None = None,
     max_diff: float = 0.01,
     offset: str = "0",
+    recorded_clock: bool = False,
     max_offset: float | None = None,
     align: str = "none",
     evo_align: bool = False,
@@ -368,6 +375,7 @@ def _run_compare(
             align=mode,
             n_to_align=n_to_align,
             pairs=pairs,
+            recorded_clock=recorded_clock,
         )
     if pose_relation is not None:
         from uwval.comparison.engine import ape_statistics
@@ -475,7 +483,8 @@ COMPARE_OPTIONS: tuple[CompareOption, ...] = (
         ("--max-diff", "--t_max_diff", "--t-max-diff"),
         float,
         0.01,
-        "nearest: max stamp difference (s; --t_max_diff is evo's spelling)",
+        "nearest: max stamp difference (s; --t_max_diff is evo's spelling). Given without "
+        "--sync, it means --sync nearest (evo's association)",
     ),
     CompareOption(
         "offset",

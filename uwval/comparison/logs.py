@@ -146,6 +146,7 @@ def compare_logs(
     fmt: str | None = None,
     frame: str | None = None,
     pairs: Sequence[Any] | None = None,
+    recorded_clock: bool = True,
     **options: Any,
 ) -> LogComparison:
     """Compare the Gazebo (reference) and Unity streams of one log, or of two files.
@@ -157,7 +158,10 @@ def compare_logs(
     other stream's convention (default: from the log; ``enu`` for TUM); other ``options`` go
     to :func:`compare`. ``pairs`` (a project file's :class:`uwval.config.TopicPair` list:
     ``name``, ``reference``, ``other``, ``frame``) names the pairs of one log to compare when
-    no topic is given; with two logs the first pair's topics are read.
+    no topic is given; with two logs the first pair's topics are read; a ``frame`` given
+    here wins over a pair's. ``recorded_clock``: when no offset is given, put a Unity side
+    stamped on the monotonic clock on the epoch clock with the log's ``uwval.clock``
+    metadata (only when the two streams do not overlap in time).
     """
     results: dict[str, ComparisonResult] = {}
     if path_b is None:
@@ -189,10 +193,10 @@ def compare_logs(
             ]
             if not pairs_l:
                 raise LogReadError(no_pair_message(path_a))
-        clock_offset = _recorded_clock_offset(path_a)
+        clock_offset = _recorded_clock_offset(path_a) if recorded_clock else None
         for name, g, u in pairs_l:
             ref, oth = streams[g], streams[u]
-            pair_frame = frames.get(name) or frame
+            pair_frame = frame if frame not in (None, "auto") else (frames.get(name) or frame)
             if pair_frame not in (None, "auto"):
                 oth = oth.with_(frame=pair_frame)
             pair_options, note = options, None
@@ -217,7 +221,7 @@ def compare_logs(
     if pairs and not (gazebo_topic or unity_topic) and not is_tum(path_a, fmt):
         first = pairs[0]
         gazebo_topic, unity_topic, pair_name = first.reference, first.other, first.name
-        frame = first.frame or frame
+        frame = frame if frame not in (None, "auto") else (first.frame or frame)
 
     ref, oth = _read_pair(
         path_a, path_b, gazebo_topic, unity_topic, fmt, None if frame == "auto" else frame
