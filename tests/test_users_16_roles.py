@@ -103,8 +103,9 @@ def test_role_rules_parse_and_skip_when_no_topic_has_the_role(tmp_path: Path) ->
                       unity_topic="/y/pose")  # fmt: skip
     table = ResultsTable.from_comparisons([("run", {}, lc.to_json())])
     res = check(table, th)
-    assert res.passed and res.checked == 0
+    assert res.checked == 0
     assert any("no camera topic" in s for s in res.skipped)
+    assert not res.passed  # every rule skipped: nothing was checked, so no PASS
     # a name-keyed rule that matches nothing still fails (a typo must not pass silently)
     typo = parse_thresholds({"threshold": [{"metric": "mae", "topics": ["nope"], "max": 1}]})
     assert not check(table, typo).passed
@@ -122,3 +123,22 @@ def test_role_rules_parse_and_skip_when_no_topic_has_the_role(tmp_path: Path) ->
 )
 def test_topic_role(topic: str, role: str) -> None:
     assert topic_role(topic) == role
+
+
+def test_a_role_rule_with_a_misspelt_metric_fails(tmp_path: Path) -> None:
+    """A rule keyed by role is skipped only when no topic has that role: a vehicle topic
+    whose values the rule cannot find (a misspelt metric) is a failure, not a pass."""
+    log = _log(tmp_path / "a.mcap", "/gazebo/model_rov_pose", "/unity/model_rov_pose")
+    lc = compare_logs(log)
+    table = ResultsTable.from_comparisons([("run", {}, lc.to_json())])
+    rules = tmp_path / "t.toml"
+    rules.write_text('[[threshold]]\nmetric = "rmse_typo"\nrole = "vehicle"\nmax = 0.001\n')
+    result = check(table, rules)
+    assert not result.passed, result.format()
+    assert result.checked == 0
+    camera_only = tmp_path / "c.toml"
+    camera_only.write_text('[[threshold]]\nmetric = "mae"\nrole = "camera"\nmax = 0.001\n')
+    skipped = check(table, camera_only)  # no camera topic in this log: skipped, with why,
+    assert skipped.skipped, skipped.format()
+    assert not skipped.passed  # and a gate that checked nothing at all does not pass
+    assert "every rule was skipped" in skipped.format()

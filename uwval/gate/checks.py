@@ -78,12 +78,13 @@ def check_thresholds(table: ResultsTable, thresholds: Thresholds) -> GateResult:
             & df["topic"].isin(want_topics)
         )
         rows = df[mask]
-        if rows.empty and rule.roles:  # keyed by role: no such topic here is not a failure
+        if not want_topics and rule.roles:  # keyed by role: no such topic here is not a failure
             result.skipped.append(
-                f"rule [{rule.label()}]: no {' or '.join(rule.roles)} topic with "
-                f"{rule.metric} on {', '.join(rule.axes)} in these results"
+                f"rule [{rule.label()}]: no {' or '.join(rule.roles)} topic in these results"
             )
             continue
+        # a topic of the role is there but no value matches (a misspelt metric, a missing
+        # axis): a failure, as for a rule keyed by name
         if rows.empty:
             result.violations.append(
                 Violation(
@@ -169,6 +170,25 @@ def check_thresholds(table: ResultsTable, thresholds: Thresholds) -> GateResult:
                         ViolationKind.THRESHOLD, value=value, bound=rule.min, op=">=", **common
                     )
                 )
+    if thresholds.rules and result.checked == 0 and not result.violations:
+        # every rule was skipped (no topic of its role): a gate that checked nothing must
+        # not pass
+        result.violations.append(
+            Violation(
+                ViolationKind.NO_MATCH,
+                "",
+                "",
+                "",
+                "",
+                {},
+                math.nan,
+                math.nan,
+                "",
+                rule="all",
+                note=f"{thresholds.source}: no rule found a value to check in these results "
+                "(every rule was skipped)",
+            )
+        )
     return result
 
 
