@@ -242,6 +242,18 @@ def simulate(
     """Simulate, bridge over TCP and record paired Gazebo/Unity pose logs."""
     if endpoint is not None and experiment is not None:
         raise ConfigError("--endpoint publishes one run; it does not take an experiment file")
+    if endpoint is not None:
+        # through a real endpoint the link is real: injected faults would be silently unused
+        injected = [
+            flag
+            for flag, value in (("--latency", latency), ("--jitter", jitter), ("--drop", drop))
+            if value
+        ]
+        if injected:
+            raise ConfigError(
+                f"{', '.join(injected)}: injected faults apply to uwval's own loopback link; "
+                "with --endpoint the link to the real endpoint is measured as it is"
+            )
     session = SessionOptions(
         unity_map=unity_map,
         frame_rate=frame_rate,

@@ -123,14 +123,10 @@ def teleop(
     )
     sim = Simulator(load_vehicle(vehicle), inputs, publish_rate=publish_rate)
     keyboard = KeyboardTeleop(force_step, torque_step, hold, cur)
-    writer: Any = None
-    if record is not None:
-        from uwval.io import open_writer
-
-        writer = open_writer(record, format="mcap", metadata={"run": "teleop"})
     server: BridgeServer | None = None
     publisher: GazeboPublisher | EndpointPublisher
     if endpoint is not None:
+        # parsed and connected before the log is opened: a bad endpoint leaves no file
         h, p = parse_endpoint(endpoint)
         publisher = EndpointPublisher(
             h,
@@ -149,6 +145,18 @@ def teleop(
         publisher = GazeboPublisher(server)
         h, p = server.address
         console.print(f"endpoint listening on {h}:{p} (connect Unity's ROS-TCP-Connector here)")
+    writer: Any = None
+    if record is not None:
+        from uwval.io import open_writer
+
+        try:
+            writer = open_writer(record, format="mcap", metadata={"run": "teleop"})
+        except BaseException:
+            if isinstance(publisher, EndpointPublisher):
+                publisher.close()
+            if server is not None:
+                server.stop()
+            raise
     if interactive:
         console.print("keys: i , J L t b j l u o y n | +/- current | k/space stop | q quit")
     every = max(1, round(publish_rate))
