@@ -27,3 +27,15 @@ def test_simulate_endpoint_refuses_injected_faults(tmp_path: Path) -> None:
     assert out.returncode == 2
     assert "--latency, --drop: injected faults apply to uwval's own loopback link" in out.stderr
     assert not (tmp_path / "x.mcap").exists()
+
+
+def test_a_child_frame_on_a_topic_without_one_is_refused(tmp_path: Path) -> None:
+    """/gazebo/model_rov_pose#foo used to be read whole, the '#foo' silently ignored."""
+    log = tmp_path / "r.mcap"
+    run_uwval("simulate", "--duration", "1", "-o", log, check=True)
+    out = run_uwval(
+        "compare", log, "--gazebo-topic", "/gazebo/model_rov_pose#foo",
+        "--unity-topic", "/unity/model_rov_pose",
+    )  # fmt: skip
+    assert out.returncode == 2
+    assert "which has no child frame" in out.stderr and "Traceback" not in out.stderr

@@ -121,7 +121,10 @@ def estimate_alignment(
     """The alignment ``mode`` (an :class:`AlignMode` or its string) that maps the (associated)
     other poses onto the reference."""
     if mode not in ALIGN_MODES:
-        raise AlignmentError(f"unknown alignment {mode!r}; choose one of {', '.join(ALIGN_MODES)}")
+        raise AlignmentError(
+            f"unknown alignment {mode!r}; choose one of {', '.join(ALIGN_MODES)} "
+            "(or scale: evo's -s alone)"
+        )
     mode = AlignMode(mode).value
     if mode == "none":
         return identity()

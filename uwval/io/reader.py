@@ -150,6 +150,11 @@ def read_streams(
             raise LogReadError(_missing(p, t, log))
         if len(raw) == 0:
             raise LogReadError(f"{p}: topic {name!r} ({raw.msgtype}) has no messages")
+        if topic_child and not raw.msgtype.endswith(_CHILD_TYPES) and raw.msgtype not in TF_TYPES:
+            raise LogReadError(
+                f"{p}: topic {t!r}: {name} is {raw.msgtype}, which has no child frame; "
+                "'#CHILD' picks a child of a TF, Odometry or TransformStamped topic"
+            )
         try:
             out[t] = _to_stream(
                 p,
@@ -167,6 +172,10 @@ def read_streams(
         except PoseStreamError as exc:
             raise LogReadError(f"{p}: topic {name!r}: {exc}") from exc
     return out
+
+
+#: Message types (name endings) with a child_frame_id, besides TF messages.
+_CHILD_TYPES = ("/Odometry", "/TransformStamped")
 
 
 def split_child(topic: str) -> tuple[str, str | None]:
