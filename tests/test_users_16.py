@@ -11,6 +11,7 @@ and are hard-coded here: the tests do not need evo.
 from __future__ import annotations
 
 import csv
+import io
 import json
 import zipfile
 from pathlib import Path
@@ -174,6 +175,16 @@ def test_save_results_zip_has_evos_layout_and_values(
         stats = json.loads(zf.read("stats.json"))
         info = json.loads(zf.read("info.json"))
         full = json.loads(zf.read("uwval.json"))
+        # the arrays evo_res loads (it failed with KeyError 'np_arrays' without them)
+        arrays = {
+            name: np.load(io.BytesIO(zf.read(f"{name}.npy")))
+            for name in ("error_array", "timestamps", "seconds_from_start", "distances",
+                         "distances_from_start")
+        }  # fmt: skip
+    errors = arrays["error_array"]
+    assert len(errors) == len(arrays["timestamps"]) == full["n_samples"]
+    assert float(np.sqrt(np.mean(errors**2))) == pytest.approx(stats["rmse"], rel=1e-12)
+    assert arrays["seconds_from_start"][0] == 0.0 and arrays["distances"][0] == 0.0
     for key, want in zip(KEYS, EVO_APE_RELATIONS["full"], strict=True):
         assert stats[key] == pytest.approx(want, abs=1e-6)
     assert info["title"].startswith("APE w.r.t. full") and info["ref_name"].endswith(GT)

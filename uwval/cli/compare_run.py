@@ -215,15 +215,49 @@ def _label_paths(base: Path, names: list[str], primary: str) -> dict[str, Path]:
     return out
 
 
+def _evo_arrays(res: Any, errors: Any) -> dict[str, Any]:
+    """The arrays evo_ape puts in its result (``np_arrays``), as evo_res reads them."""
+    import numpy as np
+
+    t = res.reference.t.astype(np.float64) * 1e-9
+
+    def travelled(pos: Any) -> Any:
+        steps = np.linalg.norm(np.diff(pos, axis=0), axis=1)
+        return np.concatenate([[0.0], np.cumsum(steps)])
+
+    arrays = {
+        "error_array": np.asarray(errors, dtype=np.float64),
+        "timestamps": t,
+        "seconds_from_start": t - t[0] if len(t) else t,
+        "distances_from_start": travelled(res.reference.position),
+        "distances": travelled(res.other.position),
+    }
+    if res.alignment.mode != "none":
+        m = np.eye(4)
+        m[:3, :3] = res.alignment.scale * res.alignment.rotation
+        m[:3, 3] = res.alignment.translation
+        arrays["alignment_transformation_sim3"] = m
+    return arrays
+
+
 def _save_results_zip(path: Path, result: Any, doc: dict[str, Any], relation: str) -> bytes:
-    """evo's --save_results layout (stats.json, info.json) plus uwval.json and errors.csv."""
+    """evo's --save_results layout (stats.json, info.json and the .npy arrays evo_res reads)
+    plus uwval.json and errors.csv."""
     import io
     import zipfile
 
-    from uwval.comparison.engine import ape_statistics
+    import numpy as np
+
+    from uwval.comparison.engine import APE_RELATIONS, ape_errors
+    from uwval.comparison.stats import norm_stats
 
     res = result.vehicle
-    ape = res.stats.get("ape") or ape_statistics(res.reference, res.other, relation)
+    errors = ape_errors(res.reference, res.other, relation)
+    ape = res.stats.get("ape") or {
+        "pose_relation": relation,
+        "unit": APE_RELATIONS.get(relation, ""),
+        **norm_stats(errors),
+    }
     stats = {k: ape[k] for k in ("rmse", "mean", "median", "std", "min", "max", "sse")}
     info = {
         "title": f"APE w.r.t. {ape['pose_relation']} ({ape['unit']})",
@@ -236,6 +270,10 @@ def _save_results_zip(path: Path, result: Any, doc: dict[str, Any], relation: st
     with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
         zf.writestr("stats.json", json.dumps(stats, allow_nan=False))
         zf.writestr("info.json", json.dumps(info))
+        for name, array in _evo_arrays(res, errors).items():
+            npy = io.BytesIO()
+            np.save(npy, array)
+            zf.writestr(f"{name}.npy", npy.getvalue())
         zf.writestr("uwval.json", json.dumps(doc, indent=1, allow_nan=False))
         zf.writestr("errors.csv", errors_csv(res))
     return buf.getvalue()
