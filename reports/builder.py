@@ -638,6 +638,7 @@ def _detail_sections(details: list[_RunDetail], topics: Sequence[str] | None) ->
                     "Left: both simulators; right: Unity - Gazebo (signed) and its absolute value.",
                 )
             )
+            sec.blocks.extend(_error_plots(pair, name))  # viz: histogram, coloured path
             sec.blocks.append(
                 Plot(
                     f"Unity vs Gazebo: {name}",
@@ -647,6 +648,24 @@ def _detail_sections(details: list[_RunDetail], topics: Sequence[str] | None) ->
             )
         out.append(sec)
     return out
+
+
+def _error_plots(pair: Any, name: str) -> list[Plot]:
+    """The per-run error histograms and the trajectory coloured by the position error."""
+    return [
+        Plot(
+            f"Error histograms: {name}",
+            plots.error_histogram_figure(pair, name),
+            "Signed Unity - Gazebo per axis (m, deg), position-error norm (m) and rotation "
+            "angle (deg); solid line: mean, dashed: RMSE.",
+        ),
+        Plot(
+            f"Trajectory coloured by the position error: {name}",
+            plots.trajectory_error_figure(pair, name),
+            "Gazebo path from above (ENU x-y, m) coloured by |p_Unity - p_Gazebo| (m); "
+            "Unity dashed grey (as evo_ape --plot_mode xy).",
+        ),
+    ]
 
 
 def _bridge_section(exp: ExperimentResults) -> Section | None:

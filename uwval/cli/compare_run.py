@@ -272,17 +272,39 @@ def plot_targets(
     ]
 
 
+def extra_plot_targets(errors_png: Path) -> tuple[Path, Path]:
+    """The error histogram and the error-coloured trajectory written beside a topic's
+    error-over-time PNG ``..._errors.png``: ``..._histogram.png``, ``..._errormap.png``."""
+    stem = errors_png.name.removesuffix("_errors.png")
+    return (
+        errors_png.with_name(f"{stem}_histogram.png"),
+        errors_png.with_name(f"{stem}_errormap.png"),
+    )
+
+
 def _plot(result: Any, save_plot: Path | None) -> list[Path]:
-    """--plot: the trajectory and error-over-time figures of every topic as PNG files."""
+    """--plot: per topic the trajectory, error-over-time, error-histogram and
+    error-coloured trajectory figures as PNG files."""
     try:
-        from uwval.reports.plots import timeseries_figure, trajectory_figure
+        from uwval.reports.plots import (
+            error_histogram_figure,
+            timeseries_figure,
+            trajectory_error_figure,
+            trajectory_figure,
+        )
     except ImportError as exc:  # matplotlib missing
         raise ConfigError(f"--plot needs matplotlib ({exc})") from None
     written = []
     for name, traj, errs in plot_targets(list(result.results), result.primary, save_plot):
         res = result.results[name]
         title = f"{name}: {_short(res.other)} vs {_short(res.reference)}"
-        targets = ((trajectory_figure, traj), (timeseries_figure, errs))
+        hist, errmap = extra_plot_targets(errs)
+        targets = (
+            (trajectory_figure, traj),
+            (timeseries_figure, errs),
+            (error_histogram_figure, hist),
+            (trajectory_error_figure, errmap),
+        )
         for make, target in targets:
             fig = make(res, title)
             try:
@@ -542,16 +564,17 @@ COMPARE_OPTIONS: tuple[CompareOption, ...] = (
         ("--plot",),
         bool,
         False,
-        "Write the trajectory and error-over-time plots as PNG files (no window opens): "
-        "to --save_plot, else uwval_<topic>_{trajectory,errors}.png in the current folder",
+        "Write PNG files (no window opens): trajectory, error over time, error histograms "
+        "and the trajectory coloured by the position error (evo_ape --plot_mode xy): to "
+        "--save_plot, else uwval_<topic>_{trajectory,errors,histogram,errormap}.png here",
     ),
     CompareOption(
         "save_plot",
         ("--save_plot", "--save-plot"),
         Path,
         None,
-        "PNG path of the trajectory plot (the error plot goes beside it, *_errors.png); "
-        "implies --plot",
+        "PNG path of the trajectory plot (the others go beside it: *_errors.png, "
+        "*_histogram.png, *_errormap.png); implies --plot",
     ),
     CompareOption(
         "save_errors",
