@@ -318,6 +318,17 @@ def _plot(result: Any, save_plot: Path | None) -> list[Path]:
     return written
 
 
+def _interactive(result: Any, path: Path) -> Path:
+    """--html: the interactive page (zoom/pan on errors and trajectory) of every topic."""
+    from uwval.reports.interactive import write_interactive
+
+    names = " vs ".join(Path(s).name for s in result.sources) if result.sources else ""
+    try:
+        return write_interactive(result.results, path, "uwval compare", names)
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot write the HTML page: {exc.strerror or exc}") from None
+
+
 def run_compare(
     log_a: Path, log_b: Path | None = None, *, config: Path | None = None, **given: Any
 ) -> None:
@@ -357,6 +368,7 @@ def _run_compare(
     save_plot: Path | None = None,
     save_errors: Path | None = None,
     save_results: Path | None = None,
+    html: Path | None = None,
     as_json: bool = False,
     output: Path | None = None,
 ) -> None:
@@ -365,6 +377,8 @@ def _run_compare(
     from uwval.comparison.logs import compare_logs
 
     mode = _align_mode(align, evo_align, correct_scale, align_origin)
+    if html is not None and html.suffix.lower() not in (".html", ".htm"):
+        raise ConfigError(f"--html {html}: the page's name must end in .html")
     if n_to_align != -1 and n_to_align < 1:
         raise ConfigError(f"--n_to_align must be >= 1 (or -1 for all), got {n_to_align}")
     if pose_relation is not None:
@@ -415,6 +429,8 @@ def _run_compare(
             saved.append(path)
     if plot or save_plot is not None:
         saved += _plot(result, save_plot)
+    if html is not None:
+        saved.append(_interactive(result, html))
     if as_json:
         sys.stdout.write(text + "\n")
         for path in saved:  # stdout holds the JSON alone
@@ -591,6 +607,14 @@ COMPARE_OPTIONS: tuple[CompareOption, ...] = (
         None,
         "evo's --save_results: a .zip holds stats.json and info.json (evo's keys), "
         "uwval.json (the full result) and errors.csv; any other suffix: the JSON result",
+    ),
+    CompareOption(
+        "html",
+        ("--html",),
+        Path,
+        None,
+        "Write an interactive, self-contained HTML page (no network): errors over time and "
+        "the trajectory with wheel zoom and drag pan",
     ),
     CompareOption("as_json", ("--json",), bool, False, "Print the JSON result"),
     CompareOption(

@@ -1,0 +1,236 @@
+/* uwval interactive charts: hand-written SVG, no library, no network.
+   Wheel zooms (time charts: time axis, shift+wheel: value axis; trajectory: both axes,
+   equal scale), drag pans, double-click or "reset" restores the full view. Each chart's
+   SVG carries its visible range in data-view="x0,x1,y0,y1" (data units). */
+(function () {
+  "use strict";
+  var NS = "http://www.w3.org/2000/svg";
+
+  function el(tag, attrs, parent) {
+    var e = document.createElementNS(NS, tag);
+    for (var k in attrs) { if (attrs[k] !== undefined) e.setAttribute(k, attrs[k]); }
+    if (parent) parent.appendChild(e);
+    return e;
+  }
+
+  function niceStep(span, n) {
+    var raw = span / n, mag = Math.pow(10, Math.floor(Math.log10(raw))), f = raw / mag;
+    return (f < 1.5 ? 1 : f < 3 ? 2 : f < 7 ? 5 : 10) * mag;
+  }
+
+  function ticks(lo, hi, n) {
+    var span = hi - lo;
+    if (!(span > 0) || !isFinite(span)) return { step: 1, values: [lo] };
+    var step = niceStep(span, n), out = [];
+    for (var i = Math.ceil(lo / step); i * step <= hi + step * 1e-9 && out.length < 50; i++) {
+      out.push(i * step);
+    }
+    return { step: step, values: out };
+  }
+
+  function label(v, step) {
+    if (v === 0 || Math.abs(v) < step * 1e-9) return "0";
+    var a = Math.abs(v);
+    if (a >= 1e6 || a < 1e-4) return v.toExponential(Math.max(0, Math.min(10, Math.round(Math.log10(a / step)))));
+    var d = Math.max(0, Math.min(12, -Math.floor(Math.log10(step) + 1e-9)));
+    return v.toFixed(d);
+  }
+
+  function extent(series, key, from, to) {
+    var lo = Infinity, hi = -Infinity;
+    series.forEach(function (s) {
+      var xs = s.x, vs = s[key];
+      for (var i = 0; i < vs.length; i++) {
+        var v = vs[i];
+        if (v === null || !isFinite(v)) continue;
+        if (from !== undefined && (xs[i] < from || xs[i] > to)) continue;
+        if (v < lo) lo = v;
+        if (v > hi) hi = v;
+      }
+    });
+    if (lo > hi) { lo = 0; hi = 1; }
+    if (lo === hi) { var p = Math.abs(lo) * 1e-6 || 1e-9; lo -= p; hi += p; }
+    var pad = (hi - lo) * 0.04;
+    return [lo - pad, hi + pad];
+  }
+
+  function Chart(host, opts) {
+    this.opts = opts;
+    this.W = 900; this.H = opts.height || 280;
+    this.m = { l: 78, r: 16, t: 12, b: 42 };
+    this.pw = this.W - this.m.l - this.m.r;
+    this.ph = this.H - this.m.t - this.m.b;
+    var svg = el("svg", { viewBox: "0 0 " + this.W + " " + this.H, "class": "chart",
+      id: opts.id, role: "img", "aria-label": opts.title }, host);
+    this.svg = svg;
+    var defs = el("defs", {}, svg);
+    var cp = el("clipPath", { id: opts.id + "-clip" }, defs);
+    el("rect", { x: this.m.l, y: this.m.t, width: this.pw, height: this.ph }, cp);
+    this.gAxes = el("g", { "class": "axes" }, svg);
+    this.gData = el("g", { "clip-path": "url(#" + opts.id + "-clip)" }, svg);
+    this.paths = opts.series.map(function (s) {
+      return el("path", { fill: "none", stroke: s.color, "stroke-width": s.width || 1.3,
+        "stroke-dasharray": s.dash, "stroke-linejoin": "round" }, this.gData);
+    }, this);
+    var x = extent(opts.series, "x"), y = extent(opts.series, "y");
+    this.home = this.equalise([x[0], x[1], y[0], y[1]]);
+    this.view = this.home.slice();
+    this.linked = [];
+    this.yManual = false;
+    this.listen();
+    this.draw();
+  }
+
+  Chart.prototype.equalise = function (v) {
+    if (!this.opts.equal) return v;
+    var ux = (v[1] - v[0]) / this.pw, uy = (v[3] - v[2]) / this.ph, u = Math.max(ux, uy);
+    var cx = (v[0] + v[1]) / 2, cy = (v[2] + v[3]) / 2;
+    return [cx - u * this.pw / 2, cx + u * this.pw / 2, cy - u * this.ph / 2, cy + u * this.ph / 2];
+  };
+
+  Chart.prototype.px = function (x) { var v = this.view; return this.m.l + (x - v[0]) / (v[1] - v[0]) * this.pw; };
+  Chart.prototype.py = function (y) { var v = this.view; return this.m.t + (v[3] - y) / (v[3] - v[2]) * this.ph; };
+
+  Chart.prototype.toData = function (evt) {
+    var r = this.svg.getBoundingClientRect();
+    var sx = (evt.clientX - r.left) * this.W / r.width, sy = (evt.clientY - r.top) * this.H / r.height;
+    var v = this.view;
+    return { x: v[0] + (sx - this.m.l) / this.pw * (v[1] - v[0]),
+             y: v[3] - (sy - this.m.t) / this.ph * (v[3] - v[2]),
+             sx: sx, sy: sy, kx: this.W / r.width, ky: this.H / r.height };
+  };
+
+  Chart.prototype.setView = function (v, fromLink) {
+    this.view = v;
+    if (!this.opts.equal && !this.yManual) {
+      var y = extent(this.opts.series, "y", v[0], v[1]);
+      this.view = [v[0], v[1], y[0], y[1]];
+    }
+    this.draw();
+    if (!fromLink) {
+      var self = this;
+      this.linked.forEach(function (c) { c.setView([self.view[0], self.view[1], c.view[2], c.view[3]], true); });
+    }
+  };
+
+  Chart.prototype.reset = function () {
+    this.yManual = false;
+    this.setView(this.home.slice());
+  };
+
+  Chart.prototype.listen = function () {
+    var self = this, drag = null;
+    this.svg.addEventListener("wheel", function (evt) {
+      evt.preventDefault();
+      var p = self.toData(evt), f = Math.exp(Math.max(-1, Math.min(1, evt.deltaY * 0.002))), v = self.view;
+      var zx = self.opts.equal || !evt.shiftKey, zy = self.opts.equal || evt.shiftKey;
+      var nv = v.slice();
+      if (zx) { nv[0] = p.x + (v[0] - p.x) * f; nv[1] = p.x + (v[1] - p.x) * f; }
+      if (zy) { nv[2] = p.y + (v[2] - p.y) * f; nv[3] = p.y + (v[3] - p.y) * f; self.yManual = !self.opts.equal; }
+      self.setView(nv);
+    }, { passive: false });
+    this.svg.addEventListener("pointerdown", function (evt) {
+      if (evt.button !== 0) return;
+      drag = { p: self.toData(evt), view: self.view.slice() };
+      if (self.svg.setPointerCapture) { try { self.svg.setPointerCapture(evt.pointerId); } catch (e) { /* synthetic */ } }
+      self.svg.classList.add("dragging");
+    });
+    this.svg.addEventListener("pointermove", function (evt) {
+      if (!drag) return;
+      var p = self.toData(evt), v = drag.view;
+      var dx = (p.sx - drag.p.sx) / self.pw * (v[1] - v[0]);
+      var dy = (p.sy - drag.p.sy) / self.ph * (v[3] - v[2]);
+      if (!self.opts.equal && dy !== 0) self.yManual = true;
+      self.setView([v[0] - dx, v[1] - dx, v[2] + dy, v[3] + dy]);
+    });
+    function end() { drag = null; self.svg.classList.remove("dragging"); }
+    this.svg.addEventListener("pointerup", end);
+    this.svg.addEventListener("pointercancel", end);
+    this.svg.addEventListener("dblclick", function () { self.reset(); });
+  };
+
+  Chart.prototype.draw = function () {
+    var v = this.view, g = this.gAxes, m = this.m, self = this;
+    while (g.firstChild) g.removeChild(g.firstChild);
+    el("rect", { x: m.l, y: m.t, width: this.pw, height: this.ph, fill: "#fff", stroke: "#8c959f" }, g);
+    var tx = ticks(v[0], v[1], 8), ty = ticks(v[2], v[3], 5);
+    tx.values.forEach(function (t) {
+      var x = self.px(t);
+      el("line", { x1: x, x2: x, y1: m.t, y2: m.t + self.ph, stroke: "#d0d7de", "stroke-width": 0.6 }, g);
+      el("text", { x: x, y: m.t + self.ph + 15, "text-anchor": "middle", "class": "tick" }, g).textContent = label(t, tx.step);
+    });
+    ty.values.forEach(function (t) {
+      var y = self.py(t);
+      el("line", { x1: m.l, x2: m.l + self.pw, y1: y, y2: y, stroke: "#d0d7de", "stroke-width": 0.6 }, g);
+      el("text", { x: m.l - 6, y: y + 4, "text-anchor": "end", "class": "tick" }, g).textContent = label(t, ty.step);
+    });
+    el("text", { x: m.l + this.pw / 2, y: this.H - 6, "text-anchor": "middle", "class": "axis-label" }, g).textContent = this.opts.xlabel;
+    el("text", { x: 14, y: m.t + this.ph / 2, "text-anchor": "middle", "class": "axis-label",
+      transform: "rotate(-90 14 " + (m.t + this.ph / 2) + ")" }, g).textContent = this.opts.ylabel;
+    this.opts.series.forEach(function (s, k) {
+      var d = [], pen = false;
+      for (var i = 0; i < s.x.length; i++) {
+        var a = s.x[i], b = s.y[i];
+        if (a === null || b === null || !isFinite(a) || !isFinite(b)) { pen = false; continue; }
+        d.push((pen ? "L" : "M") + self.px(a).toFixed(2) + " " + self.py(b).toFixed(2));
+        pen = true;
+      }
+      self.paths[k].setAttribute("d", d.join(""));
+    });
+    this.svg.setAttribute("data-view", v.map(function (x) { return x.toPrecision(10); }).join(","));
+  };
+
+  function legend(host, series) {
+    var div = document.createElement("div");
+    div.className = "legend";
+    series.forEach(function (s) {
+      var item = document.createElement("span");
+      var sw = document.createElement("span");
+      sw.className = "swatch";
+      sw.style.borderTop = "3px " + (s.dash ? "dashed " : "solid ") + s.color;
+      item.appendChild(sw);
+      item.appendChild(document.createTextNode(s.label));
+      div.appendChild(item);
+    });
+    host.appendChild(div);
+  }
+
+  function build() {
+    var data = JSON.parse(document.getElementById("uwval-data").textContent);
+    var charts = [];
+    data.topics.forEach(function (topic, ti) {
+      var host = document.getElementById("charts-" + ti);
+      var timeCharts = [];
+      topic.charts.forEach(function (spec, ci) {
+        var box = document.createElement("div");
+        box.className = "chart-box";
+        var head = document.createElement("div");
+        head.className = "chart-head";
+        var h = document.createElement("h3");
+        h.textContent = spec.title;
+        var btn = document.createElement("button");
+        btn.type = "button";
+        btn.textContent = "reset zoom";
+        head.appendChild(h);
+        head.appendChild(btn);
+        box.appendChild(head);
+        host.appendChild(box);
+        var series = spec.series.map(function (s) {
+          return { x: topic.columns[s.x], y: topic.columns[s.y], color: s.color, dash: s.dash, label: s.label, width: s.width };
+        });
+        var chart = new Chart(box, { id: "chart-" + ti + "-" + ci, title: spec.title, series: series,
+          xlabel: spec.xlabel, ylabel: spec.ylabel, equal: spec.equal, height: spec.height });
+        legend(box, series);
+        btn.addEventListener("click", function () { chart.reset(); });
+        if (!spec.equal) timeCharts.push(chart);
+        charts.push(chart);
+      });
+      timeCharts.forEach(function (c) { c.linked = timeCharts.filter(function (o) { return o !== c; }); });
+    });
+    window.uwvalCharts = charts;
+    document.body.setAttribute("data-ready", String(charts.length));
+  }
+
+  if (document.readyState === "loading") document.addEventListener("DOMContentLoaded", build);
+  else build();
+})();
