@@ -1,0 +1,319 @@
+"""Issue 16 (viz): ``uwval compare ... --html FILE`` writes an interactive page that works in
+real headless Chromium: no console error, no network request, and a mouse-wheel zoom and a
+drag (real input events sent through the DevTools protocol) change what the charts show.
+
+Chromium is driven over ``--remote-debugging-pipe`` (fd 3 in, fd 4 out, NUL-separated JSON):
+no extra Python package. Data: freiburg1_xyz (../shared/data/evo), copied into tmp_path.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import select
+import shutil
+import subprocess
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+from cli_runner import run_uwval
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+DATA = next(
+    (
+        p / "shared" / "data" / "evo"
+        for p in Path(__file__).resolve().parents
+        if (p / "shared" / "data" / "evo").is_dir()
+    ),
+    Path("shared-data-not-found"),
+)
+GT = "freiburg1_xyz-groundtruth.txt"
+EST = "freiburg1_xyz-rgbdslam.txt"
+pytestmark = pytest.mark.skipif(not DATA.is_dir(), reason="shared evo data not present")
+needs_chromium = pytest.mark.skipif(
+    CHROMIUM is None, reason="chromium not installed (.ci/run installs it)"
+)
+
+
+class DevTools:
+    """A headless Chromium and its DevTools protocol over a pipe (one page session)."""
+
+    def __init__(self, profile: Path) -> None:
+        assert CHROMIUM is not None
+        to_r, self._to_w = os.pipe()
+        self._from_r, from_w = os.pipe()
+
+        def fds() -> None:  # in the child: Chromium reads fd 3, writes fd 4
+            os.dup2(to_r, 3)
+            os.dup2(from_w, 4)
+
+        self.proc = subprocess.Popen(
+            [
+                CHROMIUM,
+                "--headless",
+                "--no-sandbox",
+                "--disable-gpu",
+                "--no-first-run",
+                "--disable-background-networking",
+                "--disable-component-update",
+                "--disable-sync",
+                "--remote-debugging-pipe",
+                f"--user-data-dir={profile}",
+                "--window-size=1280,1600",
+                "about:blank",
+            ],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            close_fds=False,
+            preexec_fn=fds,  # only dup2, before exec
+        )
+        os.close(to_r)
+        os.close(from_w)
+        self._buf = b""
+        self._id = 0
+        self.events: list[dict[str, Any]] = []
+        self.session = ""
+        target = self.call("Target.createTarget", {"url": "about:blank"})["targetId"]
+        self.session = self.call("Target.attachToTarget", {"targetId": target, "flatten": True})[
+            "sessionId"
+        ]
+        for domain in ("Page", "Runtime", "Network", "Log"):
+            self.call(f"{domain}.enable")
+
+    def _read(self, deadline: float) -> dict[str, Any]:
+        while b"\0" not in self._buf:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise TimeoutError("no answer from Chromium")
+            ready, _, _ = select.select([self._from_r], [], [], left)
+            if ready:
+                chunk = os.read(self._from_r, 1 << 20)
+                if not chunk:
+                    raise EOFError("Chromium closed the pipe")
+                self._buf += chunk
+        msg, self._buf = self._buf.split(b"\0", 1)
+        out: dict[str, Any] = json.loads(msg)
+        return out
+
+    def call(self, method: str, params: dict[str, Any] | None = None) -> dict[str, Any]:
+        self._id += 1
+        msg: dict[str, Any] = {"id": self._id, "method": method, "params": params or {}}
+        if self.session:
+            msg["sessionId"] = self.session
+        os.write(self._to_w, json.dumps(msg).encode() + b"\0")
+        deadline = time.monotonic() + 60
+        while True:
+            got = self._read(deadline)
+            if got.get("id") == self._id:
+                if "error" in got:
+                    raise RuntimeError(f"{method}: {got['error']}")
+                result: dict[str, Any] = got.get("result", {})
+                return result
+            self.events.append(got)
+
+    def wait_event(self, method: str, timeout: float = 60) -> dict[str, Any]:
+        deadline = time.monotonic() + timeout
+        for ev in self.events:
+            if ev.get("method") == method:
+                return ev
+        while True:
+            got = self._read(deadline)
+            self.events.append(got)
+            if got.get("method") == method:
+                return got
+
+    def js(self, expression: str) -> Any:
+        res = self.call("Runtime.evaluate", {"expression": expression, "returnByValue": True})
+        if "exceptionDetails" in res:
+            raise RuntimeError(f"{expression}: {res['exceptionDetails']}")
+        return res["result"].get("value")
+
+    def mouse(self, kind: str, x: float, y: float, **extra: Any) -> None:
+        self.call("Input.dispatchMouseEvent", {"type": kind, "x": x, "y": y, **extra})
+
+    def close(self) -> None:
+        try:
+            self.session = ""
+            self.call("Browser.close")
+        except (OSError, EOFError, TimeoutError, RuntimeError):
+            pass
+        try:
+            self.proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+        os.close(self._to_w)
+        os.close(self._from_r)
+
+    def problems(self) -> list[str]:
+        """Console messages of level warning/error, uncaught exceptions, log errors."""
+        out = []
+        for ev in self.events:
+            m, p = ev.get("method"), ev.get("params", {})
+            if m == "Runtime.exceptionThrown":
+                d = p["exceptionDetails"]
+                out.append(f"{d.get('text')} {d.get('exception', {}).get('description', '')}")
+            elif m == "Runtime.consoleAPICalled" and p.get("type") in (
+                "error",
+                "warning",
+                "assert",
+            ):
+                out.append(json.dumps(p.get("args"))[:300])
+            elif m == "Log.entryAdded" and p["entry"].get("level") in ("error", "warning"):
+                out.append(p["entry"].get("text", "")[:300])
+        return out
+
+    def requests(self) -> list[str]:
+        return [
+            ev["params"]["request"]["url"]
+            for ev in self.events
+            if ev.get("method") == "Network.requestWillBeSent"
+        ]
+
+
+@pytest.fixture
+def page(tmp_path: Path) -> Path:
+    for name in (GT, EST):
+        (tmp_path / name).write_bytes((DATA / name).read_bytes())
+    out = tmp_path / "out" / "fr1.html"
+    p = run_uwval(
+        "compare", tmp_path / GT, tmp_path / EST, "--sync", "nearest", "--html", out, "--json"
+    )
+    assert p.returncode == 0, p.stderr
+    assert f"wrote {out}" in p.stderr
+    (out.parent / "n_samples").write_text(str(json.loads(p.stdout)["n_samples"]))
+    return out
+
+
+def test_page_is_self_contained(page: Path) -> None:
+    html = page.read_text()
+    assert "default-src 'none'" in html  # the browser itself refuses any request
+    for needle in ("http://", "https://", 'src="//', "@import", '<link rel="stylesheet'):
+        assert needle not in html.replace("http://www.w3.org/2000/svg", "")
+    # the data is all there: one column value per aligned sample
+    start = html.index('id="uwval-data">') + len('id="uwval-data">')
+    data = json.loads(html[start : html.index("</script>", start)].replace("<\\/", "</"))
+    (topic,) = data["topics"]
+    n = int((page.parent / "n_samples").read_text())  # stdout was pure JSON
+    assert n > 700
+    assert len(topic["columns"]["t"]) == n == len(topic["columns"]["e_position_norm"])
+    assert [c["title"].split(" ")[0] for c in topic["charts"]] == [
+        "Position",
+        "Rotation",
+        "Trajectory",
+    ]
+
+
+def _view(dt: DevTools, chart: str) -> list[float]:
+    text = dt.js(f"document.getElementById('{chart}').getAttribute('data-view')")
+    return [float(v) for v in text.split(",")]
+
+
+def _centre(dt: DevTools, chart: str) -> tuple[float, float]:
+    r = dt.js(
+        f"(() => {{ const e = document.getElementById('{chart}'); e.scrollIntoView();"
+        " const r = e.getBoundingClientRect(); return [r.left + r.width / 2, r.top + r.height / 2];"
+        " })()"
+    )
+    return float(r[0]), float(r[1])
+
+
+@needs_chromium
+def test_zoom_and_pan_in_headless_chromium(page: Path, tmp_path: Path) -> None:
+    dt = DevTools(tmp_path / "profile")
+    try:
+        dt.call("Page.navigate", {"url": page.as_uri()})
+        dt.wait_event("Page.loadEventFired")
+        assert dt.js("document.body.getAttribute('data-ready')") == "3"
+        # every chart drew its lines
+        n_paths = dt.js(
+            "Array.from(document.querySelectorAll('svg.chart path'))"
+            ".filter(p => (p.getAttribute('d') || '').length > 1000).length"
+        )
+        assert n_paths == 10  # 4 position + 4 rotation series + Gazebo and Unity paths
+
+        # wheel over the trajectory: both axes zoom in about the pointer, equal scale kept
+        traj = "chart-0-2"
+        before = _view(dt, traj)
+        ticks_before = dt.js(f"document.getElementById('{traj}').textContent")
+        x, y = _centre(dt, traj)
+        dt.mouse("mouseWheel", x, y, deltaX=0, deltaY=-300)
+        after = _view(dt, traj)
+        assert after[1] - after[0] < 0.7 * (before[1] - before[0])
+        assert after[3] - after[2] < 0.7 * (before[3] - before[2])
+        ratio_before = (before[1] - before[0]) / (before[3] - before[2])
+        ratio_after = (after[1] - after[0]) / (after[3] - after[2])
+        assert ratio_after == pytest.approx(ratio_before, rel=1e-6)
+        assert dt.js(f"document.getElementById('{traj}').textContent") != ticks_before
+
+        # wheel over the position-error chart: the time axis zooms, the rotation chart follows
+        pos, rot = "chart-0-0", "chart-0-1"
+        full = _view(dt, pos)
+        x, y = _centre(dt, pos)
+        dt.mouse("mouseWheel", x, y, deltaX=0, deltaY=-400)
+        zoomed = _view(dt, pos)
+        assert zoomed[1] - zoomed[0] < 0.6 * (full[1] - full[0])
+        assert _view(dt, rot)[:2] == pytest.approx(zoomed[:2])
+
+        # drag to the left: the window moves later in time by the same width
+        dt.mouse("mousePressed", x, y, button="left", buttons=1, clickCount=1)
+        dt.mouse("mouseMoved", x - 150, y, button="left", buttons=1)
+        dt.mouse("mouseReleased", x - 150, y, button="left", buttons=0, clickCount=1)
+        panned = _view(dt, pos)
+        assert panned[0] > zoomed[0]
+        assert panned[1] - panned[0] == pytest.approx(zoomed[1] - zoomed[0], rel=1e-6)
+
+        # double-click: the whole run again
+        for kind in ("mousePressed", "mouseReleased"):
+            dt.mouse(kind, x, y, button="left", buttons=1, clickCount=1)
+        for kind in ("mousePressed", "mouseReleased"):
+            dt.mouse(kind, x, y, button="left", buttons=1, clickCount=2)
+        assert _view(dt, pos)[:2] == pytest.approx(full[:2])
+
+        shot = dt.call("Page.captureScreenshot", {"format": "png"})["data"]
+        assert len(shot) > 10_000
+        assert dt.problems() == []
+        # the page itself is the only request: no script, style, font or data fetched
+        assert set(dt.requests()) == {page.as_uri()}
+    finally:
+        dt.close()
+
+
+@needs_chromium
+def test_the_devtools_checks_do_catch_errors_and_requests(tmp_path: Path) -> None:
+    # negative control: a page with a script error and a fetch is flagged by the same checks
+    bad = tmp_path / "bad.html"
+    bad.write_text(
+        "<!DOCTYPE html><html><body><img src='http://127.0.0.1:9/x.png'>"
+        "<script>undefinedFunction();</script></body></html>"
+    )
+    dt = DevTools(tmp_path / "profile")
+    try:
+        dt.call("Page.navigate", {"url": bad.as_uri()})
+        dt.wait_event("Page.loadEventFired")
+        time.sleep(0.3)
+        dt.js("1")  # collect the events sent meanwhile
+        assert any("undefinedFunction" in p for p in dt.problems()), dt.problems()
+        assert "http://127.0.0.1:9/x.png" in dt.requests()
+    finally:
+        dt.close()
+
+
+def test_html_option_errors_are_one_line(tmp_path: Path) -> None:
+    for name in (GT, EST):
+        (tmp_path / name).write_bytes((DATA / name).read_bytes())
+    p = run_uwval("compare", tmp_path / GT, tmp_path / EST, "--html", tmp_path / "page.txt")
+    assert p.returncode == 2
+    assert p.stderr.strip().splitlines() == [
+        f"error: --html {tmp_path / 'page.txt'}: the page's name must end in .html"
+    ]
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    p = run_uwval("compare", tmp_path / GT, tmp_path / EST, "--html", blocker / "x.html")
+    assert p.returncode == 2
+    assert "x.html" in p.stderr
+    assert "Traceback" not in p.stderr
+    assert len(p.stderr.strip().splitlines()) == 1
