@@ -34,7 +34,16 @@ import pandas as pd
 from uwval.errors import ConfigError
 from uwval.gate import GateResult, Thresholds, check, load_thresholds
 from uwval.reports import plots
-from uwval.reports.content import Plot, Report, Section, Table, Text, fmt_num
+from uwval.reports.content import (
+    Plot,
+    Report,
+    Section,
+    Table,
+    Text,
+    fmt_interval,
+    fmt_num,
+    fmt_r,
+)
 from uwval.results import (
     AXES,
     AXIS_UNITS,
@@ -608,8 +617,8 @@ def _detail_sections(details: list[_RunDetail], topics: Sequence[str] | None) ->
                         a,
                         AXIS_UNITS[a],
                         *[fmt_num(m.get(k)) for k in ("mae", "rmse", "max", "p95", "bias", "std")],
-                        fmt_num(m.get("pearson_r"), 6),
-                        f"[{fmt_num(ci[0], 5)}, {fmt_num(ci[1], 5)}]" if ci else "n/a",
+                        fmt_r(m.get("pearson_r")),
+                        fmt_interval(*ci) if ci else "n/a",
                         str(m.get("pearson_reason") or ""),
                     ]
                 )

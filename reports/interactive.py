@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from uwval.reports.content import fmt_num
+from uwval.reports.content import fmt_num, fmt_r
 from uwval.reports.html import TEMPLATES, ReportError, environment
 from uwval.reports.plots import AXIS_COLOURS, AlignedPair, error_series
 from uwval.results import AXES, AXIS_UNITS
@@ -114,7 +114,7 @@ def _table(doc: Mapping[str, Any]) -> tuple[list[str], list[list[str]]]:
                 a,
                 AXIS_UNITS[a],
                 *[fmt_num(m.get(k)) for k in ("mae", "rmse", "max", "bias")],
-                fmt_num(m.get("pearson_r"), 6),
+                fmt_r(m.get("pearson_r")),
             ]
         )
     for key, label, unit in (
