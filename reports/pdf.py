@@ -307,7 +307,7 @@ def _figure_page(pager: _Pager, plot: Plot, heading: str) -> None:
     room_h = page_h - 2 * margin - head_h - (len(caption) + 1) * line
     scale = min(1.0, (page_w - 2 * margin) / w, room_h / h)
     texts = list(fig.findobj(MplText))
-    sizes = [t.get_fontsize() for t in texts]
+    sizes = [float(t.get_fontsize()) for t in texts]
     for t, size in zip(texts, sizes, strict=True):
         t.set_fontsize(size * scale)
     fig.set_size_inches(w * scale, h * scale)
