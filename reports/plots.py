@@ -416,7 +416,7 @@ def error_histogram_figure(pair: AlignedPair, title: str = "", bins: int = 40) -
             rmse = float(np.sqrt(np.mean(v * v)))
             ax.axvline(rmse, color="black", lw=1.0, ls="--", label=f"RMSE {rmse:.3g}")
         ax.set_title(key)
-        ax.legend(loc="best", fontsize=7)
+        ax.legend(loc="upper right", fontsize=6)
     if title:
         fig.suptitle(literal(title + ": error histograms (Unity - Gazebo)"))
     return fig

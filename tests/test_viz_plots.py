@@ -39,6 +39,18 @@ def fr1(tmp_path: Path) -> tuple[Path, Path]:
     return out[0], out[1]
 
 
+@pytest.fixture
+def fr1_short(tmp_path: Path) -> tuple[Path, Path]:
+    """The first ~8 s of freiburg1_xyz (the command-line tests check files, not numbers)."""
+    out = []
+    for name, lines in ((GT, 800), (EST, 250)):
+        dst = tmp_path / ("short-" + name)
+        text = (DATA / name).read_text().splitlines(keepends=True)
+        dst.write_text("".join(text[:lines]))
+        out.append(dst)
+    return out[0], out[1]
+
+
 def test_histogram_counts_are_numpys_and_a_constant_error_keeps_its_scale() -> None:
     rng = np.random.default_rng(16)
     v = rng.normal(0.0, 0.01, 500)
@@ -103,12 +115,14 @@ def test_trajectory_coloured_by_the_position_error(fr1: tuple[Path, Path]) -> No
 
 
 def test_compare_plot_writes_histogram_and_error_map(
-    fr1: tuple[Path, Path], tmp_path: Path
+    fr1_short: tuple[Path, Path], tmp_path: Path
 ) -> None:
     from PIL import Image
 
+    from uwval.cli.compare_run import extra_plot_targets, plot_targets
+
     target = tmp_path / "figs" / "fr1.png"
-    p = run_uwval("compare", *fr1, "--sync", "nearest", "--save_plot", target)
+    p = run_uwval("compare", *fr1_short, "--sync", "nearest", "--save_plot", target)
     assert p.returncode == 0, p.stderr
     names = ("fr1.png", "fr1_errors.png", "fr1_histogram.png", "fr1_errormap.png")
     for name in names:
@@ -121,8 +135,14 @@ def test_compare_plot_writes_histogram_and_error_map(
         if name == "fr1_errormap.png":
             sat = a.max(axis=2) - a.min(axis=2)
             assert (sat > 150).mean() > 0.01
-    # default names in the current folder
-    p = run_uwval("compare", *fr1, "--plot", cwd=tmp_path)
-    assert p.returncode == 0, p.stderr
-    for kind in ("trajectory", "errors", "histogram", "errormap"):
-        assert (tmp_path / f"uwval_trajectory_{kind}.png").is_file()
+    # default names (current folder): beside the error plot, per topic
+    ((_, _, errors),) = plot_targets(["trajectory"], "trajectory", None)
+    assert extra_plot_targets(errors) == (
+        Path("uwval_trajectory_histogram.png"),
+        Path("uwval_trajectory_errormap.png"),
+    )
+    two = plot_targets(["rov", "cam"], "rov", Path("o/f.png"))
+    assert extra_plot_targets(two[1][2]) == (
+        Path("o/f.cam_histogram.png"),
+        Path("o/f.cam_errormap.png"),
+    )

@@ -39,7 +39,7 @@ def _media_boxes(pdf: bytes) -> list[tuple[float, float]]:
 
 
 def test_one_log_report_has_the_error_figures_and_one_pdf_page_size(tmp_path: Path) -> None:
-    log = write_pair_log(tmp_path / "run.mcap", lag_s=0.02, noise=0.002, seed=16)
+    log = write_pair_log(tmp_path / "run.mcap", lag_s=0.02, noise=0.002, seed=16, duration=2.0)
     html_out, pdf_out = tmp_path / "out" / "r.html", tmp_path / "r.pdf"
     res = subprocess.run(
         [sys.executable, "-m", "uwval", "report", str(log), "-o", str(html_out), "--pdf",
