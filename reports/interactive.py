@@ -89,15 +89,16 @@ def topic_payload(name: str, pair: AlignedPair, max_points: int = MAX_POINTS) ->
             "series": err_series(_ROT),
         },
         {
-            "title": "Trajectory from above (ENU x-y)",
+            "title": "Trajectory from above (ENU x-y), coloured by the error",
             "xlabel": "x east (m)",
             "ylabel": "y north (m)",
             "equal": True,
             "height": 520,
             "series": [
-                {"x": "ref_x", "y": "ref_y", "label": "Gazebo (reference)", "color": "#1f77b4",
-                 "width": 1.8},
-                {"x": "oth_x", "y": "oth_y", "label": "Unity", "color": "#d62728", "dash": "6 3"},
+                {"x": "oth_x", "y": "oth_y", "label": "Unity", "color": "#6e7781", "dash": "6 3"},
+                {"x": "ref_x", "y": "ref_y", "c": "e_position_norm", "unit": "m",
+                 "label": "Gazebo (reference), coloured by the position error norm",
+                 "color": "#1f77b4", "width": 2.4},
             ],
         },
     ]  # fmt: skip

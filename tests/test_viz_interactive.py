@@ -236,10 +236,20 @@ def test_zoom_and_pan_in_headless_chromium(page: Path, tmp_path: Path) -> None:
         assert dt.js("document.body.getAttribute('data-ready')") == "3"
         # every chart drew its lines
         n_paths = dt.js(
-            "Array.from(document.querySelectorAll('svg.chart path'))"
+            "Array.from(document.querySelectorAll('svg.chart path:not(.cbin)'))"
             ".filter(p => (p.getAttribute('d') || '').length > 1000).length"
         )
-        assert n_paths == 10  # 4 position + 4 rotation series + Gazebo and Unity paths
+        assert n_paths == 9  # 4 position + 4 rotation series + Unity's path
+        # Gazebo's path coloured by the position error (evo's colour map): one path per colour
+        # bin, the lowest and the highest bins hold the smallest and the largest error
+        bins = dt.js(
+            "Array.from(document.querySelectorAll('#chart-0-2 path.cbin'))"
+            ".map(p => [p.getAttribute('stroke'), (p.getAttribute('d') || '').length])"
+        )
+        assert len(bins) == 32
+        assert bins[0][1] > 0 and bins[-1][1] > 0
+        assert sum(1 for _, n in bins if n) >= 10
+        assert len({colour for colour, _ in bins}) >= 30
 
         # wheel over the trajectory: both axes zoom in about the pointer, equal scale kept
         traj = "chart-0-2"

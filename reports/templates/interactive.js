@@ -13,6 +13,14 @@
     return e;
   }
 
+  var N_COLOURS = 32;
+
+  function jet(t) {  /* matplotlib's "jet" colour map, t in [0, 1] */
+    function c(v) { return Math.round(255 * Math.max(0, Math.min(1, v))); }
+    return "rgb(" + c(1.5 - Math.abs(4 * t - 3)) + "," + c(1.5 - Math.abs(4 * t - 2)) + "," +
+      c(1.5 - Math.abs(4 * t - 1)) + ")";
+  }
+
   function niceStep(span, n) {
     var raw = span / n, mag = Math.pow(10, Math.floor(Math.log10(raw))), f = raw / mag;
     return (f < 1.5 ? 1 : f < 3 ? 2 : f < 7 ? 5 : 10) * mag;
@@ -69,6 +77,23 @@
     this.gAxes = el("g", { "class": "axes" }, svg);
     this.gData = el("g", { "clip-path": "url(#" + opts.id + "-clip)" }, svg);
     this.paths = opts.series.map(function (s) {
+      if (s.c) {  // coloured by a value: one path per colour bin
+        // a segment's colour is the mean value of its two ends: the colour scale spans those
+        var lo = Infinity, hi = -Infinity;
+        for (var i = 0; i + 1 < s.c.length; i++) {
+          if (s.c[i] === null || s.c[i + 1] === null) continue;
+          var m = (s.c[i] + s.c[i + 1]) / 2;
+          if (m < lo) lo = m;
+          if (m > hi) hi = m;
+        }
+        s.cRange = lo <= hi ? [lo, hi] : [0, 1];
+        var bins = [];
+        for (var k = 0; k < N_COLOURS; k++) {
+          bins.push(el("path", { fill: "none", stroke: jet((k + 0.5) / N_COLOURS),
+            "stroke-width": s.width || 2.2, "stroke-linecap": "round", "class": "cbin" }, this.gData));
+        }
+        return bins;
+      }
       return el("path", { fill: "none", stroke: s.color, "stroke-width": s.width || 1.3,
         "stroke-dasharray": s.dash, "stroke-linejoin": "round" }, this.gData);
     }, this);
@@ -168,6 +193,7 @@
     el("text", { x: 14, y: m.t + this.ph / 2, "text-anchor": "middle", "class": "axis-label",
       transform: "rotate(-90 14 " + (m.t + this.ph / 2) + ")" }, g).textContent = this.opts.ylabel;
     this.opts.series.forEach(function (s, k) {
+      if (s.c) { self.drawColoured(s, self.paths[k]); return; }
       var d = [], pen = false;
       for (var i = 0; i < s.x.length; i++) {
         var a = s.x[i], b = s.y[i];
@@ -180,6 +206,19 @@
     this.svg.setAttribute("data-view", v.map(function (x) { return x.toPrecision(10); }).join(","));
   };
 
+  Chart.prototype.drawColoured = function (s, bins) {
+    var d = bins.map(function () { return []; }), lo = s.cRange[0], span = (s.cRange[1] - s.cRange[0]) || 1;
+    for (var i = 0; i + 1 < s.x.length; i++) {
+      var a = s.x[i], b = s.y[i], a2 = s.x[i + 1], b2 = s.y[i + 1], c = s.c[i], c2 = s.c[i + 1];
+      if (a === null || b === null || a2 === null || b2 === null || c === null || c2 === null) continue;
+      var k = Math.floor(((c + c2) / 2 - lo) / span * N_COLOURS);  // the top value: last bin
+      k = Math.max(0, Math.min(N_COLOURS - 1, k));
+      d[k].push("M" + this.px(a).toFixed(2) + " " + this.py(b).toFixed(2) + "L" +
+        this.px(a2).toFixed(2) + " " + this.py(b2).toFixed(2));
+    }
+    bins.forEach(function (p, k) { p.setAttribute("d", d[k].join("")); });
+  };
+
   function legend(host, series) {
     var div = document.createElement("div");
     div.className = "legend";
@@ -187,6 +226,18 @@
       var item = document.createElement("span");
       var sw = document.createElement("span");
       sw.className = "swatch";
+      if (s.c) {
+        var stops = [];
+        for (var k = 0; k <= 8; k++) stops.push(jet(k / 8));
+        sw.className = "swatch colourbar";
+        sw.style.backgroundImage = "linear-gradient(to right," + stops.join(",") + ")";
+        item.appendChild(sw);
+        var step = niceStep(s.cRange[1] - s.cRange[0] || 1, 20);
+        item.appendChild(document.createTextNode(s.label + ": " + label(s.cRange[0], step) +
+          " to " + label(s.cRange[1], step) + " " + (s.unit || "")));
+        div.appendChild(item);
+        return;
+      }
       sw.style.borderTop = "3px " + (s.dash ? "dashed " : "solid ") + s.color;
       item.appendChild(sw);
       item.appendChild(document.createTextNode(s.label));
@@ -216,7 +267,8 @@
         box.appendChild(head);
         host.appendChild(box);
         var series = spec.series.map(function (s) {
-          return { x: topic.columns[s.x], y: topic.columns[s.y], color: s.color, dash: s.dash, label: s.label, width: s.width };
+          return { x: topic.columns[s.x], y: topic.columns[s.y], c: s.c ? topic.columns[s.c] : null,
+            unit: s.unit, color: s.color, dash: s.dash, label: s.label, width: s.width };
         });
         var chart = new Chart(box, { id: "chart-" + ti + "-" + ci, title: spec.title, series: series,
           xlabel: spec.xlabel, ylabel: spec.ylabel, equal: spec.equal, height: spec.height });
