@@ -75,6 +75,9 @@ class _Pager:
         width: int = 110,
     ) -> None:
         self.put_heading()
+        # viz: characters per line from the font size (<= 0.65 em each, bold too), so that a
+        # heading or a long run name wraps instead of running off the page
+        width = min(width, int(A4[0] * (1 - 2 * MARGIN) * 72 / (0.65 * size)))
         lines = []
         for para in s.splitlines() or [""]:
             lines += textwrap.wrap(para, width=width) or [""]

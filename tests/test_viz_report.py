@@ -108,3 +108,29 @@ def test_figure_pages_are_not_cut(tmp_path: Path) -> None:
     assert top > 0.02 * h and bottom < 0.98 * h
     # the diagonal is drawn corner to corner of its axes, so it spans most of the width
     assert right - left > 0.6 * w
+
+
+def test_long_titles_wrap_inside_the_page() -> None:
+    # the issue: run titles cut at the page edge. Headings (13 pt) and the report title
+    # (16 pt) wrap by their own font size; every line ends inside the right margin.
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.backends.backend_pdf import PdfPages
+
+    from uwval.reports.content import Report
+    from uwval.reports.pdf import A4, MARGIN, _Pager
+
+    name = "Run " + "-".join(f"bluerov2_heavy-force={i}_current=0.{i}" for i in range(4))
+    with PdfPages("/dev/null") as pdf:
+        pager = _Pager(pdf, Report("t"))
+        pager.new_page()
+        for size in (9, 13, 16):
+            pager.text(name, size=size, weight="bold")
+        fig = pager.fig
+        assert fig is not None
+        renderer = FigureCanvasAgg(fig).get_renderer()
+        right = A4[0] * (1 - MARGIN) * fig.dpi
+        texts = [t for t in fig.texts if t.get_text().strip()]
+        assert len(texts) > 6  # wrapped onto several lines
+        for t in texts:
+            assert t.get_window_extent(renderer).x1 <= right, t.get_text()
+        pager.fig = None  # nothing to save
