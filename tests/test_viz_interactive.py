@@ -289,6 +289,13 @@ def test_zoom_and_pan_in_headless_chromium(page: Path, tmp_path: Path) -> None:
             dt.mouse(kind, x, y, button="left", buttons=1, clickCount=2)
         assert _view(dt, pos)[:2] == pytest.approx(full[:2])
 
+        # the buttons: zoom in halves the time window about its centre, reset restores it
+        dt.js("document.querySelector('#topic-0 .zoom-in').click()")
+        half = _view(dt, pos)
+        assert half[1] - half[0] == pytest.approx((full[1] - full[0]) / 2, rel=1e-6)
+        dt.js("document.querySelectorAll('#topic-0 .zoom-reset')[0].click()")
+        assert _view(dt, pos)[:2] == pytest.approx(full[:2])
+
         shot = dt.call("Page.captureScreenshot", {"format": "png"})["data"]
         assert len(shot) > 10_000
         assert dt.problems() == []
@@ -332,3 +339,42 @@ def test_html_option_errors_are_one_line(tmp_path: Path) -> None:
     assert "x.html" in p.stderr
     assert "Traceback" not in p.stderr
     assert len(p.stderr.strip().splitlines()) == 1
+
+
+def test_payload_thins_long_runs_and_keeps_gaps() -> None:
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from uwval.reports.interactive import topic_payload
+
+    n = 1001
+    pos = np.zeros((n, 3))
+    pos[:, 0] = np.linspace(0.0, 10.0, n)
+    err = {k: np.full(n, 0.5) for k in ("x", "y", "z", "roll", "pitch", "yaw")}
+    err["x"][3] = np.nan  # a masked sample: a gap in the line, null in the JSON
+    pair = SimpleNamespace(
+        t=np.arange(n, dtype=np.int64) * 10_000_000,  # 100 Hz
+        reference=SimpleNamespace(position=pos),
+        other=SimpleNamespace(position=pos + np.array([0.0, 0.3, 0.4])),
+        errors=err,
+    )
+    p = topic_payload("rov", pair, max_points=100)
+    assert p["stride"] == 11
+    cols = p["columns"]
+    assert len(cols["t"]) == 91 == len(cols["ref_x"])  # 1001 / 11
+    assert cols["t"][1] == pytest.approx(0.11)
+    # the norm is computed from the positions when the comparison does not carry it
+    assert cols["e_position_norm"][0] == pytest.approx(0.5)
+    assert "e_rotation_angle" not in cols
+    full = topic_payload("rov", pair)
+    assert full["stride"] == 1
+    assert full["columns"]["e_x"][3] is None
+    json.dumps(full, allow_nan=False)  # strict JSON: no NaN literal for the browser to choke on
+
+
+def test_batch_refuses_html(tmp_path: Path) -> None:
+    (tmp_path / "exp").mkdir()
+    p = run_uwval("compare", "--batch", tmp_path / "exp", "--html", tmp_path / "x.html")
+    assert p.returncode == 2
+    assert p.stderr.strip() == "error: --html applies to one comparison, not to --batch"

@@ -138,6 +138,13 @@
     }
   };
 
+  Chart.prototype.zoomBy = function (f) {  // about the centre (buttons, keyboard, touch)
+    var v = this.view, cx = (v[0] + v[1]) / 2, cy = (v[2] + v[3]) / 2, nv = v.slice();
+    nv[0] = cx + (v[0] - cx) * f; nv[1] = cx + (v[1] - cx) * f;
+    if (this.opts.equal) { nv[2] = cy + (v[2] - cy) * f; nv[3] = cy + (v[3] - cy) * f; }
+    this.setView(nv);
+  };
+
   Chart.prototype.reset = function () {
     this.yManual = false;
     this.setView(this.home.slice());
@@ -259,11 +266,16 @@
         head.className = "chart-head";
         var h = document.createElement("h3");
         h.textContent = spec.title;
-        var btn = document.createElement("button");
-        btn.type = "button";
-        btn.textContent = "reset zoom";
         head.appendChild(h);
-        head.appendChild(btn);
+        var buttons = {};
+        [["in", "zoom in"], ["out", "zoom out"], ["reset", "reset zoom"]].forEach(function (b) {
+          var btn = document.createElement("button");
+          btn.type = "button";
+          btn.textContent = b[1];
+          btn.className = "zoom-" + b[0];
+          head.appendChild(btn);
+          buttons[b[0]] = btn;
+        });
         box.appendChild(head);
         host.appendChild(box);
         var series = spec.series.map(function (s) {
@@ -273,7 +285,9 @@
         var chart = new Chart(box, { id: "chart-" + ti + "-" + ci, title: spec.title, series: series,
           xlabel: spec.xlabel, ylabel: spec.ylabel, equal: spec.equal, height: spec.height });
         legend(box, series);
-        btn.addEventListener("click", function () { chart.reset(); });
+        buttons.reset.addEventListener("click", function () { chart.reset(); });
+        buttons["in"].addEventListener("click", function () { chart.zoomBy(0.5); });
+        buttons.out.addEventListener("click", function () { chart.zoomBy(2); });
         if (!spec.equal) timeCharts.push(chart);
         charts.push(chart);
       });
