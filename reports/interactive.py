@@ -80,12 +80,14 @@ def topic_payload(name: str, pair: AlignedPair, max_points: int = MAX_POINTS) ->
             "title": "Position error over time (Unity - Gazebo)",
             "xlabel": "time (s)",
             "ylabel": "error (m)",
+            "unit": "m",
             "series": err_series(_POS),
         },
         {
             "title": "Rotation error over time (Unity - Gazebo)",
             "xlabel": "time (s)",
             "ylabel": "error (deg)",
+            "unit": "deg",
             "series": err_series(_ROT),
         },
         {

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import select
 import shutil
 import subprocess
@@ -273,6 +274,11 @@ def test_zoom_and_pan_in_headless_chromium(page: Path, tmp_path: Path) -> None:
         zoomed = _view(dt, pos)
         assert zoomed[1] - zoomed[0] < 0.6 * (full[1] - full[0])
         assert _view(dt, rot)[:2] == pytest.approx(zoomed[:2])
+
+        # the pointer over a time chart reads the values of the nearest sample
+        dt.mouse("mouseMoved", x, y)
+        readout = dt.js(f"document.querySelector('#{pos} text.readout').textContent")
+        assert re.fullmatch(r"t = [\d.]+ s: x \S+, y \S+, z \S+, norm \|p\| \S+ m", readout)
 
         # drag to the left: the window moves later in time by the same width
         dt.mouse("mousePressed", x, y, button="left", buttons=1, clickCount=1)

@@ -138,6 +138,35 @@
     }
   };
 
+  /* Time charts: the values of every series at the sample nearest the pointer, in the
+     chart's top-left corner, with a vertical cursor line (hidden when the pointer leaves). */
+  Chart.prototype.readout = function (evt) {
+    if (this.opts.equal) return;
+    if (!this.cursor) {
+      this.cursor = el("line", { stroke: "#57606a", "stroke-width": 0.8, "stroke-dasharray": "2 2" }, this.svg);
+      this.readoutText = el("text", { x: this.m.l + 6, y: this.m.t + 14, "class": "readout" }, this.svg);
+    }
+    var xs = this.opts.series.length ? this.opts.series[0].x : [];
+    var p = evt ? this.toData(evt) : null;
+    if (!p || !xs.length || p.sx < this.m.l || p.sx > this.m.l + this.pw) {
+      this.cursor.setAttribute("visibility", "hidden");
+      this.readoutText.textContent = "";
+      return;
+    }
+    var lo = 0, hi = xs.length - 1;  // stamps increase: bisect
+    while (hi - lo > 1) { var mid = (lo + hi) >> 1; if (xs[mid] < p.x) lo = mid; else hi = mid; }
+    var i = Math.abs(xs[lo] - p.x) <= Math.abs(xs[hi] - p.x) ? lo : hi;
+    var x = this.px(xs[i]);
+    this.cursor.setAttribute("x1", x); this.cursor.setAttribute("x2", x);
+    this.cursor.setAttribute("y1", this.m.t); this.cursor.setAttribute("y2", this.m.t + this.ph);
+    this.cursor.setAttribute("visibility", "visible");
+    var parts = this.opts.series.map(function (s) {
+      var v = s.y[i];
+      return s.label + " " + (v === null ? "n/a" : Number(v).toPrecision(4));
+    });
+    this.readoutText.textContent = "t = " + Number(xs[i]).toFixed(3) + " s: " + parts.join(", ") + " " + (this.opts.unit || "");
+  };
+
   Chart.prototype.zoomBy = function (f) {  // about the centre (buttons, keyboard, touch)
     var v = this.view, cx = (v[0] + v[1]) / 2, cy = (v[2] + v[3]) / 2, nv = v.slice();
     nv[0] = cx + (v[0] - cx) * f; nv[1] = cx + (v[1] - cx) * f;
@@ -168,7 +197,7 @@
       self.svg.classList.add("dragging");
     });
     this.svg.addEventListener("pointermove", function (evt) {
-      if (!drag) return;
+      if (!drag) { self.readout(evt); return; }
       var p = self.toData(evt), v = drag.view;
       var dx = (p.sx - drag.p.sx) / self.pw * (v[1] - v[0]);
       var dy = (p.sy - drag.p.sy) / self.ph * (v[3] - v[2]);
@@ -176,6 +205,7 @@
       self.setView([v[0] - dx, v[1] - dx, v[2] + dy, v[3] + dy]);
     });
     function end() { drag = null; self.svg.classList.remove("dragging"); }
+    this.svg.addEventListener("pointerleave", function () { self.readout(null); });
     this.svg.addEventListener("pointerup", end);
     this.svg.addEventListener("pointercancel", end);
     this.svg.addEventListener("dblclick", function () { self.reset(); });
@@ -283,7 +313,8 @@
             unit: s.unit, color: s.color, dash: s.dash, label: s.label, width: s.width };
         });
         var chart = new Chart(box, { id: "chart-" + ti + "-" + ci, title: spec.title, series: series,
-          xlabel: spec.xlabel, ylabel: spec.ylabel, equal: spec.equal, height: spec.height });
+          xlabel: spec.xlabel, ylabel: spec.ylabel, equal: spec.equal, height: spec.height,
+          unit: spec.unit });
         legend(box, series);
         buttons.reset.addEventListener("click", function () { chart.reset(); });
         buttons["in"].addEventListener("click", function () { chart.zoomBy(0.5); });
