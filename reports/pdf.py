@@ -306,7 +306,9 @@ def _figure_page(pager: _Pager, plot: Plot, heading: str) -> None:
     margin = MARGIN * page_w  # inches, all sides
     caption = textwrap.wrap(f"{plot.title}. {plot.caption}", CAPTION_WIDTH - 20) or [""]
     line = 7 * 1.35 / 72  # a 7 pt caption line, inches
-    head_h = 0.3 if heading else 0.0
+    usable_pt = (page_w - 2 * margin) * 72
+    head = textwrap.wrap(heading, int(usable_pt / (0.65 * 11))) if heading else []
+    head_h = 0.1 + 11 * 1.3 / 72 * len(head) if head else 0.0
     room_h = page_h - 2 * margin - head_h - (len(caption) + 1) * line
     scale = min(1.0, (page_w - 2 * margin) / w, room_h / h)
     texts = list(fig.findobj(MplText))
@@ -319,15 +321,16 @@ def _figure_page(pager: _Pager, plot: Plot, heading: str) -> None:
     top = page_h - margin - head_h  # the figure's top edge on the page
     y0 = -(top - fh)
     notes = []
-    if heading:
+    if head:
         notes.append(
             fig.text(
                 (margin + x0) / fw,
-                (top + 0.08 - (-y0)) / fh,
-                heading,
+                (top + 0.08 + y0) / fh,
+                "\n".join(head),
                 fontsize=11,
                 weight="bold",
                 va="bottom",
+                linespacing=1.3,
             )
         )
     notes.append(

@@ -90,9 +90,10 @@ def test_figure_pages_are_not_cut(tmp_path: Path) -> None:
     ax.set_xlim(0, 1)
     ax.set_ylim(0, 1)
     out = tmp_path / "p.pdf"
+    heading = "Run " + "-".join(f"bluerov2_heavy-force={i}_current=0.{i}" for i in range(4))
     with PdfPages(out) as pdf:
         pager = _Pager(pdf, Report("t"))
-        _figure_page(pager, Plot("a plot", fig, "its caption"), "Section")
+        _figure_page(pager, Plot("a plot", fig, "its caption " * 30), heading)
     assert _media_boxes(out.read_bytes()) == [A4_PT]
     assert tuple(fig.get_size_inches()) == (11, 13)  # restored for any later use
     subprocess.run(
