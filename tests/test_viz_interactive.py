@@ -384,3 +384,16 @@ def test_batch_refuses_html(tmp_path: Path) -> None:
     p = run_uwval("compare", "--batch", tmp_path / "exp", "--html", tmp_path / "x.html")
     assert p.returncode == 2
     assert p.stderr.strip() == "error: --html applies to one comparison, not to --batch"
+
+
+@needs_chromium
+def test_page_passes_the_report_pages_chromium_checks(page: Path, tmp_path: Path) -> None:
+    # the same helper and checks as report.html (tests/test_report.py): a real screenshot
+    # with ink, no console message
+    from test_report import _chromium, _console_errors, _ink
+
+    shot, log = _chromium(page, tmp_path)
+    assert _console_errors(log) == []
+    ink, std = _ink(shot)
+    assert ink > 0.02, "screenshot is blank"
+    assert std > 10
