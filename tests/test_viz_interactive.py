@@ -8,6 +8,7 @@ no extra Python package. Data: freiburg1_xyz (../shared/data/evo), copied into t
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import re
@@ -47,8 +48,12 @@ class DevTools:
         self._from_r, from_w = os.pipe()
 
         def fds() -> None:  # in the child: Chromium reads fd 3, writes fd 4
-            os.dup2(to_r, 3)
-            os.dup2(from_w, 4)
+            # via fds >= 10 first: a pipe end may itself be fd 3 or 4 (dup2 onto itself
+            # would keep it close-on-exec, and one dup2 could clobber the other end)
+            a = fcntl.fcntl(to_r, fcntl.F_DUPFD, 10)
+            b = fcntl.fcntl(from_w, fcntl.F_DUPFD, 10)
+            os.dup2(a, 3)  # inheritable
+            os.dup2(b, 4)
 
         self.proc = subprocess.Popen(
             [
@@ -301,6 +306,24 @@ def test_zoom_and_pan_in_headless_chromium(page: Path, tmp_path: Path) -> None:
         assert half[1] - half[0] == pytest.approx((full[1] - full[0]) / 2, rel=1e-6)
         dt.js("document.querySelectorAll('#topic-0 .zoom-reset')[0].click()")
         assert _view(dt, pos)[:2] == pytest.approx(full[:2])
+
+        # 20,000 samples in view are drawn thinned (min and max per pixel column) and a
+        # single-sample spike still shows: the envelope is that of every sample
+        got = dt.js(
+            """(() => {
+              const c = window.uwvalCharts[0], s = c.opts.series[0];
+              s.x = Array.from({length: 20000}, (_, i) => i * 0.001);
+              s.y = s.x.map((t) => Math.sin(t));
+              s.y[12345] = 5;
+              c.setView([0, 20, -2, 6], true);
+              const d = c.paths[0].getAttribute("d");
+              const ys = d.split(/[ML]/).filter(Boolean).map((p) => Number(p.split(" ")[1]));
+              return [ys.length, Math.min(...ys), c.py(5), c.pw];
+            })()"""
+        )
+        n_points, top_px, spike_px, pw = got
+        assert n_points <= 2 * (pw + 2)
+        assert top_px == pytest.approx(spike_px, abs=0.01)
 
         shot = dt.call("Page.captureScreenshot", {"format": "png"})["data"]
         assert len(shot) > 10_000

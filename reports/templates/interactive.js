@@ -153,8 +153,7 @@
       this.readoutText.textContent = "";
       return;
     }
-    var lo = 0, hi = xs.length - 1;  // stamps increase: bisect
-    while (hi - lo > 1) { var mid = (lo + hi) >> 1; if (xs[mid] < p.x) lo = mid; else hi = mid; }
+    var hi = Math.min(xs.length - 1, bisect(xs, p.x)), lo = Math.max(0, hi - 1);
     var i = Math.abs(xs[lo] - p.x) <= Math.abs(xs[hi] - p.x) ? lo : hi;
     var x = this.px(xs[i]);
     this.cursor.setAttribute("x1", x); this.cursor.setAttribute("x2", x);
@@ -231,6 +230,7 @@
       transform: "rotate(-90 14 " + (m.t + this.ph / 2) + ")" }, g).textContent = this.opts.ylabel;
     this.opts.series.forEach(function (s, k) {
       if (s.c) { self.drawColoured(s, self.paths[k]); return; }
+      if (!self.opts.equal) { self.paths[k].setAttribute("d", self.timePath(s)); return; }
       var d = [], pen = false;
       for (var i = 0; i < s.x.length; i++) {
         var a = s.x[i], b = s.y[i];
@@ -241,6 +241,43 @@
       self.paths[k].setAttribute("d", d.join(""));
     });
     this.svg.setAttribute("data-view", v.map(function (x) { return x.toPrecision(10); }).join(","));
+  };
+
+  function bisect(xs, x) {  // first index whose stamp is >= x (stamps increase; nulls none)
+    var lo = 0, hi = xs.length;
+    while (lo < hi) { var mid = (lo + hi) >> 1; if (xs[mid] < x) lo = mid + 1; else hi = mid; }
+    return lo;
+  }
+
+  /* A time series' path: only the samples in view (plus one either side), and where there
+     are more than two per pixel, per pixel column the minimum and the maximum (in their
+     order): the drawn envelope is the same as with every sample, at a few thousand points. */
+  Chart.prototype.timePath = function (s) {
+    var xs = s.x, ys = s.y, v = this.view;
+    var i0 = Math.max(0, bisect(xs, v[0]) - 1), i1 = Math.min(xs.length, bisect(xs, v[1]) + 1);
+    var thin = i1 - i0 > 2 * this.pw, d = [], pen = false, self = this;
+    var col = null, lo = 0, hi = 0, loI = 0, hiI = 0;
+    function put(i, y) {
+      d.push((pen ? "L" : "M") + self.px(xs[i]).toFixed(2) + " " + self.py(y).toFixed(2));
+      pen = true;
+    }
+    function flush() {
+      if (col === null) return;
+      if (loI <= hiI) { put(loI, lo); if (hiI !== loI) put(hiI, hi); }
+      else { put(hiI, hi); put(loI, lo); }
+      col = null;
+    }
+    for (var i = i0; i < i1; i++) {
+      var b = ys[i];
+      if (b === null || !isFinite(b)) { flush(); pen = false; continue; }
+      if (!thin) { put(i, b); continue; }
+      var c = Math.floor(this.px(xs[i]));
+      if (c !== col) { flush(); col = c; lo = hi = b; loI = hiI = i; }
+      else if (b < lo) { lo = b; loI = i; }
+      else if (b > hi) { hi = b; hiI = i; }
+    }
+    flush();
+    return d.join("");
   };
 
   Chart.prototype.drawColoured = function (s, bins) {
