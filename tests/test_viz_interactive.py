@@ -420,3 +420,16 @@ def test_page_passes_the_report_pages_chromium_checks(page: Path, tmp_path: Path
     ink, std = _ink(shot)
     assert ink > 0.02, "screenshot is blank"
     assert std > 10
+
+
+def test_file_names_are_text_not_markup(tmp_path: Path) -> None:
+    # a file name is shown as written: escaped in the page, never markup or script
+    _copy_fr1(tmp_path)
+    evil = tmp_path / "<img src=x onerror=alert(1)>.txt"
+    (tmp_path / EST).rename(evil)
+    out = tmp_path / "p.html"
+    p = run_uwval("compare", tmp_path / GT, evil, "--html", out)
+    assert p.returncode == 0, p.stderr
+    html = out.read_text()
+    assert "<img src=x" not in html
+    assert "&lt;img src=x onerror=alert(1)&gt;.txt" in html
