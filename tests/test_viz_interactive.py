@@ -187,8 +187,10 @@ def _copy_fr1(tmp_path: Path) -> None:
         (tmp_path / name).write_text("".join(text[:lines]))
 
 
-@pytest.fixture
-def page(tmp_path: Path) -> Path:
+@pytest.fixture(scope="module")
+def page(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One page for the tests of this module (the browser tests only read it)."""
+    tmp_path = tmp_path_factory.mktemp("viz-page")
     _copy_fr1(tmp_path)
     out = tmp_path / "out" / "fr1.html"
     p = run_uwval(
