@@ -34,7 +34,16 @@ import pandas as pd
 from uwval.errors import ConfigError
 from uwval.gate import GateResult, Thresholds, check, load_thresholds
 from uwval.reports import plots
-from uwval.reports.content import Plot, Report, Section, Table, Text, fmt_num
+from uwval.reports.content import (
+    Plot,
+    Report,
+    Section,
+    Table,
+    Text,
+    fmt_interval,
+    fmt_num,
+    fmt_r,
+)
 from uwval.results import (
     AXES,
     AXIS_UNITS,
@@ -608,8 +617,8 @@ def _detail_sections(details: list[_RunDetail], topics: Sequence[str] | None) ->
                         a,
                         AXIS_UNITS[a],
                         *[fmt_num(m.get(k)) for k in ("mae", "rmse", "max", "p95", "bias", "std")],
-                        fmt_num(m.get("pearson_r"), 6),
-                        f"[{fmt_num(ci[0], 5)}, {fmt_num(ci[1], 5)}]" if ci else "n/a",
+                        fmt_r(m.get("pearson_r")),
+                        fmt_interval(*ci) if ci else "n/a",
                         str(m.get("pearson_reason") or ""),
                     ]
                 )
@@ -638,6 +647,7 @@ def _detail_sections(details: list[_RunDetail], topics: Sequence[str] | None) ->
                     "Left: both simulators; right: Unity - Gazebo (signed) and its absolute value.",
                 )
             )
+            sec.blocks.extend(_error_plots(pair, name))  # viz: histogram, coloured path
             sec.blocks.append(
                 Plot(
                     f"Unity vs Gazebo: {name}",
@@ -647,6 +657,24 @@ def _detail_sections(details: list[_RunDetail], topics: Sequence[str] | None) ->
             )
         out.append(sec)
     return out
+
+
+def _error_plots(pair: Any, name: str) -> list[Plot]:
+    """The per-run error histograms and the trajectory coloured by the position error."""
+    return [
+        Plot(
+            f"Error histograms: {name}",
+            plots.error_histogram_figure(pair, name),
+            "Signed Unity - Gazebo per axis (m, deg), position-error norm (m) and rotation "
+            "angle (deg); solid line: mean, dashed: RMSE.",
+        ),
+        Plot(
+            f"Trajectory coloured by the position error: {name}",
+            plots.trajectory_error_figure(pair, name),
+            "Gazebo path from above (ENU x-y, m) coloured by |p_Unity - p_Gazebo| (m); "
+            "Unity dashed grey (as evo_ape --plot_mode xy).",
+        ),
+    ]
 
 
 def _bridge_section(exp: ExperimentResults) -> Section | None:

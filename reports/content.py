@@ -102,3 +102,38 @@ def fmt_num(v: Any, digits: int = 4) -> str:
     if abs(x) < 1e-3 or abs(x) >= 1e6:
         return f"{x:.{max(digits - 1, 1)}e}"
     return f"{x:.{digits}g}"
+
+
+def _shows_exactly(text: str, v: float) -> bool:
+    """False when ``text`` reads as +-1 (or 0) while ``v`` is not exactly that: a Pearson r
+    of 0.9999999 printed as "1" claims a perfect correlation that is not there."""
+    shown = float(text)
+    return shown not in (1.0, -1.0, 0.0) or shown == v
+
+
+def fmt_r(v: Any, digits: int = 6) -> str:
+    """A correlation coefficient (or any value in [-1, 1]) with at least ``digits``
+    significant digits and as many more as needed (up to 15) not to round to +-1 or 0."""
+    if v is None or not isinstance(v, (int, float)) or math.isnan(v):
+        return fmt_num(v, digits)
+    text = f"{v:.{digits}g}"
+    for d in range(digits, 16):
+        text = f"{v:.{d}g}"
+        if _shows_exactly(text, float(v)):
+            break
+    return text
+
+
+def fmt_interval(lo: Any, hi: Any, digits: int = 5) -> str:
+    """A confidence interval ``[lo, hi]`` printed with enough digits (``digits`` at least,
+    up to 15) for its two ends to differ and for neither to read as +-1 unless it is:
+    "[0.99999, 1]" becomes "[0.999991234, 0.999996789]". "n/a" when an end is missing."""
+    ends = (lo, hi)
+    if any(e is None or not isinstance(e, (int, float)) or math.isnan(e) for e in ends):
+        return "n/a"
+    a, b = f"{lo:.{digits}g}", f"{hi:.{digits}g}"
+    for d in range(digits, 16):
+        a, b = f"{lo:.{d}g}", f"{hi:.{d}g}"
+        if (a != b or lo == hi) and _shows_exactly(a, lo) and _shows_exactly(b, hi):
+            break
+    return f"[{a}, {b}]"

@@ -75,6 +75,9 @@ class _Pager:
         width: int = 110,
     ) -> None:
         self.put_heading()
+        # viz: characters per line from the font size (<= 0.65 em each, bold too), so that a
+        # heading or a long run name wraps instead of running off the page
+        width = min(width, int(A4[0] * (1 - 2 * MARGIN) * 72 / (0.65 * size)))
         lines = []
         for para in s.splitlines() or [""]:
             lines += textwrap.wrap(para, width=width) or [""]
@@ -284,19 +287,77 @@ def _section(pager: _Pager, sec: Section) -> None:
         elif isinstance(b, Table):
             pager.table(b)
         elif isinstance(b, Plot):
-            pager.flush()  # a figure gets a page of its own, at its own size
-            fig = b.figure
-            notes = [
-                fig.text(
-                    0.01, 0.003, f"{b.title}. {b.caption}", fontsize=7, color="#57606a", va="bottom"
-                )
-            ]
-            if pager.heading:  # the section opens with a figure: title it on that page
-                notes.append(
-                    fig.text(0.01, 0.995, pager.heading, fontsize=11, weight="bold", va="top")
-                )
-                pager.heading = ""
-            pager.pdf.savefig(fig)
-            for n in notes:
-                n.remove()
+            pager.flush()  # a figure gets an A4 page of its own (viz: _figure_page)
+            heading, pager.heading = pager.heading, ""
             pager.page += 1
+            _figure_page(pager, b, heading)
+
+
+def _figure_page(pager: _Pager, plot: Plot, heading: str) -> None:
+    """One A4 portrait page holding ``plot``: the figure scaled down as a whole (size and
+    fonts, so it looks as in the HTML) to fit the margins, ``heading`` above it, its title
+    and caption wrapped below it, the page footer as on text pages. Every page of the PDF
+    thus has the same size. The figure is restored afterwards."""
+    from matplotlib.text import Text as MplText
+
+    fig = plot.figure
+    w, h = (float(v) for v in fig.get_size_inches())
+    page_w, page_h = A4
+    margin = MARGIN * page_w  # inches, all sides
+    caption = textwrap.wrap(f"{plot.title}. {plot.caption}", CAPTION_WIDTH - 20) or [""]
+    line = 7 * 1.35 / 72  # a 7 pt caption line, inches
+    usable_pt = (page_w - 2 * margin) * 72
+    head = textwrap.wrap(heading, int(usable_pt / (0.65 * 11))) if heading else []
+    head_h = 0.1 + 11 * 1.3 / 72 * len(head) if head else 0.0
+    room_h = page_h - 2 * margin - head_h - (len(caption) + 1) * line
+    scale = min(1.0, (page_w - 2 * margin) / w, room_h / h)
+    texts = list(fig.findobj(MplText))
+    sizes = [float(t.get_fontsize()) for t in texts]
+    for t, size in zip(texts, sizes, strict=True):
+        t.set_fontsize(size * scale)
+    fig.set_size_inches(w * scale, h * scale)
+    fw, fh = w * scale, h * scale
+    x0 = -(page_w - fw) / 2  # the page's corner, in the figure's inches
+    top = page_h - margin - head_h  # the figure's top edge on the page
+    y0 = -(top - fh)
+    notes = []
+    if head:
+        notes.append(
+            fig.text(
+                (margin + x0) / fw,
+                (top + 0.08 + y0) / fh,
+                "\n".join(head),
+                fontsize=11,
+                weight="bold",
+                va="bottom",
+                linespacing=1.3,
+            )
+        )
+    notes.append(
+        fig.text(
+            (margin + x0) / fw,
+            -line / fh,
+            "\n".join(caption),
+            fontsize=7,
+            color="#57606a",
+            va="top",
+            linespacing=1.35,
+        )
+    )
+    notes.append(
+        fig.text(
+            (MARGIN * page_w + x0) / fw,
+            (0.02 * page_h + y0) / fh,
+            f"{pager.report.title} - page {pager.page}",
+            fontsize=7,
+            color="#57606a",
+        )
+    )
+    try:
+        pager.pdf.savefig(fig, bbox_inches=Bbox.from_bounds(x0, y0, page_w, page_h))
+    finally:
+        for n in notes:
+            n.remove()
+        fig.set_size_inches(w, h)
+        for t, size in zip(texts, sizes, strict=True):
+            t.set_fontsize(size)

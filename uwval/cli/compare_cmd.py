@@ -36,6 +36,7 @@ _SINGLE_RUN_ONLY = {
     "save_plot": "--save_plot",
     "save_errors": "--save-errors",
     "save_results": "--save_results",
+    "html": "--html",
 }
 
 

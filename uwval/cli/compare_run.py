@@ -310,17 +310,39 @@ def plot_targets(
     ]
 
 
+def extra_plot_targets(errors_png: Path) -> tuple[Path, Path]:
+    """The error histogram and the error-coloured trajectory written beside a topic's
+    error-over-time PNG ``..._errors.png``: ``..._histogram.png``, ``..._errormap.png``."""
+    stem = errors_png.name.removesuffix("_errors.png")
+    return (
+        errors_png.with_name(f"{stem}_histogram.png"),
+        errors_png.with_name(f"{stem}_errormap.png"),
+    )
+
+
 def _plot(result: Any, save_plot: Path | None) -> list[Path]:
-    """--plot: the trajectory and error-over-time figures of every topic as PNG files."""
+    """--plot: per topic the trajectory, error-over-time, error-histogram and
+    error-coloured trajectory figures as PNG files."""
     try:
-        from uwval.reports.plots import timeseries_figure, trajectory_figure
+        from uwval.reports.plots import (
+            error_histogram_figure,
+            timeseries_figure,
+            trajectory_error_figure,
+            trajectory_figure,
+        )
     except ImportError as exc:  # matplotlib missing
         raise ConfigError(f"--plot needs matplotlib ({exc})") from None
     written = []
     for name, traj, errs in plot_targets(list(result.results), result.primary, save_plot):
         res = result.results[name]
         title = f"{name}: {_short(res.other)} vs {_short(res.reference)}"
-        targets = ((trajectory_figure, traj), (timeseries_figure, errs))
+        hist, errmap = extra_plot_targets(errs)
+        targets = (
+            (trajectory_figure, traj),
+            (timeseries_figure, errs),
+            (error_histogram_figure, hist),
+            (trajectory_error_figure, errmap),
+        )
         for make, target in targets:
             fig = make(res, title)
             try:
@@ -332,6 +354,17 @@ def _plot(result: Any, save_plot: Path | None) -> list[Path]:
                 ) from None
             written.append(target)
     return written
+
+
+def _interactive(result: Any, path: Path) -> Path:
+    """--html: the interactive page (zoom/pan on errors and trajectory) of every topic."""
+    from uwval.reports.interactive import write_interactive
+
+    names = " vs ".join(Path(s).name for s in result.sources) if result.sources else ""
+    try:
+        return write_interactive(result.results, path, "uwval compare", names)
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot write the HTML page: {exc.strerror or exc}") from None
 
 
 def run_compare(
@@ -380,6 +413,7 @@ def _run_compare(
     save_plot: Path | None = None,
     save_errors: Path | None = None,
     save_results: Path | None = None,
+    html: Path | None = None,
     as_json: bool = False,
     output: Path | None = None,
 ) -> None:
@@ -388,6 +422,8 @@ def _run_compare(
     from uwval.comparison.logs import compare_logs
 
     mode = _align_mode(align, evo_align, correct_scale, align_origin)
+    if html is not None and html.suffix.lower() not in (".html", ".htm"):
+        raise ConfigError(f"--html {html}: the page's name must end in .html")
     if n_to_align != -1 and n_to_align < 1:
         raise ConfigError(f"--n_to_align must be >= 1 (or -1 for all), got {n_to_align}")
     if pose_relation is not None:
@@ -439,6 +475,8 @@ def _run_compare(
             saved.append(path)
     if plot or save_plot is not None:
         saved += _plot(result, save_plot)
+    if html is not None:
+        saved.append(_interactive(result, html))
     if as_json:
         sys.stdout.write(text + "\n")
         for path in saved:  # stdout holds the JSON alone
@@ -589,16 +627,17 @@ COMPARE_OPTIONS: tuple[CompareOption, ...] = (
         ("--plot",),
         bool,
         False,
-        "Write the trajectory and error-over-time plots as PNG files (no window opens): "
-        "to --save_plot, else uwval_<topic>_{trajectory,errors}.png in the current folder",
+        "Write PNG files (no window opens): trajectory, error over time, error histograms "
+        "and the trajectory coloured by the position error (evo_ape --plot_mode xy): to "
+        "--save_plot, else uwval_<topic>_{trajectory,errors,histogram,errormap}.png here",
     ),
     CompareOption(
         "save_plot",
         ("--save_plot", "--save-plot"),
         Path,
         None,
-        "PNG path of the trajectory plot (the error plot goes beside it, *_errors.png); "
-        "implies --plot",
+        "PNG path of the trajectory plot (the others go beside it: *_errors.png, "
+        "*_histogram.png, *_errormap.png); implies --plot",
     ),
     CompareOption(
         "save_errors",
@@ -615,6 +654,14 @@ COMPARE_OPTIONS: tuple[CompareOption, ...] = (
         None,
         "evo's --save_results: a .zip holds stats.json and info.json (evo's keys), "
         "uwval.json (the full result) and errors.csv; any other suffix: the JSON result",
+    ),
+    CompareOption(
+        "html",
+        ("--html",),
+        Path,
+        None,
+        "Write an interactive, self-contained HTML page (no network): errors over time and "
+        "the trajectory with wheel zoom and drag pan",
     ),
     CompareOption("as_json", ("--json",), bool, False, "Print the JSON result"),
     CompareOption(
