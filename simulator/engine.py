@@ -383,6 +383,7 @@ def simulate(
     wall = time.perf_counter() - t0
     info = _info(vehicle, sim.dt, publish_rate, seed, implicit_added_mass, legacy_coriolis)
     info["fossen_coriolis"] = fossen_coriolis
+    info["wrench_frame"] = sim.inputs.wrench_frame
     info.update(steps=sim.step, wall_time_s=wall, warnings=list(sim.warnings))
     return _result_from_records(records, sim.dt_ns * sim.publish_every, camera_offset, info)
 
@@ -463,6 +464,7 @@ class SimulationStream:
             vehicle, self.sim.dt, publish_rate, seed, implicit_added_mass, legacy_coriolis
         )
         self.info["fossen_coriolis"] = fossen_coriolis
+        self.info["wrench_frame"] = self.sim.inputs.wrench_frame
         self.info["warnings"] = list(self.sim.warnings)
         self._started = False
         self._spec = (vehicle, inputs, duration_s)
@@ -727,6 +729,7 @@ def simulate_batch(
     for i, v in enumerate(vs):
         info = _info(v, dt, publish_rate, seed, implicit_added_mass, legacy_coriolis)
         info["fossen_coriolis"] = fossen_coriolis
+        info["wrench_frame"] = ins[i].wrench_frame
         info.update(
             steps=total,
             wall_time_s=wall,

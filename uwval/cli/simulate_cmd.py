@@ -145,8 +145,12 @@ def simulate(
     output: Annotated[
         Path, typer.Option("-o", "--output", help="Log file (one run) or directory (experiment).")
     ] = Path("run.mcap"),
-    force: Annotated[str, typer.Option(help="Body force FX,FY,FZ in N.")] = "0,0,0",
-    torque: Annotated[str, typer.Option(help="Body torque TX,TY,TZ in N m.")] = "0,0,0",
+    force: Annotated[
+        str, typer.Option(help="Force FX,FY,FZ in N (body FLU; see --wrench-frame).")
+    ] = "0,0,0",
+    torque: Annotated[
+        str, typer.Option(help="Torque TX,TY,TZ in N m (body FLU; see --wrench-frame).")
+    ] = "0,0,0",
     current: Annotated[
         str, typer.Option(help="Water current CX,CY,CZ in m/s (world ENU).")
     ] = "0,0,0",
@@ -165,6 +169,13 @@ def simulate(
         bool,
         typer.Option(help="One run: gz-sim 8.0-8.11 / 9.x / 10.0-10.1 Coriolis entries."),
     ] = False,
+    wrench_frame: Annotated[
+        str,
+        typer.Option(
+            help="One run: frame of --force/--torque: body (FLU, moves with the vehicle) or "
+            "world (ENU, as gz-sim's ApplyLinkWrench takes it).",
+        ),
+    ] = "body",
     log_format: Annotated[
         str, typer.Option("--format", help="mcap, rosbag2 (sqlite3), rosbag2-mcap or rosbag1.")
     ] = "mcap",
@@ -244,6 +255,8 @@ def simulate(
         raise ConfigError(f"--duration must be a positive number of seconds, got {duration}")
     if added_mass not in ("explicit", "implicit"):
         raise ConfigError(f"--added-mass {added_mass!r}: choose explicit or implicit")
+    if wrench_frame not in ("body", "world"):
+        raise ConfigError(f"--wrench-frame {wrench_frame!r}: choose body or world")
     check_output_suffix(output, log_format)
     f, tq, c = (
         parse_vector(force, "force"),
@@ -254,7 +267,7 @@ def simulate(
         name=output.stem,
         factors={"force": factor_level(f), "torque": factor_level(tq), "current": factor_level(c)},
         vehicle=load_vehicle(vehicle),
-        inputs=constant_inputs(f, tq, c),
+        inputs=constant_inputs(f, tq, c, wrench_frame=wrench_frame),
         duration_s=duration,
         seed=seed,
         publish_rate=publish_rate,
