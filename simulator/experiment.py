@@ -18,6 +18,13 @@ An experiment TOML file::
     current = {kind = "ramp", value = [0.1, 0.0, 0.0], t0 = 0.0, t1 = 5.0}
     keys = "i@0:5; j@2:3"         # optional teleop key script (hold key = wrench increment)
 
+    [unity]                       # optional: the Unity side of every run (uwval.bridge
+    transport = "real-endpoint"   # .unity_model; the keys of uwval simulate's options):
+    frame_model = "vsync"         # transport, frame_model, frame_rate, stall_prob,
+    float32 = true                # frame_trace (path relative to this file), float32,
+    clock_drift_ppm = 20.0        # clock_drift_ppm, clock_offset_s, latency_s, jitter_s,
+                                  # drop_prob, unity_map; they override the command line
+
     [factors.force]               # kind is the table name: force | torque | current
     axis = "x"                    # x | y | z (body FLU for force/torque, world ENU for current)
     levels = [5.0, 10.0]          # N (force), N m (torque), m/s (current)
@@ -132,6 +139,7 @@ class Experiment:
     legacy_coriolis: bool = False
     wrench_frame: str = "body"
     baseline: dict[str, Signal] = field(default_factory=dict)
+    unity: dict[str, Any] = field(default_factory=dict)
     source: str = ""
     base_dir: Path = field(default_factory=Path.cwd)
 
@@ -299,6 +307,7 @@ def experiment_from_mapping(
     known = {
         "name", "description", "vehicle", "duration_s", "seed", "repeats", "publish_rate", "dt",
         "implicit_added_mass", "legacy_coriolis", "wrench_frame", "baseline", "factors",
+        "unity",
     }  # fmt: skip
     extra = set(doc) - known
     if extra:
@@ -343,6 +352,7 @@ def experiment_from_mapping(
             raise ConfigError(
                 f"{where}: unknown baseline key {key!r} (force, torque, current, keys)"
             )
+    unity = _unity_table(doc.get("unity", {}), where, base)
     fdoc = doc.get("factors", {})
     if not isinstance(fdoc, dict):
         raise ConfigError(f"{where}: 'factors' must be a table of tables")
@@ -361,9 +371,54 @@ def experiment_from_mapping(
         legacy_coriolis=_bool(doc, "legacy_coriolis", where),
         wrench_frame=wf,
         baseline=baseline,
+        unity=unity,
         source=source,
         base_dir=base,
     )
+
+
+#: ``[unity]`` keys -> (SessionOptions field, accepted type).
+_UNITY_KEYS: dict[str, tuple[str, type]] = {
+    "transport": ("transport", str),
+    "frame_model": ("frame_model", str),
+    "frame_rate": ("frame_rate", float),
+    "stall_prob": ("stall_prob", float),
+    "frame_trace": ("frame_trace", str),
+    "float32": ("float32", bool),
+    "clock_drift_ppm": ("clock_drift_ppm", float),
+    "clock_offset_s": ("unity_clock_offset_s", float),
+    "latency_s": ("latency_s", float),
+    "jitter_s": ("jitter_s", float),
+    "drop_prob": ("drop_prob", float),
+    "unity_map": ("unity_map", str),
+}
+
+
+def _unity_table(udoc: Any, where: str, base: Path) -> dict[str, Any]:
+    """The ``[unity]`` table -> SessionOptions overrides (types checked here, values by the
+    bridge when the session options are made)."""
+    if not isinstance(udoc, dict):
+        raise ConfigError(f"{where}: 'unity' must be a table")
+    out: dict[str, Any] = {}
+    for key, val in udoc.items():
+        if key not in _UNITY_KEYS:
+            raise ConfigError(
+                f"{where}: unknown key unity.{key} (known: {', '.join(sorted(_UNITY_KEYS))})"
+            )
+        name, typ = _UNITY_KEYS[key]
+        if typ is float:
+            ok = isinstance(val, (int, float)) and not isinstance(val, bool)
+            ok = ok and math.isfinite(val)
+        else:
+            ok = isinstance(val, typ)
+        if not ok:
+            want = {float: "a number", bool: "true or false", str: "a string"}[typ]
+            raise ConfigError(f"{where}: unity.{key} must be {want}, got {val!r}")
+        if key == "frame_trace":
+            p = Path(val)
+            val = str(p if p.is_absolute() else base / p)
+        out[name] = float(val) if typ is float else val
+    return out
 
 
 def load_experiment(path: str | Path) -> Experiment:

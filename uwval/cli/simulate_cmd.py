@@ -9,12 +9,14 @@ from __future__ import annotations
 
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
 from rich.console import Console
 
+from uwval.bridge.options import REAL_UNITY
 from uwval.cli import app
 from uwval.cli.pipeline import (
     FORMAT_SUFFIX,
@@ -24,7 +26,7 @@ from uwval.cli.pipeline import (
     log_path_for,
     run_one,
 )
-from uwval.errors import ConfigError
+from uwval.errors import ConfigError, UwvalError
 from uwval.executors import run_tasks
 
 console = Console()
@@ -87,6 +89,11 @@ def run_experiment(
     from uwval.simulator import load_experiment
 
     exp = load_experiment(experiment)
+    if exp.unity:  # the experiment's [unity] table decides for its runs
+        try:
+            session = replace(session, **exp.unity)
+        except UwvalError as exc:
+            raise ConfigError(f"{experiment}: unity: {exc}") from None
     specs = exp.runs()
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -180,7 +187,9 @@ def simulate(
         str, typer.Option("--format", help="mcap, rosbag2 (sqlite3), rosbag2-mcap or rosbag1.")
     ] = "mcap",
     publish_rate: Annotated[float, typer.Option(help="Gazebo pose publish rate, Hz.")] = 50.0,
-    frame_rate: Annotated[float, typer.Option(help="Unity render loop rate, Hz.")] = 60.0,
+    frame_rate: Annotated[
+        float, typer.Option(help="Unity render rate (vsync: display refresh), Hz.")
+    ] = float(REAL_UNITY["frame_rate"]),  # type: ignore[arg-type]
     unity_map: Annotated[
         str, typer.Option(help="ROS-TCP-Connector map: unity-flu or unity-enu.")
     ] = "unity-flu",
@@ -190,6 +199,36 @@ def simulate(
     unity_clock_offset: Annotated[
         float, typer.Option(help="Unity clock minus sim clock, s.")
     ] = 0.0,
+    unity_clock_drift: Annotated[
+        float, typer.Option(help="Unity clock rate error, ppm (a quartz clock: 10-50).")
+    ] = float(REAL_UNITY["clock_drift_ppm"]),  # type: ignore[arg-type]
+    transport: Annotated[
+        str,
+        typer.Option(
+            help="Link timing: real-endpoint (ROS-TCP-Endpoint 0.7.0: Nagle + delayed ACK, "
+            "p50 0.6 ms, p99 ~21 ms at 50 Hz), nodelay (TCP_NODELAY, p99 ~0.25 ms) or ideal.",
+        ),
+    ] = str(REAL_UNITY["transport"]),
+    frame_model: Annotated[
+        str,
+        typer.Option(
+            help="Unity frame times: vsync (--frame-rate display, missed vsyncs with "
+            "--stall-prob), fixed, or trace (--frame-trace).",
+        ),
+    ] = str(REAL_UNITY["frame_model"]),
+    stall_prob: Annotated[
+        float, typer.Option(help="vsync: probability that a frame misses its vsync.")
+    ] = float(REAL_UNITY["stall_prob"]),  # type: ignore[arg-type]
+    frame_trace: Annotated[
+        Path | None,
+        typer.Option(help="trace: file of measured frame durations (s), one per line."),
+    ] = None,
+    float32: Annotated[
+        bool,
+        typer.Option(
+            "--float32/--no-float32", help="Store poses as Unity's Transform does (float32)."
+        ),
+    ] = bool(REAL_UNITY["float32"]),
     seed: Annotated[int, typer.Option(help="Seed for jitter/drops (and the experiment).")] = 0,
     as_json: Annotated[
         bool,
@@ -227,6 +266,12 @@ def simulate(
         unity_clock_offset_s=unity_clock_offset,
         realtime=realtime,
         log_format=log_format,
+        transport=transport,
+        frame_model=frame_model,
+        stall_prob=stall_prob,
+        frame_trace=str(frame_trace) if frame_trace is not None else None,
+        float32=float32,
+        clock_drift_ppm=unity_clock_drift,
     )
     if experiment is not None:
         if output.suffix in (".mcap", ".bag", ".db3"):
