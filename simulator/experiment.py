@@ -31,6 +31,11 @@ An experiment TOML file::
     profile = {kind = "step", t0 = 1.0}   # optional: constant (default), step, ramp, pulse;
                                           # the level scales the profile's unit vector
 
+    [factors.torque]
+    keys = "j@1:2; u@2:3"         # or held teleop keys (teleop_wrench_keyboard): while a key
+    levels = [0.5, 1.0]           # is held its axis gets the level (N or N m); force
+                                  # factors take force keys, torque factors torque keys
+
     [factors.xUabsU]              # any vehicle parameter: mass, volume, ixx..., gz names
     levels = [-6.2282, -10.0]
 
@@ -55,6 +60,7 @@ import numpy as np
 
 from uwval.errors import ConfigError
 from uwval.simulator.inputs import (
+    TELEOP_KEYS,
     Constant,
     InputProfile,
     KeyScript,
@@ -121,6 +127,7 @@ class Factor:
     levels: tuple[float | str, ...]
     axis: int = 0
     profile: dict[str, Any] = field(default_factory=dict)
+    keys: str = ""
 
 
 @dataclass
@@ -173,6 +180,9 @@ class Experiment:
                 vehicle = _load_vehicle_rel(str(level), self.base_dir)
             elif f.kind == "param":
                 params[f.name] = float(level)
+            elif f.keys:
+                script = KeyScript.parse(f.keys, force_step=float(level), torque_step=float(level))
+                sig[f.kind].append(script.channel(0 if f.kind == "force" else 1))
             else:
                 unit = np.zeros(3)
                 unit[f.axis] = 1.0
@@ -268,7 +278,11 @@ def _factor(name: str, spec: Any, where: str) -> Factor:
                     "gz-sim name such as xUabsU)"
                 ) from None
         kind = "param"
-    allowed = {"kind", "levels", "axis", "profile"} if kind in _WRENCH_KINDS else {"kind", "levels"}
+    allowed = (
+        {"kind", "levels", "axis", "profile", "keys"}
+        if kind in _WRENCH_KINDS
+        else {"kind", "levels"}
+    )
     extra = set(spec) - allowed
     if extra:
         raise ConfigError(f"{fw}: unknown key(s) {sorted(extra)} (allowed: {sorted(allowed)})")
@@ -285,7 +299,26 @@ def _factor(name: str, spec: Any, where: str) -> Factor:
         raise ConfigError(f"{fw}: duplicate levels {levels}")
     axis = 0
     profile: dict[str, Any] = {}
-    if kind in _WRENCH_KINDS:
+    keys = spec.get("keys", "")
+    if "keys" in spec:
+        if kind not in ("force", "torque"):
+            raise ConfigError(f"{fw}: 'keys' drives a force or torque factor, not {kind}")
+        if "axis" in spec or "profile" in spec:
+            raise ConfigError(f"{fw}: give either 'keys' or 'axis'/'profile', not both")
+        if not isinstance(keys, str):
+            raise ConfigError(f"{fw}: 'keys' must be a key script like \"i@0:5; j@2:3\"")
+        try:
+            script = KeyScript.parse(keys)
+        except ConfigError as exc:
+            raise ConfigError(f"{fw}: keys: {exc}") from None
+        want = 0 if kind == "force" else 1
+        wrong = [kp.key for kp in script.presses if TELEOP_KEYS[kp.key][0] != want]
+        if wrong or not script.presses:
+            raise ConfigError(
+                f"{fw}: keys must hold {kind} keys only"
+                + (f"; {' '.join(wrong)} drive the other channel" if wrong else "")
+            )
+    elif kind in _WRENCH_KINDS:
         ax = spec.get("axis", "x")
         if ax not in _AXES:
             raise ConfigError(f"{fw}: axis must be x, y or z, got {ax!r}")
@@ -296,7 +329,7 @@ def _factor(name: str, spec: Any, where: str) -> Factor:
         # validate now, with a unit value
         signal_from_spec({**profile, "value": [1.0, 0.0, 0.0]}, f"{fw} profile")
     conv: tuple[float | str, ...] = tuple(lv if isinstance(lv, str) else float(lv) for lv in levels)
-    return Factor(name=name, kind=kind, levels=conv, axis=axis, profile=profile)
+    return Factor(name=name, kind=kind, levels=conv, axis=axis, profile=profile, keys=keys)
 
 
 def experiment_from_mapping(
