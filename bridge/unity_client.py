@@ -386,7 +386,10 @@ class RenderLoop:
             )
         conv = get_convention(unity_map)
         if not conv.name.startswith("unity"):
-            raise BridgeError(f"{unity_map!r} is not a Unity map; use unity-flu or unity-enu")
+            raise BridgeError(
+                f"{unity_map!r} is not a Unity map; use unity-flu, unity-enu or "
+                "unity-enu-east|south|west"
+            )
         self.unity_map = conv.name
         self.topics = list(topics)
         self.frame_rate = float(frame_rate)

@@ -191,7 +191,11 @@ def simulate(
         float, typer.Option(help="Unity render rate (vsync: display refresh), Hz.")
     ] = float(REAL_UNITY["frame_rate"]),  # type: ignore[arg-type]
     unity_map: Annotated[
-        str, typer.Option(help="ROS-TCP-Connector map: unity-flu or unity-enu.")
+        str,
+        typer.Option(
+            help="ROS-TCP-Connector map: unity-flu, unity-enu (compass north) or "
+            "unity-enu-east|south|west (its GeometryCompass setting).",
+        ),
     ] = "unity-flu",
     latency: Annotated[float, typer.Option(help="Injected one-way latency, s.")] = 0.0,
     jitter: Annotated[float, typer.Option(help="Render-frame jitter (std), s.")] = 0.0,
