@@ -11,6 +11,7 @@ An experiment TOML file::
     dt = 0.001                    # s (optional)
     implicit_added_mass = false   # optional
     legacy_coriolis = false       # optional
+    legacy_gz8 = false            # optional: all of gz-sim 8.0-8.11 (Coriolis, prevState, abs)
     wrench_frame = "body"         # optional: "body" (FLU) or "world" (ENU)
 
     [baseline]                    # optional inputs every run gets (added to the factors')
@@ -106,6 +107,7 @@ class RunSpec:
     implicit_added_mass: bool = False
     legacy_coriolis: bool = False
     repeat: int = 0
+    legacy_gz8: bool = False
 
     def simulate_kwargs(self) -> dict[str, Any]:
         """Keyword arguments of :func:`uwval.simulator.simulate` but vehicle, inputs, duration."""
@@ -115,6 +117,7 @@ class RunSpec:
             "seed": self.seed,
             "implicit_added_mass": self.implicit_added_mass,
             "legacy_coriolis": self.legacy_coriolis,
+            "legacy_gz8": self.legacy_gz8,
         }
 
 
@@ -144,6 +147,7 @@ class Experiment:
     dt: float = 1e-3
     implicit_added_mass: bool = False
     legacy_coriolis: bool = False
+    legacy_gz8: bool = False
     wrench_frame: str = "body"
     baseline: dict[str, Signal] = field(default_factory=dict)
     unity: dict[str, Any] = field(default_factory=dict)
@@ -223,6 +227,7 @@ class Experiment:
             implicit_added_mass=self.implicit_added_mass,
             legacy_coriolis=self.legacy_coriolis,
             repeat=rep,
+            legacy_gz8=self.legacy_gz8,
         )
 
 
@@ -340,7 +345,7 @@ def experiment_from_mapping(
     known = {
         "name", "description", "vehicle", "duration_s", "seed", "repeats", "publish_rate", "dt",
         "implicit_added_mass", "legacy_coriolis", "wrench_frame", "baseline", "factors",
-        "unity",
+        "unity", "legacy_gz8",
     }  # fmt: skip
     extra = set(doc) - known
     if extra:
@@ -402,6 +407,7 @@ def experiment_from_mapping(
         dt=_num(doc, "dt", 1e-3, where),
         implicit_added_mass=_bool(doc, "implicit_added_mass", where),
         legacy_coriolis=_bool(doc, "legacy_coriolis", where),
+        legacy_gz8=_bool(doc, "legacy_gz8", where),
         wrench_frame=wf,
         baseline=baseline,
         unity=unity,

@@ -176,6 +176,15 @@ def simulate(
         bool,
         typer.Option(help="One run: gz-sim 8.0-8.11 / 9.x / 10.0-10.1 Coriolis entries."),
     ] = False,
+    legacy_gz8: Annotated[
+        bool,
+        typer.Option(
+            "--legacy-gz8",
+            help="One run: the complete gz-sim 8.0-8.11 Hydrodynamics: its Coriolis entries, "
+            "zero initial prevState (added-mass kick with a current), int abs() in the "
+            "quadratic damping.",
+        ),
+    ] = False,
     wrench_frame: Annotated[
         str,
         typer.Option(
@@ -322,6 +331,7 @@ def simulate(
         publish_rate=publish_rate,
         implicit_added_mass=added_mass == "implicit",
         legacy_coriolis=legacy_coriolis,
+        legacy_gz8=legacy_gz8,
     )
     t0 = time.perf_counter()
     with console.status(f"simulating {duration:g} s and bridging over TCP..."):
