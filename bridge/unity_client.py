@@ -388,7 +388,7 @@ class RenderLoop:
         if not conv.name.startswith("unity"):
             raise BridgeError(
                 f"{unity_map!r} is not a Unity map; use unity-flu, unity-enu or "
-                "unity-enu-east|south|west"
+                "unity-enu-south|west"
             )
         self.unity_map = conv.name
         self.topics = list(topics)

@@ -13,7 +13,7 @@ import pytest
 from cli_runner import run_uwval
 
 from uwval.errors import FrameError
-from uwval.frames import COMPASS, convert_arrays, unity_enu_map
+from uwval.frames import COMPASS, convert_arrays, get_convention, unity_enu_map
 from uwval.io import read_stream
 
 # ENU.ConvertFromRUF(Vector3 v) per compass: Unity (x, y, z) -> ENU
@@ -75,6 +75,9 @@ def test_a_unity_identity_faces_the_compass_direction() -> None:
         assert abs((got - yaw + 180) % 360 - 180) < 1e-9, compass
     with pytest.raises(FrameError, match="compass 'up'"):
         unity_enu_map("up")
+    # compass east is the connector's FLU map itself (no yaw): one convention, two names
+    assert unity_enu_map("east") == "unity-flu"
+    assert get_convention("unity-enu-east").name == "unity-flu"
 
 
 def test_simulate_with_a_compass_map_round_trips(tmp_path: Path) -> None:

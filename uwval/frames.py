@@ -89,7 +89,8 @@ CONVENTIONS: dict[str, Convention] = {
                 f"Unity RUF, ROS-TCP-Connector To<ENU>() map with the compass set to {c} "
                 "(Unity +Z faces " + c + ")",
             )
-            for c in COMPASS[1:]
+            # east is the FLU map itself (the connector applies no yaw for it): an alias
+            for c in ("south", "west")
         ),
     )
 }
@@ -102,16 +103,18 @@ ALIASES = {
     "unity": "unity-flu",
     "frd": "ned",
     "unity-enu-north": "unity-enu",
+    "unity-enu-east": "unity-flu",
 }
 
 
 def unity_enu_map(compass: str) -> str:
     """The name of the ``unity-enu`` convention for a ROS-TCP-Connector compass setting
-    (``north`` = the default ``unity-enu``, ``east``, ``south``, ``west``)."""
+    (``north`` = the default ``unity-enu``; ``east`` is ROS-TCP-Connector's FLU map itself,
+    ``unity-flu``; ``south``, ``west``)."""
     c = compass.lower()
     if c not in COMPASS:
         raise FrameError(f"compass {compass!r}: choose one of {', '.join(COMPASS)}")
-    return "unity-enu" if c == "north" else f"unity-enu-{c}"
+    return {"north": "unity-enu", "east": "unity-flu"}.get(c, f"unity-enu-{c}")
 
 
 def get_convention(name: str | Convention) -> Convention:

@@ -203,7 +203,7 @@ def simulate(
         str,
         typer.Option(
             help="ROS-TCP-Connector map: unity-flu, unity-enu (compass north) or "
-            "unity-enu-east|south|west (its GeometryCompass setting).",
+            "unity-enu-south|west (its GeometryCompass setting; east = unity-flu).",
         ),
     ] = "unity-flu",
     latency: Annotated[float, typer.Option(help="Injected one-way latency, s.")] = 0.0,
