@@ -128,7 +128,7 @@ def build_report(
     thresholds: Thresholds | str | Path | None = DEFAULT_THRESHOLDS,
     baseline: str | Path | ResultsTable | None = None,
     compare_options: Mapping[str, Any] | None = None,
-    max_detail_runs: int = 8,
+    max_detail_runs: int = 2,
     detail_topics: Sequence[str] | None = None,
     title: str = "uwval pose correspondence report",
     command: str = "",
