@@ -29,6 +29,7 @@ __all__ = [
     "DEFAULT_HOST",
     "DEFAULT_TOPICS",
     "LOG_SUFFIX",
+    "REAL_UNITY",
     "RECONNECT_DELAY_S",
     "VEHICLE_TOPIC",
     "SessionOptions",
@@ -41,6 +42,19 @@ LOG_SUFFIX = {
     "rosbag2-sqlite3": "",
     "rosbag2-mcap": "",
     "rosbag1": ".bag",
+}
+
+
+#: A Unity side as a real setup has it (:mod:`uwval.bridge.unity_model` says where each
+#: number comes from): ROS-TCP-Endpoint 0.7.0's link timing, a 60 Hz vsync display that
+#: misses a vsync now and then, float32 Transforms, a quartz clock 20 ppm fast.
+REAL_UNITY: dict[str, object] = {
+    "transport": "real-endpoint",
+    "frame_model": "vsync",
+    "frame_rate": 60.0,
+    "stall_prob": 0.005,
+    "float32": True,
+    "clock_drift_ppm": 20.0,
 }
 
 
@@ -70,6 +84,19 @@ class SessionOptions:
         lookahead_s: how far ahead of the render clock ticks may be sent (0 in realtime).
         flush_every: the recorder flushes after this many messages.
         host, port: where the endpoint listens (port 0: a free port).
+        transport: link timing model (:mod:`uwval.bridge.unity_model`): ``ideal``,
+            ``nodelay`` or ``real-endpoint`` (Nagle + delayed ACK as measured on
+            ROS-TCP-Endpoint 0.7.0).
+        frame_model: ``fixed``, ``vsync`` (display refresh ``frame_rate``, missed vsyncs)
+            or ``trace`` (frame durations from ``frame_trace``).
+        stall_prob: ``vsync``: probability that a frame misses its vsync.
+        frame_trace: ``trace``: file of frame durations (s), one per line.
+        float32: Unity's Transform stores float32.
+        clock_drift_ppm: Unity's clock rate error, parts per million.
+
+    These defaults are the exact building block (no link delay, fixed frames, float64);
+    :data:`REAL_UNITY` holds the values of a real setup, the defaults of ``uwval simulate``
+    and of the default experiment.
     """
 
     unity_map: str = "unity-flu"
@@ -89,6 +116,12 @@ class SessionOptions:
     flush_every: int = 1000
     host: str = DEFAULT_HOST
     port: int = 0
+    transport: str = "ideal"
+    frame_model: str = "fixed"
+    stall_prob: float = 0.005
+    frame_trace: str | None = None
+    float32: bool = False
+    clock_drift_ppm: float = 0.0
 
     def __post_init__(self) -> None:
         from uwval.bridge import protocol as wire
@@ -114,6 +147,7 @@ class SessionOptions:
             disconnects=self.disconnects,
             reconnect_delay_s=self.reconnect_delay_s,
             seed=seed,
+            transport=self.transport,
         )
 
     def render_loop(self, seed: int) -> RenderLoop:
@@ -127,4 +161,9 @@ class SessionOptions:
             frame_jitter_s=self.jitter_s,
             clock_offset_s=self.unity_clock_offset_s,
             seed=seed,
+            frame_model=self.frame_model,
+            stall_prob=self.stall_prob,
+            frame_trace=self.frame_trace,
+            float32=self.float32,
+            clock_drift_ppm=self.clock_drift_ppm,
         )

@@ -51,6 +51,8 @@ __all__ = [
 ]
 
 _POLL_TIMEOUT_S = 10.0
+#: Longer than any delay of the non-ideal transports (delayed ACK 40 ms + wire), ns.
+LINK_DELAY_BOUND_NS = 60_000_000
 
 
 @dataclass
@@ -234,6 +236,8 @@ class BridgeSession:
         self._pending = first
         lookahead_ns = 0 if opts.realtime else int(opts.lookahead_s * 1e9)
         max_delay_ns = round((opts.latency_s + opts.latency_jitter_s) * 1e9)
+        if opts.transport != "ideal":  # a pose held by Nagle until a delayed ACK: ~41 ms
+            max_delay_ns += LINK_DELAY_BOUND_NS
         # Virtual times (ns) when the link drops and when it is back.
         drops = sorted(self._t0 + int(d * 1e9) for d in opts.disconnects)
         down_until: int | None = None  # while disconnected: reconnect time
@@ -249,6 +253,7 @@ class BridgeSession:
                 protocol=self.protocol,
             )
             self._connect()
+            self.faults.reset_connection(self._t0)
             frames = scene.frame_times(self._t0, 2**62)
             frame_ns = next(frames)
             while True:
@@ -376,7 +381,7 @@ class BridgeSession:
             self._pending = next(self._ticks, None)
         self._pace(at_ns)
         self._connect()
-        self.faults.reset_connection()
+        self.faults.reset_connection(at_ns)
         self._flight = _Flight()
         self.stats.reconnects += 1
 

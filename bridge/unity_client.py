@@ -34,6 +34,7 @@ from numpy.typing import NDArray
 
 from uwval.bridge import protocol as wire
 from uwval.bridge.errors import BridgeError
+from uwval.bridge.unity_model import FrameClock, Transport, float32_transform, read_frame_trace
 from uwval.frames import convert_arrays, get_convention
 
 #: Unity's ROS-TCP-Connector reconnects this long after a lost connection, s. Stated again in
@@ -304,6 +305,9 @@ class FaultModel:
     ``disconnects`` lists virtual times (s from the start of the run) at which the
     connection drops: the socket is really closed, and Unity reconnects and re-registers
     after ``reconnect_delay_s``; messages in flight or sent meanwhile are lost.
+    ``transport`` (:mod:`uwval.bridge.unity_model`): ``ideal`` (no link delay of its own),
+    ``nodelay`` or ``real-endpoint`` (Nagle + delayed ACK of ROS-TCP-Endpoint 0.7.0);
+    its delay comes before ``latency_s`` and the jitter.
     """
 
     latency_s: float = 0.0
@@ -312,7 +316,9 @@ class FaultModel:
     disconnects: Sequence[float] = ()
     reconnect_delay_s: float = RECONNECT_DELAY_S
     seed: int = 0
+    transport: str = "ideal"
     _rng: np.random.Generator = field(init=False, repr=False)
+    _link: Transport = field(init=False, repr=False)
     _last_arrival_ns: int = field(default=-(2**62), init=False, repr=False)
     _draws: list[float] = field(default_factory=list, init=False, repr=False)
     _next: int = field(default=0, init=False, repr=False)
@@ -337,6 +343,7 @@ class FaultModel:
                 f"disconnect times must be finite and >= 0 s, got {list(self.disconnects)}"
             )
         self._rng = np.random.default_rng(self.seed)
+        self._link = Transport(kind=self.transport, seed=self.seed)
 
     def arrival_ns(self, send_ns: int) -> int | None:
         """Virtual arrival time of a message sent at ``send_ns``, or None when dropped."""
@@ -348,28 +355,41 @@ class FaultModel:
         u_drop, u_jit = self._draws[self._next], self._draws[self._next + 1]
         self._next += 2
         delay = self.latency_s + self.latency_jitter_s * u_jit
-        arrival = max(self._last_arrival_ns, int(send_ns + round(delay * 1e9)))
+        link = self._link.arrival_ns(int(send_ns))
+        arrival = max(self._last_arrival_ns, int(link + round(delay * 1e9)))
         self._last_arrival_ns = arrival
         if u_drop < self.drop_prob:
             return None
         return arrival
 
-    def reset_connection(self) -> None:
-        """A new TCP connection: ordering restarts."""
+    def reset_connection(self, at_ns: int | None = None) -> None:
+        """A new TCP connection (made at virtual ``at_ns`` when known): ordering restarts."""
         self._last_arrival_ns = -(2**62)
+        self._link.reset(at_ns)
 
 
 class RenderLoop:
     """Unity's scene: latest arrived pose per topic, applied once per render frame.
 
+    What arrived since the last frame is applied in the frame's ``Update`` (as
+    ROS-TCP-Connector's subscriber callbacks run there); the last pose of a topic wins.
+
     Args:
         topics: topic names rendered (e.g. ``model_rov_pose``, ``gui_camera_pose``).
         unity_map: ROS-TCP-Connector map, ``unity-flu`` (default) or ``unity-enu``.
-        frame_rate: render frames per second.
-        frame_jitter_s: std of Gaussian jitter on each frame time (clipped to +-0.45 of a
-            period, so frame times stay increasing).
+        frame_rate: render frames per second (``vsync``: the display refresh rate).
+        frame_jitter_s: ``fixed``: std of Gaussian jitter on each frame time (clipped to
+            +-0.45 of a period, so frame times stay increasing).
         clock_offset_s: Unity clock minus virtual (sim) clock, seconds.
-        seed: seed of the frame jitter.
+        seed: seed of the frame jitter and stalls.
+        frame_model: ``fixed``, ``vsync`` (missed vsyncs with ``stall_prob`` per frame) or
+            ``trace`` (frame durations replayed from ``frame_trace``), see
+            :class:`uwval.bridge.unity_model.FrameClock`.
+        stall_prob: ``vsync``: probability that a frame misses its vsync.
+        frame_trace: ``trace``: file of frame durations (s), one per line.
+        float32: store poses as a Unity Transform does (float32 position and rotation).
+        clock_drift_ppm: Unity's clock runs fast by this many parts per million of the
+            time since the first frame (negative: slow).
     """
 
     def __init__(
@@ -381,6 +401,11 @@ class RenderLoop:
         frame_jitter_s: float = 0.0,
         clock_offset_s: float = 0.0,
         seed: int = 0,
+        frame_model: str = "fixed",
+        stall_prob: float = 0.005,
+        frame_trace: str | None = None,
+        float32: bool = False,
+        clock_drift_ppm: float = 0.0,
     ) -> None:
         # Written as ``not (ok)`` so that NaN fails too; an infinite rate never advances.
         if not (0 < frame_rate < math.inf):
@@ -389,36 +414,46 @@ class RenderLoop:
             raise BridgeError(f"frame jitter must be finite and >= 0 s, got {frame_jitter_s}")
         if not math.isfinite(clock_offset_s):
             raise BridgeError(f"Unity clock offset must be finite, got {clock_offset_s} s")
+        if not (math.isfinite(clock_drift_ppm) and abs(clock_drift_ppm) < 1e5):
+            raise BridgeError(
+                f"Unity clock drift must be a finite number of ppm below 1e5 in size, "
+                f"got {clock_drift_ppm}"
+            )
         conv = get_convention(unity_map)
         if not conv.name.startswith("unity"):
-            raise BridgeError(f"{unity_map!r} is not a Unity map; use unity-flu or unity-enu")
+            raise BridgeError(
+                f"{unity_map!r} is not a Unity map; use unity-flu, unity-enu or "
+                "unity-enu-south|west"
+            )
         self.unity_map = conv.name
         self.topics = list(topics)
         self.frame_rate = float(frame_rate)
         self.frame_jitter_s = float(frame_jitter_s)
         self.offset_ns = round(clock_offset_s * 1e9)
-        self._rng = np.random.default_rng([seed, 1])
+        self.drift = float(clock_drift_ppm) * 1e-6
+        self.float32 = bool(float32)
+        self.clock = FrameClock(
+            kind=frame_model,
+            rate_hz=self.frame_rate,
+            stall_prob=stall_prob,
+            trace=read_frame_trace(frame_trace) if frame_trace is not None else None,
+            jitter_s=self.frame_jitter_s,
+            seed=seed,
+        )
+        self._first_frame_ns: int | None = None
         # Per topic: pending (arrival_ns, stamp, pos_u, quat_u) in arrival order, and current.
         self._pending: dict[str, list[tuple[int, int, F64, F64]]] = {t: [] for t in topics}
         self._current: dict[str, tuple[int, F64, F64]] = {}
 
     def frame_times(self, start_ns: int, end_ns: int) -> Iterator[int]:
-        """Virtual render-frame times in [start_ns, end_ns], with jitter."""
-        period = 1.0 / self.frame_rate
-        k = 0
-        while True:
-            nominal = start_ns + round(k * period * 1e9)
-            if nominal > end_ns:
-                return
-            jit = 0.0
-            if self.frame_jitter_s > 0:
-                jit = float(
-                    np.clip(
-                        self._rng.normal(0.0, self.frame_jitter_s), -0.45 * period, 0.45 * period
-                    )
-                )
-            yield max(start_ns, nominal + round(jit * 1e9))
-            k += 1
+        """Virtual render-frame times in [start_ns, end_ns] under the frame model."""
+        self._first_frame_ns = int(start_ns)
+        return self.clock.times(start_ns, end_ns)
+
+    def unity_time_ns(self, frame_ns: int) -> int:
+        """Unity's clock at virtual time ``frame_ns``: offset plus drift since the first frame."""
+        first = self._first_frame_ns if self._first_frame_ns is not None else frame_ns
+        return frame_ns + self.offset_ns + round(self.drift * (frame_ns - first))
 
     def arrive(self, pose: ReceivedPose, arrival_ns: int) -> None:
         """A pose reached Unity (virtual ``arrival_ns``): convert it into Unity axes now."""
@@ -434,6 +469,8 @@ class RenderLoop:
             "enu",
             self.unity_map,
         )
+        if self.float32:
+            pos_u, quat_u = float32_transform(pos_u, quat_u)
         for k, (pose, arrival) in enumerate(zip(poses, arrivals_ns, strict=True)):
             self._pending.setdefault(pose.topic, []).append(
                 (int(arrival), pose.stamp_ns, pos_u[k], quat_u[k])
@@ -464,7 +501,9 @@ class RenderLoop:
             if cur is None:
                 continue  # nothing received yet: Unity shows the scene's initial pose
             out.append(
-                AppliedTransform(topic, frame_ns + self.offset_ns, frame_ns, cur[1], cur[2], cur[0])
+                AppliedTransform(
+                    topic, self.unity_time_ns(frame_ns), frame_ns, cur[1], cur[2], cur[0]
+                )
             )
         return out
 

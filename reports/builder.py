@@ -47,6 +47,7 @@ from uwval.reports.content import (
 from uwval.results import (
     AXES,
     AXIS_UNITS,
+    ROUNDOFF_FLOOR,
     ExperimentResults,
     ResultsTable,
     RunRecord,
@@ -55,6 +56,7 @@ from uwval.results import (
     factor_label,
     factor_levels,
     load_experiment_results,
+    roundoff_axes,
     summarize_by_level,
     two_way_pairs,
     two_way_table,
@@ -135,7 +137,7 @@ def build_report(
     thresholds: Thresholds | str | Path | None = DEFAULT_THRESHOLDS,
     baseline: str | Path | ResultsTable | None = None,
     compare_options: Mapping[str, Any] | None = None,
-    max_detail_runs: int = 8,
+    max_detail_runs: int = 2,
     detail_topics: Sequence[str] | None = None,
     title: str = "uwval pose correspondence report",
     command: str = "",
@@ -251,6 +253,9 @@ def _compose(
         f"factors: {', '.join(table.factors) or 'none'}"
     )
     report = Report(title=title, subtitle=sub, verdict=verdict, generated=now)
+    paper = _paper_section(table)
+    if paper is not None:  # the paper's table opens the report (page 1 of the PDF)
+        report.sections.append(paper)
     report.sections.append(_verdict_section(gate, th, baseline, exp, warnings))
     report.sections.append(_summary_section(table))
     report.sections += _factor_sections(table)
@@ -429,11 +434,87 @@ def _nanmin(a: np.ndarray) -> float:
     return float(np.nanmin(a)) if np.isfinite(a).any() else float("nan")
 
 
+def _roundoff_line(skip: Mapping[str, Sequence[str]]) -> str:
+    """One line naming the axes left out of the statistics, or ''."""
+    if not skip:
+        return ""
+    named = "; ".join(f"{topic} {', '.join(axes)}" for topic, axes in skip.items())
+    return (
+        f"Not analysed (no ANOVA, no box plot): {named}: their values are round-off "
+        f"(the axis does not move in any run, or its max |error| < {ROUNDOFF_FLOOR:g} m or deg)."
+    )
+
+
+def _triple(values: Sequence[float]) -> str:
+    return " / ".join(fmt_num(v) for v in values)
+
+
+def _paper_section(table: ResultsTable) -> Section | None:
+    """The paper's table: per factor level, absolute error (worst max), MAE (mean over the
+    runs at that level) and Pearson r (lowest), for the vehicle (the first topic)."""
+    vary = table.varying_factors()
+    if not vary or not table.topics:
+        return None
+    topic = table.topics[0]
+    skip = set(roundoff_axes(table).get(topic, ()))
+    df = table.df[(table.df["topic"] == topic) & table.df["axis"].isin(AXES)]
+    sec = Section("paper", f"Per factor level: absolute error, MAE, Pearson r ({topic})")
+    t = Table(
+        "The paper's validation metrics per factor level",
+        [
+            "factor = level",
+            "runs",
+            "max |e| x / y / z (m)",
+            "MAE x / y / z (m)",
+            "max |e| roll / pitch / yaw (deg)",
+            "MAE roll / pitch / yaw (deg)",
+            "Pearson r lowest",
+        ],
+        [],
+        caption="Absolute error |Unity - Gazebo| per sample: its worst max over the runs at "
+        "that level; MAE: mean over those runs; Pearson r: lowest over the runs and the axes "
+        "that move (round-off axes left out).",
+    )
+    for f in vary:
+        for level in factor_levels(table)[f]:
+            rows = df[df[f] == level]
+
+            def agg(
+                metric: str, how: str, axes: Sequence[str], rows: pd.DataFrame = rows
+            ) -> list[float]:
+                out = []
+                for a in axes:
+                    sel = (rows["axis"] == a) & (rows["metric"] == metric)
+                    v = rows.loc[sel, "value"].to_numpy(dtype=float)
+                    out.append(_nanmax(v) if how == "max" else _nanmean(v))
+                return out
+
+            pos, rot = ("x", "y", "z"), ("roll", "pitch", "yaw")
+            r = rows.loc[
+                (rows["metric"] == "pearson_r") & ~rows["axis"].isin(list(skip)), "value"
+            ].to_numpy(dtype=float)
+            t.rows.append(
+                [
+                    f"{factor_label(f)} = {fmt_num(level)}",
+                    str(rows["run"].nunique()),
+                    _triple(agg("max", "max", pos)),
+                    _triple(agg("mae", "mean", pos)),
+                    _triple(agg("max", "max", rot)),
+                    _triple(agg("mae", "mean", rot)),
+                    fmt_num(_nanmin(r), 6),
+                ]
+            )
+    sec.blocks.append(t)
+    return sec
+
+
 def _factor_sections(table: ResultsTable) -> list[Section]:
     vary = table.varying_factors()
     if not vary:
         return []
     out = []
+    skip = roundoff_axes(table)
+    skip_line = _roundoff_line(skip)
     for f in vary:
         sec = Section(f"factor-{f}", f"Factor: {factor_label(f)}")
         summ = summarize_by_level(table, f)
@@ -474,7 +555,12 @@ def _factor_sections(table: ResultsTable) -> list[Section]:
                     ]
                 )
             sec.blocks.append(t)
+        if skip_line:  # said once per factor, before its statistics
+            sec.blocks.append(Text(skip_line, css="neutral"))
         an = anova_oneway(table, f)
+        if skip and not an.empty:  # no statistics on round-off
+            keep = [a not in skip.get(t, ()) for t, a in zip(an["topic"], an["axis"], strict=True)]
+            an = an[keep]
         at = Table(
             f"One-way ANOVA of MAE across levels of {f}",
             ["topic", "axis", "F", "p", "df between", "df within", "note"],
@@ -500,7 +586,9 @@ def _factor_sections(table: ResultsTable) -> list[Section]:
             sec.blocks.append(
                 Plot(
                     f"MAE per level of {f}: {topic}",
-                    plots.box_mae_figure(table, f, topic),
+                    plots.box_mae_figure(
+                        table, f, topic, axes=[a for a in AXES if a not in skip.get(topic, ())]
+                    ),
                     "Each box holds the runs at one level; whiskers 1.5 IQR.",
                 )
             )

@@ -216,8 +216,15 @@ def scatter_figure(
     return fig
 
 
-def box_mae_figure(table: ResultsTable, factor: str, topic: str, metric: str = "mae") -> Figure:
-    """Box plots of ``metric`` (default MAE) per level of ``factor``, one panel per axis."""
+def box_mae_figure(
+    table: ResultsTable,
+    factor: str,
+    topic: str,
+    metric: str = "mae",
+    axes: Sequence[str] = AXES,
+) -> Figure:
+    """Box plots of ``metric`` (default MAE) per level of ``factor``, one panel per axis in
+    ``axes`` (the panels of the other axes, e.g. round-off ones, are left out)."""
     fig = _new_figure(11, 6.5)
     grid = fig.subplots(2, 3)
     sub = table.select(metric=metric, topic=topic)
@@ -227,6 +234,9 @@ def box_mae_figure(table: ResultsTable, factor: str, topic: str, metric: str = "
     )
     for k, a in enumerate(AXES):
         ax = grid[k // 3][k % 3]
+        if a not in axes:
+            ax.set_visible(False)
+            continue
         rows = sub[sub["axis"] == a]
         data = [rows.loc[rows[factor] == lv, "value"].dropna().to_numpy() for lv in levels]
         if any(len(d) for d in data):

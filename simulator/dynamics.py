@@ -150,6 +150,7 @@ class KernelStructure(NamedTuple):
     has_current: bool
     wrench_frame: str
     fossen: bool
+    legacy_abs: bool = False  # gz-sim 8.0-8.11: unqualified abs() truncates |v| to an int
 
 
 @dataclass
@@ -169,6 +170,7 @@ def build_params(
     has_current: bool,
     wrench_frame: str,
     fossen_coriolis: bool = False,
+    legacy_abs: bool = False,
 ) -> KernelParams:
     """Kernel coefficients for one vehicle (floats) or several ((N,) arrays)."""
     n = len(vehicles)
@@ -237,6 +239,7 @@ def build_params(
         bool(has_current),
         wrench_frame,
         bool(fossen_coriolis),
+        bool(legacy_abs),
     )
     return KernelParams(vals, structure)
 
@@ -279,6 +282,7 @@ def generate_kernel_source(structure: KernelStructure) -> str:
         has_current,
         wrench_frame,
         fossen,
+        legacy_abs,
     ) = structure
     names: set[str] = {"dt", "hdt", "mass", "net_up", "buoy", "rbx", "rby", "rbz"}
     names |= {f"mad_{i}{j}" for i, j in ma_terms}
@@ -332,7 +336,12 @@ def generate_kernel_source(structure: KernelStructure) -> str:
             terms += [f"mad_{i}{j}*d{j}" for (ii, j) in ma_terms if ii == i and j in used_d]
         # damping: -(D s)_i with D(i,j) = -lin - qabs|s_k| - quad s_k
         terms += [f"dl_{i}{j}*s{j}" for (ii, j) in lin_terms if ii == i]
-        terms += [f"dqa_{i}{j}{k}*abs(s{k})*s{j}" for (ii, j, k) in qabs_terms if ii == i]
+        # gz-sim 8.0-8.11 called an unqualified abs() on the double state; with only
+        # <cmath>/<cstdlib> in its include chain that is C's int abs(int): |trunc(v)|
+        absk = "(abs(s{k}) // 1.0)" if legacy_abs else "abs(s{k})"
+        terms += [
+            f"dqa_{i}{j}{k}*" + absk.format(k=k) + f"*s{j}" for (ii, j, k) in qabs_terms if ii == i
+        ]
         terms += [f"dq_{i}{j}{k}*s{k}*s{j}" for (ii, j, k) in quad_terms if ii == i]
         if has_added_mass:
             for sign, kk, m, nn in cor[i]:

@@ -145,6 +145,7 @@ class Simulator:
         initial_orientation: Sequence[float] = (0.0, 0.0, 0.0, 1.0),
         initial_velocity: Sequence[float] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
         fossen_coriolis: bool = False,
+        legacy_gz8: bool = False,
     ) -> None:
         self.vehicle = vehicle
         self.inputs = inputs if inputs is not None else constant_inputs()
@@ -152,7 +153,9 @@ class Simulator:
         self.publish_rate = publish_rate
         self.dt_ns, self.publish_every = _check_timing(dt, publish_rate)
         self.implicit_added_mass = implicit_added_mass
-        self.legacy_coriolis = legacy_coriolis
+        # the complete gz-sim 8.0-8.11 mode includes its Coriolis entries
+        self.legacy_gz8 = bool(legacy_gz8)
+        self.legacy_coriolis = legacy_coriolis or self.legacy_gz8
         self.fossen_coriolis = fossen_coriolis
         self.camera_offset = tuple(float(x) for x in camera_offset)
         q0 = np.asarray(initial_orientation, dtype=np.float64)
@@ -174,6 +177,8 @@ class Simulator:
         )
         self.warnings = _warnings_for([vehicle], implicit_added_mass)
         self.state = _with_history(self.state, self._current_at(0.0), implicit_added_mass)
+        if self.legacy_gz8 and not implicit_added_mass:
+            self.state = _zero_history(self.state)
 
     # ------------------------------------------------------------------ control
     @property
@@ -204,6 +209,7 @@ class Simulator:
             has_current=has_current,
             wrench_frame=self.inputs.wrench_frame,
             fossen_coriolis=self.fossen_coriolis,
+            legacy_abs=self.legacy_gz8,
         )
         self._kernel = get_kernel(self._params.structure)
 
@@ -320,6 +326,13 @@ def _with_history(state: tuple[Any, ...], current: F64, implicit: bool) -> tuple
     return (*state[:13], *hist)
 
 
+def _zero_history(state: tuple[Any, ...]) -> tuple[Any, ...]:
+    """gz-sim 8.0-8.11: ``prevState`` starts at zero, so the first step's backward difference
+    sees the whole initial relative twist (an added-mass kick when a current flows)."""
+    hist = [np.zeros_like(h, dtype=np.float64) if np.ndim(h) else 0.0 for h in state[13:19]]
+    return (*state[:13], *hist)
+
+
 def _result_from_records(
     records: list[tuple[Any, ...]] | F64,
     period_ns: int,
@@ -354,6 +367,7 @@ def simulate(
     initial_orientation: Sequence[float] = (0.0, 0.0, 0.0, 1.0),
     initial_velocity: Sequence[float] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
     fossen_coriolis: bool = False,
+    legacy_gz8: bool = False,
 ) -> SimResult:
     """Run one vehicle for ``duration_s`` seconds of sim time; poses at ``publish_rate`` Hz.
 
@@ -375,6 +389,7 @@ def simulate(
         initial_orientation=initial_orientation,
         initial_velocity=initial_velocity,
         fossen_coriolis=fossen_coriolis,
+        legacy_gz8=legacy_gz8,
     )
     n_ticks = round(duration_s * 1e9) // (sim.dt_ns * sim.publish_every)
     records: list[tuple[Any, ...]] = []
@@ -383,6 +398,9 @@ def simulate(
     wall = time.perf_counter() - t0
     info = _info(vehicle, sim.dt, publish_rate, seed, implicit_added_mass, legacy_coriolis)
     info["fossen_coriolis"] = fossen_coriolis
+    info["legacy_gz8"] = sim.legacy_gz8
+    info["legacy_coriolis"] = sim.legacy_coriolis
+    info["wrench_frame"] = sim.inputs.wrench_frame
     info.update(steps=sim.step, wall_time_s=wall, warnings=list(sim.warnings))
     return _result_from_records(records, sim.dt_ns * sim.publish_every, camera_offset, info)
 
@@ -437,6 +455,7 @@ class SimulationStream:
         initial_orientation: Sequence[float] = (0.0, 0.0, 0.0, 1.0),
         initial_velocity: Sequence[float] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
         fossen_coriolis: bool = False,
+        legacy_gz8: bool = False,
     ) -> None:
         if not (duration_s >= 0 and math.isfinite(duration_s)):
             raise SimulationError(f"duration must be >= 0 s, got {duration_s}")
@@ -454,6 +473,7 @@ class SimulationStream:
             initial_orientation=initial_orientation,
             initial_velocity=initial_velocity,
             fossen_coriolis=fossen_coriolis,
+            legacy_gz8=legacy_gz8,
         )
         self.chunk_ticks = int(chunk_ticks)
         self.camera_offset = tuple(float(x) for x in camera_offset)
@@ -463,6 +483,9 @@ class SimulationStream:
             vehicle, self.sim.dt, publish_rate, seed, implicit_added_mass, legacy_coriolis
         )
         self.info["fossen_coriolis"] = fossen_coriolis
+        self.info["legacy_gz8"] = self.sim.legacy_gz8
+        self.info["legacy_coriolis"] = self.sim.legacy_coriolis
+        self.info["wrench_frame"] = self.sim.inputs.wrench_frame
         self.info["warnings"] = list(self.sim.warnings)
         self._started = False
         self._spec = (vehicle, inputs, duration_s)
@@ -478,6 +501,7 @@ class SimulationStream:
             "initial_orientation": tuple(initial_orientation),
             "initial_velocity": tuple(initial_velocity),
             "fossen_coriolis": fossen_coriolis,
+            "legacy_gz8": legacy_gz8,
         }
         steps = self.n_ticks * self.sim.publish_every
         self.background = _can_step_elsewhere() and (
@@ -630,6 +654,7 @@ def simulate_batch(
     legacy_coriolis: bool = False,
     camera_offset: Sequence[float] = DEFAULT_CAMERA_OFFSET,
     fossen_coriolis: bool = False,
+    legacy_gz8: bool = False,
     progress: Callable[[float], None] | None = None,
 ) -> list[SimResult]:
     """Run N vehicles in one vectorised state (each state variable an (N,) array).
@@ -667,6 +692,7 @@ def simulate_batch(
                 legacy_coriolis=legacy_coriolis,
                 camera_offset=camera_offset,
                 fossen_coriolis=fossen_coriolis,
+                legacy_gz8=legacy_gz8,
             )
         ]
     dt_ns, pe = _check_timing(dt, publish_rate)
@@ -677,15 +703,18 @@ def simulate_batch(
         vs,
         dt,
         implicit_added_mass=implicit_added_mass,
-        legacy_coriolis=legacy_coriolis,
+        legacy_coriolis=legacy_coriolis or legacy_gz8,
         has_current=has_current,
         wrench_frame=frames.pop(),
         fossen_coriolis=fossen_coriolis,
+        legacy_abs=legacy_gz8,
     )
     kernel = get_kernel(params.structure)
     default_cur = np.stack([v.default_current for v in vs])  # (N, 3)
     cur0 = np.stack([p.current(np.array([0.0]))[0] for p in ins]) + default_cur
     state = _with_history(initial_state(n), cur0, implicit_added_mass)
+    if legacy_gz8 and not implicit_added_mass:
+        state = _zero_history(state)
     n_ticks = round(duration_s * 1e9) // (dt_ns * pe)
     total = n_ticks * pe
     rec = np.empty((n_ticks + 1, N_STATE, n))
@@ -725,8 +754,10 @@ def simulate_batch(
     wall = time.perf_counter() - t0
     out = []
     for i, v in enumerate(vs):
-        info = _info(v, dt, publish_rate, seed, implicit_added_mass, legacy_coriolis)
+        info = _info(v, dt, publish_rate, seed, implicit_added_mass, legacy_coriolis or legacy_gz8)
         info["fossen_coriolis"] = fossen_coriolis
+        info["legacy_gz8"] = legacy_gz8
+        info["wrench_frame"] = ins[i].wrench_frame
         info.update(
             steps=total,
             wall_time_s=wall,

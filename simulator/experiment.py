@@ -11,6 +11,7 @@ An experiment TOML file::
     dt = 0.001                    # s (optional)
     implicit_added_mass = false   # optional
     legacy_coriolis = false       # optional
+    legacy_gz8 = false            # optional: all of gz-sim 8.0-8.11 (Coriolis, prevState, abs)
     wrench_frame = "body"         # optional: "body" (FLU) or "world" (ENU)
 
     [baseline]                    # optional inputs every run gets (added to the factors')
@@ -18,11 +19,23 @@ An experiment TOML file::
     current = {kind = "ramp", value = [0.1, 0.0, 0.0], t0 = 0.0, t1 = 5.0}
     keys = "i@0:5; j@2:3"         # optional teleop key script (hold key = wrench increment)
 
+    [unity]                       # optional: the Unity side of every run (uwval.bridge
+    transport = "real-endpoint"   # .unity_model; the keys of uwval simulate's options):
+    frame_model = "vsync"         # transport, frame_model, frame_rate, stall_prob,
+    float32 = true                # frame_trace (path relative to this file), float32,
+    clock_drift_ppm = 20.0        # clock_drift_ppm, clock_offset_s, latency_s, jitter_s,
+                                  # drop_prob, unity_map; they override the command line
+
     [factors.force]               # kind is the table name: force | torque | current
     axis = "x"                    # x | y | z (body FLU for force/torque, world ENU for current)
     levels = [5.0, 10.0]          # N (force), N m (torque), m/s (current)
     profile = {kind = "step", t0 = 1.0}   # optional: constant (default), step, ramp, pulse;
                                           # the level scales the profile's unit vector
+
+    [factors.torque]
+    keys = "j@1:2; u@2:3"         # or held teleop keys (teleop_wrench_keyboard): while a key
+    levels = [0.5, 1.0]           # is held its axis gets the level (N or N m); force
+                                  # factors take force keys, torque factors torque keys
 
     [factors.xUabsU]              # any vehicle parameter: mass, volume, ixx..., gz names
     levels = [-6.2282, -10.0]
@@ -48,6 +61,7 @@ import numpy as np
 
 from uwval.errors import ConfigError
 from uwval.simulator.inputs import (
+    TELEOP_KEYS,
     Constant,
     InputProfile,
     KeyScript,
@@ -93,6 +107,7 @@ class RunSpec:
     implicit_added_mass: bool = False
     legacy_coriolis: bool = False
     repeat: int = 0
+    legacy_gz8: bool = False
 
     def simulate_kwargs(self) -> dict[str, Any]:
         """Keyword arguments of :func:`uwval.simulator.simulate` but vehicle, inputs, duration."""
@@ -102,6 +117,7 @@ class RunSpec:
             "seed": self.seed,
             "implicit_added_mass": self.implicit_added_mass,
             "legacy_coriolis": self.legacy_coriolis,
+            "legacy_gz8": self.legacy_gz8,
         }
 
 
@@ -114,6 +130,7 @@ class Factor:
     levels: tuple[float | str, ...]
     axis: int = 0
     profile: dict[str, Any] = field(default_factory=dict)
+    keys: str = ""
 
 
 @dataclass
@@ -130,8 +147,10 @@ class Experiment:
     dt: float = 1e-3
     implicit_added_mass: bool = False
     legacy_coriolis: bool = False
+    legacy_gz8: bool = False
     wrench_frame: str = "body"
     baseline: dict[str, Signal] = field(default_factory=dict)
+    unity: dict[str, Any] = field(default_factory=dict)
     source: str = ""
     base_dir: Path = field(default_factory=Path.cwd)
 
@@ -165,6 +184,9 @@ class Experiment:
                 vehicle = _load_vehicle_rel(str(level), self.base_dir)
             elif f.kind == "param":
                 params[f.name] = float(level)
+            elif f.keys:
+                script = KeyScript.parse(f.keys, force_step=float(level), torque_step=float(level))
+                sig[f.kind].append(script.channel(0 if f.kind == "force" else 1))
             else:
                 unit = np.zeros(3)
                 unit[f.axis] = 1.0
@@ -205,6 +227,7 @@ class Experiment:
             implicit_added_mass=self.implicit_added_mass,
             legacy_coriolis=self.legacy_coriolis,
             repeat=rep,
+            legacy_gz8=self.legacy_gz8,
         )
 
 
@@ -260,7 +283,11 @@ def _factor(name: str, spec: Any, where: str) -> Factor:
                     "gz-sim name such as xUabsU)"
                 ) from None
         kind = "param"
-    allowed = {"kind", "levels", "axis", "profile"} if kind in _WRENCH_KINDS else {"kind", "levels"}
+    allowed = (
+        {"kind", "levels", "axis", "profile", "keys"}
+        if kind in _WRENCH_KINDS
+        else {"kind", "levels"}
+    )
     extra = set(spec) - allowed
     if extra:
         raise ConfigError(f"{fw}: unknown key(s) {sorted(extra)} (allowed: {sorted(allowed)})")
@@ -277,7 +304,26 @@ def _factor(name: str, spec: Any, where: str) -> Factor:
         raise ConfigError(f"{fw}: duplicate levels {levels}")
     axis = 0
     profile: dict[str, Any] = {}
-    if kind in _WRENCH_KINDS:
+    keys = spec.get("keys", "")
+    if "keys" in spec:
+        if kind not in ("force", "torque"):
+            raise ConfigError(f"{fw}: 'keys' drives a force or torque factor, not {kind}")
+        if "axis" in spec or "profile" in spec:
+            raise ConfigError(f"{fw}: give either 'keys' or 'axis'/'profile', not both")
+        if not isinstance(keys, str):
+            raise ConfigError(f"{fw}: 'keys' must be a key script like \"i@0:5; j@2:3\"")
+        try:
+            script = KeyScript.parse(keys)
+        except ConfigError as exc:
+            raise ConfigError(f"{fw}: keys: {exc}") from None
+        want = 0 if kind == "force" else 1
+        wrong = [kp.key for kp in script.presses if TELEOP_KEYS[kp.key][0] != want]
+        if wrong or not script.presses:
+            raise ConfigError(
+                f"{fw}: keys must hold {kind} keys only"
+                + (f"; {' '.join(wrong)} drive the other channel" if wrong else "")
+            )
+    elif kind in _WRENCH_KINDS:
         ax = spec.get("axis", "x")
         if ax not in _AXES:
             raise ConfigError(f"{fw}: axis must be x, y or z, got {ax!r}")
@@ -288,7 +334,7 @@ def _factor(name: str, spec: Any, where: str) -> Factor:
         # validate now, with a unit value
         signal_from_spec({**profile, "value": [1.0, 0.0, 0.0]}, f"{fw} profile")
     conv: tuple[float | str, ...] = tuple(lv if isinstance(lv, str) else float(lv) for lv in levels)
-    return Factor(name=name, kind=kind, levels=conv, axis=axis, profile=profile)
+    return Factor(name=name, kind=kind, levels=conv, axis=axis, profile=profile, keys=keys)
 
 
 def experiment_from_mapping(
@@ -299,6 +345,7 @@ def experiment_from_mapping(
     known = {
         "name", "description", "vehicle", "duration_s", "seed", "repeats", "publish_rate", "dt",
         "implicit_added_mass", "legacy_coriolis", "wrench_frame", "baseline", "factors",
+        "unity", "legacy_gz8",
     }  # fmt: skip
     extra = set(doc) - known
     if extra:
@@ -343,6 +390,7 @@ def experiment_from_mapping(
             raise ConfigError(
                 f"{where}: unknown baseline key {key!r} (force, torque, current, keys)"
             )
+    unity = _unity_table(doc.get("unity", {}), where, base)
     fdoc = doc.get("factors", {})
     if not isinstance(fdoc, dict):
         raise ConfigError(f"{where}: 'factors' must be a table of tables")
@@ -359,11 +407,57 @@ def experiment_from_mapping(
         dt=_num(doc, "dt", 1e-3, where),
         implicit_added_mass=_bool(doc, "implicit_added_mass", where),
         legacy_coriolis=_bool(doc, "legacy_coriolis", where),
+        legacy_gz8=_bool(doc, "legacy_gz8", where),
         wrench_frame=wf,
         baseline=baseline,
+        unity=unity,
         source=source,
         base_dir=base,
     )
+
+
+#: ``[unity]`` keys -> (SessionOptions field, accepted type).
+_UNITY_KEYS: dict[str, tuple[str, type]] = {
+    "transport": ("transport", str),
+    "frame_model": ("frame_model", str),
+    "frame_rate": ("frame_rate", float),
+    "stall_prob": ("stall_prob", float),
+    "frame_trace": ("frame_trace", str),
+    "float32": ("float32", bool),
+    "clock_drift_ppm": ("clock_drift_ppm", float),
+    "clock_offset_s": ("unity_clock_offset_s", float),
+    "latency_s": ("latency_s", float),
+    "jitter_s": ("jitter_s", float),
+    "drop_prob": ("drop_prob", float),
+    "unity_map": ("unity_map", str),
+}
+
+
+def _unity_table(udoc: Any, where: str, base: Path) -> dict[str, Any]:
+    """The ``[unity]`` table -> SessionOptions overrides (types checked here, values by the
+    bridge when the session options are made)."""
+    if not isinstance(udoc, dict):
+        raise ConfigError(f"{where}: 'unity' must be a table")
+    out: dict[str, Any] = {}
+    for key, val in udoc.items():
+        if key not in _UNITY_KEYS:
+            raise ConfigError(
+                f"{where}: unknown key unity.{key} (known: {', '.join(sorted(_UNITY_KEYS))})"
+            )
+        name, typ = _UNITY_KEYS[key]
+        if typ is float:
+            ok = isinstance(val, (int, float)) and not isinstance(val, bool)
+            ok = ok and math.isfinite(val)
+        else:
+            ok = isinstance(val, typ)
+        if not ok:
+            want = {float: "a number", bool: "true or false", str: "a string"}[typ]
+            raise ConfigError(f"{where}: unity.{key} must be {want}, got {val!r}")
+        if key == "frame_trace":
+            p = Path(val)
+            val = str(p if p.is_absolute() else base / p)
+        out[name] = float(val) if typ is float else val
+    return out
 
 
 def load_experiment(path: str | Path) -> Experiment:

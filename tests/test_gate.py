@@ -387,7 +387,7 @@ def test_noise_level_correlation_in_the_baseline_is_not_gated(table: ResultsTabl
 
 # ----------------------------------------------------------------------------- project CI
 def test_default_experiment_passes_the_projects_own_gate(tmp_path: Path) -> None:
-    """The project's CI gate: simulate the embedded default experiment (8 runs through the
+    """The project's CI gate: simulate the embedded default experiment (54 runs through the
     simulator, the TCP bridge and the recorder), compare, and check it against the embedded
     thresholds and the golden baseline (regenerate it with
     ``uwval simulate data/experiments/default.toml -o DIR && uwval check DIR
@@ -656,7 +656,7 @@ def test_check_on_a_manifest_with_one_bad_log_checks_the_rest(tmp_path: Path) ->
     from uwval.resources import data_path
 
     m = run_experiment(
-        data_path("experiments", "default.toml"),
+        data_path("experiments", "quick.toml"),  # a small sweep: 8 runs
         tmp_path / "exp",
         SessionOptions(),
         executor="inline",

@@ -27,6 +27,15 @@ def offset_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
         "3",
         "--latency",
         "0.05",
+        # the exact Unity side (simulate defaults to a real one: real-endpoint link, vsync
+        # stalls, float32, 20 ppm drift): this checks the offset and latency arithmetic
+        "--transport",
+        "ideal",
+        "--frame-model",
+        "fixed",
+        "--no-float32",
+        "--unity-clock-drift",
+        "0",
         "-o",
         str(log),
     )

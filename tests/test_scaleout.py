@@ -1,4 +1,5 @@
-"""Scale-out (issue 9): the default experiment on Dask LocalCluster == the local process pool."""
+"""Scale-out (issue 9): a small sweep (data/experiments/quick.toml, the default experiment at
+2 levels, 8 runs: these tests are about executors, not the study) on Dask == the local pool."""
 
 from __future__ import annotations
 
@@ -35,7 +36,7 @@ def _numbers(runs: list[dict]) -> dict[str, dict]:  # type: ignore[type-arg]
 
 @pytest.mark.skipif(not HAS_DASK, reason="dask.distributed not installed")
 def test_dask_sweep_and_batch_identical_to_local(tmp_path: Path) -> None:
-    exp = data_path("experiments", "default.toml")
+    exp = data_path("experiments", "quick.toml")
     local = run_experiment(
         exp, tmp_path / "local", SessionOptions(), executor="local", workers=2, progress=False
     )
@@ -54,7 +55,7 @@ def test_dask_sweep_and_batch_identical_to_local(tmp_path: Path) -> None:
 
 
 def test_batch_reports_failing_log_and_completes_others(tmp_path: Path) -> None:
-    exp = data_path("experiments", "default.toml")
+    exp = data_path("experiments", "quick.toml")
     m = run_experiment(exp, tmp_path / "sweep", SessionOptions(), executor="inline", progress=False)
     bad = tmp_path / "sweep" / m["runs"][3]["log"]
     bad.write_bytes(b"not an mcap at all")
@@ -85,7 +86,7 @@ def test_simulate_experiment_cli_writes_manifest(tmp_path: Path) -> None:
             "-m",
             "uwval",
             "simulate",
-            str(data_path("experiments", "default.toml")),
+            str(data_path("experiments", "quick.toml")),
             "-o",
             str(tmp_path / "exp"),
             "--executor",
@@ -113,7 +114,7 @@ def test_simulate_experiment_cli_writes_manifest(tmp_path: Path) -> None:
 
 def test_logs_on_an_object_store_url_are_fetched(tmp_path: Path) -> None:
     fsspec = pytest.importorskip("fsspec")
-    exp = data_path("experiments", "default.toml")
+    exp = data_path("experiments", "quick.toml")
     m = run_experiment(exp, tmp_path / "sweep", SessionOptions(), executor="inline", progress=False)
     fs = fsspec.filesystem("memory")
     runs = []
@@ -136,7 +137,7 @@ def test_logs_on_an_object_store_url_are_fetched(tmp_path: Path) -> None:
 
 
 def test_compare_batch_cli(tmp_path: Path) -> None:
-    exp = data_path("experiments", "default.toml")
+    exp = data_path("experiments", "quick.toml")
     run_experiment(exp, tmp_path / "sweep", SessionOptions(), executor="inline", progress=False)
     res = subprocess.run(
         [
@@ -168,7 +169,7 @@ def test_compare_batch_cli(tmp_path: Path) -> None:
 
 
 def test_batched_physics_sweep_matches_per_run_physics(tmp_path: Path) -> None:
-    exp = data_path("experiments", "default.toml")
+    exp = data_path("experiments", "quick.toml")
     per_run = run_experiment(
         exp, tmp_path / "a", SessionOptions(), executor="inline", progress=False
     )
@@ -209,7 +210,7 @@ def test_worker_killed_mid_sweep_every_run_present_once(tmp_path: Path, executor
     from uwval.simulator import load_experiment
 
     cloudpickle.register_pickle_by_value(executor_tasks)
-    specs = load_experiment(data_path("experiments", "default.toml")).runs()
+    specs = load_experiment(data_path("experiments", "quick.toml")).runs()
     victim = specs[3].name
     jobs = [
         (RunJob(s, str(log_path_for(tmp_path, s.name, "mcap"))), victim, str(tmp_path))

@@ -20,6 +20,11 @@ from uwval.io import read_stream
 REPO = Path(__file__).resolve().parents[1]
 DURATION = "3"
 MOTION = ("--force", "10,0,0", "--torque", "0,0,1", "--current", "0,0.2,0")
+#: Each option's own effect is measured against the exact Unity side (no link delay, fixed
+#: frames, float64, no drift); simulate's realistic defaults (real-endpoint link, vsync
+#: stalls, float32, 20 ppm) are checked in tests/test_unity_model.py.
+IDEAL = ("--transport", "ideal", "--frame-model", "fixed", "--no-float32")
+IDEAL += ("--unity-clock-drift", "0")
 
 #: name -> extra simulate options; all runs share MOTION and the seed.
 VARIANTS: dict[str, tuple[str, ...]] = {
@@ -45,6 +50,7 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Path, dict
                 "uwval",
                 "simulate",
                 *MOTION,
+                *IDEAL,
                 "--duration",
                 DURATION,
                 "--json",

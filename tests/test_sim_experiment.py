@@ -15,41 +15,63 @@ from uwval.simulator import load_experiment, simulate, simulate_batch
 EXPERIMENTS = Path(__file__).resolve().parents[1] / "data" / "experiments"
 
 
-def test_default_experiment_is_the_demo_factorial() -> None:
+def test_default_experiment_is_the_papers_study() -> None:
+    """3 x 3 x 3 factorial of force (N), torque (N m), current (m/s), two seeds each, on the
+    BlueROV2 Heavy, driven by held teleop keys (the paper's study; issue 18)."""
     exp = load_experiment(EXPERIMENTS / "default.toml")
     runs = exp.runs()
-    assert len(runs) == 8
-    assert {f.name for f in exp.factors} == {"force", "torque", "current"}
-    levels = {(r.factors["force"], r.factors["torque"], r.factors["current"]) for r in runs}
-    assert len(levels) == 8  # every combination once
+    assert len(runs) == 27 * 2
+    assert [f.name for f in exp.factors] == ["force", "torque", "current"]
     for f in exp.factors:
-        assert len(f.levels) == 2
+        assert len(f.levels) == 3
+    combos = {(r.factors["force"], r.factors["torque"], r.factors["current"]) for r in runs}
+    assert len(combos) == 27  # every combination, each repeated with two seeds
+    assert {r.repeat for r in runs} == {0, 1}
     names = [r.name for r in runs]
-    assert len(set(names)) == 8
+    assert len(set(names)) == 54
     assert all(re.fullmatch(r"[A-Za-z0-9._=+-]+", n) for n in names)
-    assert all(r.duration_s <= 10 for r in runs)
-    assert len({r.seed for r in runs}) == 8
+    assert all(r.duration_s <= 4 for r in runs)
+    assert len({r.seed for r in runs}) == 54
     json.dumps([r.factors for r in runs])  # JSON scalars
-    # the factor levels reach the inputs: force on body x, torque on body z, current on world y
+    assert runs[0].vehicle.name == "bluerov2_heavy" and exp.implicit_added_mass
+    assert exp.unity["transport"] == "real-endpoint" and exp.unity["float32"] is True
+    # the levels are the held keys' force and torque: surge, heave, sway; yaw, roll, pitch
     r = runs[-1]
-    fo, tq, c = r.inputs.evaluate(np.array([0.0]))
-    assert fo[0].tolist() == [r.factors["force"], 0, 0]
-    assert tq[0].tolist() == [0, 0, r.factors["torque"]]
-    assert c[0].tolist() == [0, r.factors["current"], 0]
-    assert r.vehicle.name == "tethys"
+    fo, tq, c = r.inputs.evaluate(np.array([0.5, 1.7, 2.0, 2.7, 3.5]))
+    lf, lt, lc = r.factors["force"], r.factors["torque"], r.factors["current"]
+    np.testing.assert_array_equal(fo[:, 0], [lf, 0, 0, 0, 0])  # i held 0.2-1.2 s
+    np.testing.assert_array_equal(fo[:, 2], [0, lf, 0, 0, 0])  # t held 1.0-1.8 s
+    np.testing.assert_array_equal(fo[:, 1], [0, lf, lf, 0, 0])  # J held 1.6-2.6 s
+    np.testing.assert_array_equal(tq[:, 2], [lt, 0, 0, 0, 0])  # j held 0.4-1.4 s
+    np.testing.assert_array_equal(tq[:, 0], [0, lt, lt, 0, 0])  # u held 1.6-2.2 s
+    np.testing.assert_array_equal(tq[:, 1], [0, 0, 0, lt, 0])  # y held 2.4-3.0 s
+    np.testing.assert_array_equal(c, np.tile([lc, 0, 0], (5, 1)))  # current east
 
 
-def test_default_experiment_runs_and_factors_matter() -> None:
-    runs = load_experiment(EXPERIMENTS / "default.toml").runs()
-    results = simulate_batch([r.vehicle for r in runs], [r.inputs for r in runs], 5.0)
+def test_default_experiment_excites_all_six_dof_and_factors_matter() -> None:
+    exp = load_experiment(EXPERIMENTS / "default.toml")
+    runs = [r for r in exp.runs() if r.repeat == 0]
+    kw = {k: v for k, v in runs[0].simulate_kwargs().items() if k != "seed"}
+    results = simulate_batch([r.vehicle for r in runs], [r.inputs for r in runs], 4.0, **kw)
     by = {tuple(r.factors.values()): res for r, res in zip(runs, results, strict=True)}
-    lo_f = by[(5.0, 0.5, 0.0)].vehicle.position[-1]
-    hi_f = by[(20.0, 0.5, 0.0)].vehicle.position[-1]
-    assert np.linalg.norm(hi_f) > 1.5 * np.linalg.norm(lo_f)
-    drift = by[(5.0, 0.5, 0.3)].vehicle.position[-1] - lo_f
-    assert drift[1] > 0.3  # the northward current carries it north
-    single = simulate(runs[3].vehicle, runs[3].inputs, 5.0, **runs[3].simulate_kwargs())
-    np.testing.assert_allclose(single.vehicle.position, results[3].vehicle.position, atol=1e-12)
+    from uwval.rotations import rpy_from_quat
+
+    for res in results:
+        pos = res.vehicle.position
+        rpy = np.degrees(rpy_from_quat(res.vehicle.orientation))
+        assert np.ptp(pos, axis=0).min() > 0.01  # x, y, z each move > 1 cm
+        assert np.ptp(rpy, axis=0).min() > 0.5  # roll, pitch, yaw each > 0.5 deg
+    lo = by[(5.0, 0.1, 0.0)].vehicle.position[-1]
+    hi = by[(20.0, 0.1, 0.0)].vehicle.position[-1]
+    assert hi[0] > 1.5 * lo[0]  # more surge force, farther ahead
+    drift = by[(5.0, 0.1, 0.25)].vehicle.position[-1] - lo
+    assert drift[0] > 0.3  # the eastward current carries it east
+    yaw = {
+        t: np.ptp(rpy_from_quat(by[(5.0, t, 0.0)].vehicle.orientation)[:, 2]) for t in (0.1, 0.5)
+    }
+    assert yaw[0.5] > 2 * yaw[0.1]
+    single = simulate(runs[3].vehicle, runs[3].inputs, 4.0, **runs[3].simulate_kwargs())
+    np.testing.assert_allclose(single.vehicle.position, results[3].vehicle.position, atol=1e-9)
 
 
 def test_second_example_exercises_profiles_keys_params_repeats() -> None:

@@ -50,6 +50,16 @@ _I3 = np.eye(3)
 _UNITY_FROM_FLU = _perm([[0, -1, 0], [0, 0, 1], [1, 0, 0]])
 # ROS-TCP-Connector ENU (compass, Unity +Z = north): east -> x, north -> z, up -> y.
 _UNITY_FROM_ENU_WORLD = _perm([[1, 0, 0], [0, 0, 1], [0, 1, 0]])
+# The same map under the other compass settings (GeometryCompass.UnityZAxisDirection: the
+# world direction of Unity +Z), as ROS-TCP-Connector's ENU.ConvertToRUF: east, south, west.
+_UNITY_FROM_ENU_COMPASS = {
+    "north": _UNITY_FROM_ENU_WORLD,
+    "east": _perm([[0, -1, 0], [0, 0, 1], [1, 0, 0]]),  # (-n, up, e)
+    "south": _perm([[-1, 0, 0], [0, 0, 1], [0, -1, 0]]),  # (-e, up, -n)
+    "west": _perm([[0, 1, 0], [0, 0, 1], [-1, 0, 0]]),  # (n, up, -e)
+}
+#: Compass settings of ROS-TCP-Connector (the direction Unity +Z faces), in enum order.
+COMPASS = ("north", "east", "south", "west")
 # NED world (x north, y east, z down) and FRD body (x forward, y right, z down).
 _NED_FROM_ENU = _perm([[0, 1, 0], [1, 0, 0], [0, 0, -1]])
 _FRD_FROM_FLU = _perm([[1, 0, 0], [0, -1, 0], [0, 0, -1]])
@@ -71,11 +81,40 @@ CONVENTIONS: dict[str, Convention] = {
             "Unity RUF, ROS-TCP-Connector To<ENU>() compass map (east->x, north->z, up->y)",
         ),
         Convention("ned", _NED_FROM_ENU, _FRD_FROM_FLU, "Marine/Fossen: NED world, FRD body"),
+        *(
+            Convention(
+                f"unity-enu-{c}",
+                _UNITY_FROM_ENU_COMPASS[c],
+                _UNITY_FROM_FLU,
+                f"Unity RUF, ROS-TCP-Connector To<ENU>() map with the compass set to {c} "
+                "(Unity +Z faces " + c + ")",
+            )
+            # east is the FLU map itself (the connector applies no yaw for it): an alias
+            for c in ("south", "west")
+        ),
     )
 }
 
 #: Aliases accepted on the command line.
-ALIASES = {"gazebo": "enu", "ros": "enu", "flu": "enu", "unity": "unity-flu", "frd": "ned"}
+ALIASES = {
+    "gazebo": "enu",
+    "ros": "enu",
+    "flu": "enu",
+    "unity": "unity-flu",
+    "frd": "ned",
+    "unity-enu-north": "unity-enu",
+    "unity-enu-east": "unity-flu",
+}
+
+
+def unity_enu_map(compass: str) -> str:
+    """The name of the ``unity-enu`` convention for a ROS-TCP-Connector compass setting
+    (``north`` = the default ``unity-enu``; ``east`` is ROS-TCP-Connector's FLU map itself,
+    ``unity-flu``; ``south``, ``west``)."""
+    c = compass.lower()
+    if c not in COMPASS:
+        raise FrameError(f"compass {compass!r}: choose one of {', '.join(COMPASS)}")
+    return {"north": "unity-enu", "east": "unity-flu"}.get(c, f"unity-enu-{c}")
 
 
 def get_convention(name: str | Convention) -> Convention:

@@ -12,12 +12,14 @@ from __future__ import annotations
 import json
 import threading
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
 from rich.console import Console
 
+from uwval.bridge.options import REAL_UNITY
 from uwval.cli import app
 from uwval.cli.pipeline import (
     FORMAT_SUFFIX,
@@ -27,7 +29,7 @@ from uwval.cli.pipeline import (
     log_path_for,
     run_one,
 )
-from uwval.errors import ConfigError
+from uwval.errors import ConfigError, UwvalError
 from uwval.executors import run_tasks
 
 console = Console()
@@ -90,6 +92,11 @@ def run_experiment(
     from uwval.simulator import load_experiment
 
     exp = load_experiment(experiment)
+    if exp.unity:  # the experiment's [unity] table decides for its runs
+        try:
+            session = replace(session, **exp.unity)
+        except UwvalError as exc:
+            raise ConfigError(f"{experiment}: unity: {exc}") from None
     specs = exp.runs()
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -148,8 +155,12 @@ def simulate(
     output: Annotated[
         Path, typer.Option("-o", "--output", help="Log file (one run) or directory (experiment).")
     ] = Path("run.mcap"),
-    force: Annotated[str, typer.Option(help="Body force FX,FY,FZ in N.")] = "0,0,0",
-    torque: Annotated[str, typer.Option(help="Body torque TX,TY,TZ in N m.")] = "0,0,0",
+    force: Annotated[
+        str, typer.Option(help="Force FX,FY,FZ in N (body FLU; see --wrench-frame).")
+    ] = "0,0,0",
+    torque: Annotated[
+        str, typer.Option(help="Torque TX,TY,TZ in N m (body FLU; see --wrench-frame).")
+    ] = "0,0,0",
     current: Annotated[
         str, typer.Option(help="Water current CX,CY,CZ in m/s (world ENU).")
     ] = "0,0,0",
@@ -168,13 +179,35 @@ def simulate(
         bool,
         typer.Option(help="One run: gz-sim 8.0-8.11 / 9.x / 10.0-10.1 Coriolis entries."),
     ] = False,
+    legacy_gz8: Annotated[
+        bool,
+        typer.Option(
+            "--legacy-gz8",
+            help="One run: the complete gz-sim 8.0-8.11 Hydrodynamics: its Coriolis entries, "
+            "zero initial prevState (added-mass kick with a current), int abs() in the "
+            "quadratic damping.",
+        ),
+    ] = False,
+    wrench_frame: Annotated[
+        str,
+        typer.Option(
+            help="One run: frame of --force/--torque: body (FLU, moves with the vehicle) or "
+            "world (ENU, as gz-sim's ApplyLinkWrench takes it).",
+        ),
+    ] = "body",
     log_format: Annotated[
         str, typer.Option("--format", help="mcap, rosbag2 (sqlite3), rosbag2-mcap or rosbag1.")
     ] = "mcap",
     publish_rate: Annotated[float, typer.Option(help="Gazebo pose publish rate, Hz.")] = 50.0,
-    frame_rate: Annotated[float, typer.Option(help="Unity render loop rate, Hz.")] = 60.0,
+    frame_rate: Annotated[
+        float, typer.Option(help="Unity render rate (vsync: display refresh), Hz.")
+    ] = float(REAL_UNITY["frame_rate"]),  # type: ignore[arg-type]
     unity_map: Annotated[
-        str, typer.Option(help="ROS-TCP-Connector map: unity-flu or unity-enu.")
+        str,
+        typer.Option(
+            help="ROS-TCP-Connector map: unity-flu, unity-enu (compass north) or "
+            "unity-enu-south|west (its GeometryCompass setting; east = unity-flu).",
+        ),
     ] = "unity-flu",
     latency: Annotated[float, typer.Option(help="Injected one-way latency, s.")] = 0.0,
     jitter: Annotated[float, typer.Option(help="Render-frame jitter (std), s.")] = 0.0,
@@ -182,6 +215,36 @@ def simulate(
     unity_clock_offset: Annotated[
         float, typer.Option(help="Unity clock minus sim clock, s.")
     ] = 0.0,
+    unity_clock_drift: Annotated[
+        float, typer.Option(help="Unity clock rate error, ppm (a quartz clock: 10-50).")
+    ] = float(REAL_UNITY["clock_drift_ppm"]),  # type: ignore[arg-type]
+    transport: Annotated[
+        str,
+        typer.Option(
+            help="Link timing: real-endpoint (ROS-TCP-Endpoint 0.7.0: Nagle + delayed ACK, "
+            "p50 0.6 ms, p99 ~21 ms at 50 Hz), nodelay (TCP_NODELAY, p99 ~0.25 ms) or ideal.",
+        ),
+    ] = str(REAL_UNITY["transport"]),
+    frame_model: Annotated[
+        str,
+        typer.Option(
+            help="Unity frame times: vsync (--frame-rate display, missed vsyncs with "
+            "--stall-prob), fixed, or trace (--frame-trace).",
+        ),
+    ] = str(REAL_UNITY["frame_model"]),
+    stall_prob: Annotated[
+        float, typer.Option(help="vsync: probability that a frame misses its vsync.")
+    ] = float(REAL_UNITY["stall_prob"]),  # type: ignore[arg-type]
+    frame_trace: Annotated[
+        Path | None,
+        typer.Option(help="trace: file of measured frame durations (s), one per line."),
+    ] = None,
+    float32: Annotated[
+        bool,
+        typer.Option(
+            "--float32/--no-float32", help="Store poses as Unity's Transform does (float32)."
+        ),
+    ] = bool(REAL_UNITY["float32"]),
     seed: Annotated[int, typer.Option(help="Seed for jitter/drops (and the experiment).")] = 0,
     as_json: Annotated[
         bool,
@@ -263,6 +326,12 @@ def simulate(
         unity_clock_offset_s=unity_clock_offset,
         realtime=realtime,
         log_format=log_format,
+        transport=transport,
+        frame_model=frame_model,
+        stall_prob=stall_prob,
+        frame_trace=str(frame_trace) if frame_trace is not None else None,
+        float32=float32,
+        clock_drift_ppm=unity_clock_drift,
     )
     if experiment is not None:
         if output.suffix in (".mcap", ".bag", ".db3"):
@@ -291,6 +360,8 @@ def simulate(
         raise ConfigError(f"--duration must be a positive number of seconds, got {duration}")
     if added_mass not in ("explicit", "implicit"):
         raise ConfigError(f"--added-mass {added_mass!r}: choose explicit or implicit")
+    if wrench_frame not in ("body", "world"):
+        raise ConfigError(f"--wrench-frame {wrench_frame!r}: choose body or world")
     check_output_suffix(output, log_format)
     f, tq, c = (
         parse_vector(force, "force"),
@@ -301,12 +372,13 @@ def simulate(
         name=output.stem,
         factors={"force": factor_level(f), "torque": factor_level(tq), "current": factor_level(c)},
         vehicle=load_vehicle(vehicle),
-        inputs=constant_inputs(f, tq, c),
+        inputs=constant_inputs(f, tq, c, wrench_frame=wrench_frame),
         duration_s=duration,
         seed=seed,
         publish_rate=publish_rate,
         implicit_added_mass=added_mass == "implicit",
         legacy_coriolis=legacy_coriolis,
+        legacy_gz8=legacy_gz8,
     )
     if endpoint is not None:
         _publish_to_endpoint(

@@ -14,10 +14,12 @@ Every public name stays importable from ``uwval.results``.
 from __future__ import annotations
 
 from uwval.results.analysis import (
+    ROUNDOFF_FLOOR,
     AnovaRow,
     anova_oneway,
     factor_levels,
     main_effects,
+    roundoff_axes,
     summarize_by_level,
     two_way_pairs,
     two_way_table,
@@ -59,6 +61,7 @@ __all__ = [
     "PAPER_METRICS",
     "POSITION_AXES",
     "ROTATION_AXES",
+    "ROUNDOFF_FLOOR",
     "AnovaRow",
     "ExperimentResults",
     "ManifestRun",
@@ -74,6 +77,7 @@ __all__ = [
     "main_effects",
     "parquet_available",
     "read_manifest",
+    "roundoff_axes",
     "summarize_by_level",
     "topic_results",
     "two_way_pairs",

@@ -16,6 +16,38 @@ from uwval.errors import ConfigError
 from uwval.results.schema import AXES, PAPER_METRICS
 from uwval.results.table import ResultsTable
 
+#: An axis whose worst absolute error over all runs stays below this (m for x y z, deg for
+#: roll pitch yaw) carries no signal: float32 storage alone makes ~1e-7..1e-6 of it.
+ROUNDOFF_FLOOR = 1e-5
+
+
+def roundoff_axes(table: ResultsTable, floor: float = ROUNDOFF_FLOOR) -> dict[str, list[str]]:
+    """Per topic, the pose axes whose values are round-off, in :data:`AXES` order.
+
+    An axis is round-off when its Pearson r is undefined in every run (a constant series:
+    the axis never moves, e.g. the roll of a camera that stays level) or when its max
+    absolute error stays below ``floor`` in every run. Statistics over such values (ANOVA,
+    box plots) would analyse rounding noise.
+    """
+    df = table.df
+    out: dict[str, list[str]] = {}
+    for topic in table.topics:
+        sub = df[(df["topic"] == topic) & df["axis"].isin(AXES)]
+        found = []
+        for axis in AXES:
+            rows = sub[sub["axis"] == axis]
+            r = rows.loc[rows["metric"] == "pearson_r", "value"].to_numpy(dtype=float)
+            mx = rows.loc[rows["metric"] == "max", "value"].to_numpy(dtype=float)
+            if not r.size and not mx.size:
+                continue
+            no_motion = r.size > 0 and bool(np.isnan(r).all())
+            tiny = mx.size > 0 and bool(np.all(mx < floor))
+            if no_motion or tiny:
+                found.append(axis)
+        if found:
+            out[topic] = found
+    return out
+
 
 def factor_levels(table: ResultsTable) -> dict[str, list[Any]]:
     """Each factor's distinct levels, sorted."""

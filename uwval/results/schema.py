@@ -74,7 +74,13 @@ SOURCES: tuple[str, ...] = ("reference", "other")
 #: Section of the compare JSON holding the geodesic rotation-angle statistics.
 ROTATION_SECTION = "rotation_error_deg"
 
-_UNITLESS_METRICS = MAY_BE_UNDEFINED
+#: Count metrics of an axis (no unit): the number of samples Pearson r was computed on.
+COUNT_METRICS: frozenset[str] = frozenset({"pearson_n"})
+#: Text fields of an axis that are not metrics: the reason Pearson r is undefined is carried
+#: in the ``note`` of the undefined rows, never as a row of its own.
+TEXT_FIELDS: frozenset[str] = frozenset({"pearson_reason"})
+
+_UNITLESS_METRICS = MAY_BE_UNDEFINED | COUNT_METRICS
 
 
 def factor_label(factor: str) -> str:
@@ -201,6 +207,8 @@ def flatten_result(res: Mapping[str, Any]) -> list[Row]:
             return reason if metric in MAY_BE_UNDEFINED and reason else MISSING_NOTE
 
         for metric, v in a.items():
+            if metric in TEXT_FIELDS:
+                continue
             if metric == "pearson_ci":
                 pair = v if isinstance(v, (list, tuple)) and len(v) == 2 else (None, None)
                 for m, x in zip(("pearson_ci_low", "pearson_ci_high"), pair, strict=True):
