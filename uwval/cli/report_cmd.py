@@ -213,8 +213,13 @@ def report(
         where = Path(scratch.name) / "run" / "results"
         where.mkdir(parents=True)
         if log is None:  # a saved result: re-read its files for the plots, as compared
+            # (the saved options, with only what the command line gives over them: a
+            # project file's defaults must not redraw the plots under other options)
             log, saved_opts = _saved_inputs(doc)
-            opts = {**saved_opts, **opts}
+            given = _compare_opts(
+                gazebo_topic, unity_topic, fmt, frame, sync, max_diff, offset, align, None
+            )
+            opts = {**saved_opts, **given}
         elif other is not None:
             opts["path_b"] = other  # the plots re-read the pair
         rec = {"name": name, "factors": {}, "comparison": doc, "log": str(log) if log else None}
