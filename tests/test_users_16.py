@@ -263,3 +263,18 @@ def test_save_plot_names_the_trajectory_png(fr1: tuple[Path, Path], tmp_path: Pa
     for png in (target, target.with_name("fr1_errors.png")):
         assert png.read_bytes()[:4] == b"\x89PNG"
         assert f"wrote {png}" in p.stderr
+
+
+def test_scale_then_origin_as_evo_ape(fr1: tuple[Path, Path]) -> None:
+    """evo_ape accepts -s with --align_origin: it corrects the scale, then aligns the origin.
+    evo_ape tum $D/freiburg1_xyz-groundtruth.txt $D/freiburg1_xyz-rgbdslam.txt -s
+        --align_origin --save_results so.zip  ->  stats.json:"""
+    evo = {"rmse": 0.020089785798976224, "mean": 0.018124526095164708,
+           "median": 0.016799455903821085, "std": 0.008666086041255319,
+           "max": 0.042897529375583256, "sse": 0.3168256023572662}  # fmt: skip
+    p = run_uwval("compare", *fr1, "-s", "--align_origin", "--t_max_diff", "0.01", "--json")
+    assert p.returncode == 0, p.stderr
+    doc = json.loads(p.stdout)
+    assert doc["alignment"]["mode"] == "scale_origin"
+    for key, want in evo.items():
+        assert doc["position_error_norm"][key] == pytest.approx(want, abs=1e-9), key

@@ -151,11 +151,12 @@ def _align_mode(align: str, evo_align: bool, correct_scale: bool, align_origin: 
         flags.append("--align_origin")
     if not flags:
         return align
-    if align_origin and (evo_align or correct_scale):
-        raise ConfigError("--align_origin cannot be combined with -a / -s (as in evo_ape)")
+    if align_origin and evo_align:
+        raise ConfigError("--align_origin cannot be combined with -a (as in evo_ape)")
     mode = "origin" if align_origin else ("sim3" if correct_scale else "se3")
     if not evo_align and correct_scale:
-        mode = "scale"
+        # evo_ape -s: the scale only; -s --align_origin: that scale, then the origin
+        mode = "scale_origin" if align_origin else "scale"
     if align not in ("none", mode):
         raise ConfigError(f"--align {align} contradicts {' '.join(flags)} (which means {mode})")
     return mode

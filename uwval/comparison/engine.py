@@ -441,7 +441,15 @@ def compare(
         )
 
     # ---- spatial alignment
-    if n_to_align == -1 and align != "scale":
+    if align == "scale_origin":  # evo_ape -s --align_origin: the scale, then the origin
+        from uwval.comparison.rpe import _alignment
+
+        scale = _alignment("scale", n_to_align, ref_pos, ref_quat, oth_pos, oth_quat)
+        p1, q1 = scale.apply(oth_pos, oth_quat)
+        origin = estimate_alignment("origin", ref_pos, ref_quat, p1, q1)
+        # R (s p) + t = s R p + t: one similarity transform
+        alignment = Alignment("scale_origin", origin.rotation, origin.translation, scale.scale)
+    elif n_to_align == -1 and align != "scale":
         alignment = estimate_alignment(align, ref_pos, ref_quat, oth_pos, oth_quat)
     else:  # evo's -s alone / --n_to_align: the same helper as uwval rpe
         from uwval.comparison.rpe import _alignment
