@@ -263,6 +263,11 @@ def test_save_plot_names_the_trajectory_png(fr1: tuple[Path, Path], tmp_path: Pa
     for png in (target, target.with_name("fr1_errors.png")):
         assert png.read_bytes()[:4] == b"\x89PNG"
         assert f"wrote {png}" in p.stderr
+    pdf = tmp_path / "figs" / "fr1.pdf"  # a format matplotlib writes is kept, as in evo
+    p = run_uwval("compare", *fr1, "--save_plot", pdf)
+    assert p.returncode == 0, p.stderr
+    for name in ("fr1.pdf", "fr1_errors.pdf", "fr1_histogram.pdf", "fr1_errormap.pdf"):
+        assert (tmp_path / "figs" / name).read_bytes()[:5] == b"%PDF-"
 
 
 def test_scale_then_origin_as_evo_ape(fr1: tuple[Path, Path]) -> None:

@@ -292,7 +292,8 @@ def plot_targets(
     """Per topic: (name, trajectory PNG, error-over-time PNG) written by ``--plot``.
 
     Default ``uwval_<topic>_trajectory.png`` / ``uwval_<topic>_errors.png`` in the current
-    folder; with ``--save_plot P.png``: P.png and P_errors.png (other topics: P.<topic>.png).
+    folder; with ``--save_plot P.png`` (or .pdf, .svg, .jpg): P.png and P_errors.png (other
+    topics: P.<topic>.png).
     """
     if save_plot is None:
         out = []
@@ -303,21 +304,27 @@ def plot_targets(
             )
         return out
     base = save_plot
-    if base.suffix.lower() != ".png":
+    if base.suffix.lower() not in PLOT_SUFFIXES:  # evo's --save_plot takes these too
         base = base.with_name(base.name + ".png")
+    ext = base.suffix
     return [
-        (name, path, Path(f"{path.with_suffix('')}_errors.png"))
+        (name, path, Path(f"{path.with_suffix('')}_errors{ext}"))
         for name, path in _label_paths(base, names, primary).items()
     ]
 
 
+#: Figure formats --save_plot writes as named (matplotlib's); any other name gets ``.png``.
+PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
+
+
 def extra_plot_targets(errors_png: Path) -> tuple[Path, Path]:
     """The error histogram and the error-coloured trajectory written beside a topic's
-    error-over-time PNG ``..._errors.png``: ``..._histogram.png``, ``..._errormap.png``."""
-    stem = errors_png.name.removesuffix("_errors.png")
+    error-over-time figure ``..._errors.EXT``: ``..._histogram.EXT``, ``..._errormap.EXT``."""
+    ext = errors_png.suffix
+    stem = errors_png.name.removesuffix(f"_errors{ext}")
     return (
-        errors_png.with_name(f"{stem}_histogram.png"),
-        errors_png.with_name(f"{stem}_errormap.png"),
+        errors_png.with_name(f"{stem}_histogram{ext}"),
+        errors_png.with_name(f"{stem}_errormap{ext}"),
     )
 
 
