@@ -75,3 +75,12 @@ def test_batch_refuses_a_project_file(tmp_path: Path) -> None:
     assert out.returncode == 2
     assert "--config applies to one comparison" in out.stderr
     assert "Traceback" not in out.stderr
+
+
+def test_evo_flags_beat_the_project_files_align(shared_data: Path, tmp_path: Path) -> None:
+    gt = shutil.copy(shared_data / "evo" / "freiburg1_xyz-groundtruth.txt", tmp_path)
+    est = shutil.copy(shared_data / "evo" / "freiburg1_xyz-rgbdslam.txt", tmp_path)
+    (tmp_path / "uwval.toml").write_text('[compare]\nalign = "sim3"\n')
+    out = run_uwval("compare", gt, est, "--align_origin", "--json", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr  # was: "--align sim3 contradicts --align_origin"
+    assert json.loads(out.stdout)["alignment"]["mode"] == "origin"
