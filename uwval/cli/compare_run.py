@@ -384,9 +384,9 @@ def run_compare(
     from uwval.config import load_config, merged_options
 
     opts = merged_options(given, load_config(config))
-    if any(given.get(k) for k in ("evo_align", "correct_scale", "align_origin")):
-        if "align" not in given:  # evo's flags given: the project file's align steps back
-            opts.pop("align", None)
+    evo_flags = any(given.get(k) for k in ("evo_align", "correct_scale", "align_origin"))
+    if evo_flags and "align" not in given:  # the project file's align steps back
+        opts.pop("align", None)
     if "offset" in opts:
         opts["offset"] = str(opts["offset"])
     else:  # no offset given: a log's recorded clock relation may supply it
