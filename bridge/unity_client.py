@@ -420,10 +420,11 @@ class RenderLoop:
                 f"got {clock_drift_ppm}"
             )
         conv = get_convention(unity_map)
-        if not conv.name.startswith("unity"):
+        if not (conv.name.startswith("unity") or unity_map.lower() == "unity-ruf"):
             raise BridgeError(
-                f"{unity_map!r} is not a Unity map; use unity-flu, unity-enu or "
-                "unity-enu-south|west"
+                f"{unity_map!r} is not a Unity map; use unity-flu, unity-enu, "
+                "unity-enu-south|west, unity-frd (= unity-ned), unity-ned-east|south|west "
+                "or unity-ruf"
             )
         self.unity_map = conv.name
         self.topics = list(topics)

@@ -96,3 +96,62 @@ def test_simulate_with_a_compass_map_round_trips(tmp_path: Path) -> None:
     np.testing.assert_allclose(pos, g.position[idx], atol=1e-12)
     # west: Unity +Z faces west, so a vehicle moving east has a decreasing Unity z
     assert u.position[-1, 2] < u.position[0, 2] - 0.01
+
+
+# NED.ConvertToRUF(Vector3 v) per compass (FRD.ConvertToRUF is the north case), and the
+# quaternion: Quaternion(q.y, -q.z, q.x, -q.w), then multiplied by the compass yaw
+NED_TO_RUF = {
+    "north": lambda v: np.stack([v[:, 1], -v[:, 2], v[:, 0]], axis=1),
+    "east": lambda v: np.stack([-v[:, 0], -v[:, 2], v[:, 1]], axis=1),
+    "south": lambda v: np.stack([-v[:, 1], -v[:, 2], -v[:, 0]], axis=1),
+    "west": lambda v: np.stack([v[:, 0], -v[:, 2], -v[:, 1]], axis=1),
+}
+# GeometryCompass.k_NegativeNinetyYaw / k_OneEightyYaw / k_NinetyYaw: Euler(0, a, 0)
+NED_YAW_DEG = {"north": 0.0, "east": -90.0, "south": 180.0, "west": 90.0}
+
+
+@pytest.mark.parametrize("compass", COMPASS)
+def test_ned_and_frd_maps_match_ros_tcp_connector(compass: str) -> None:
+    """What a Unity scene declaring NED (or FRD, = NED north) makes of the ENU/FLU values the
+    Gazebo side sends: uwval's unity-ned-<compass> / unity-frd against CoordinateSpaces.cs."""
+    rng = np.random.default_rng(19)
+    v = rng.normal(size=(200, 3)) * 50
+    q = rng.normal(size=(200, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    name = "unity-frd" if compass == "north" else f"unity-ned-{compass}"
+    pos_u, quat_u = convert_arrays(v, q, "enu", name)
+    np.testing.assert_allclose(pos_u, NED_TO_RUF[compass](v), atol=1e-12)
+    half = math.radians(NED_YAW_DEG[compass]) / 2
+    yaw = np.tile([0.0, math.sin(half), 0.0, math.cos(half)], (len(q), 1))
+    ref = hamilton(yaw, np.stack([q[:, 1], -q[:, 2], q[:, 0], -q[:, 3]], axis=1))
+    np.testing.assert_allclose(np.abs(np.sum(quat_u * ref, axis=1)), 1.0, atol=1e-12)
+    assert get_convention(f"unity-ned-{compass}").name == name
+
+
+def test_ruf_takes_the_values_as_unitys_own() -> None:
+    rng = np.random.default_rng(20)
+    v = rng.normal(size=(10, 3))
+    q = rng.normal(size=(10, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    pos_u, quat_u = convert_arrays(v, q, "enu", "unity-ruf")  # RUF: ConvertToRUF is identity
+    np.testing.assert_array_equal(pos_u, v)
+    np.testing.assert_allclose(np.abs(np.sum(quat_u * q, axis=1)), 1.0, atol=1e-15)
+
+
+@pytest.mark.parametrize("unity_map", ["unity-frd", "unity-ned-west", "unity-ruf"])
+def test_simulate_renders_with_the_ned_frd_and_ruf_maps(tmp_path: Path, unity_map: str) -> None:
+    log = tmp_path / "r.mcap"
+    run_uwval(
+        "simulate", "--duration", "2", "--force", "20,5,0", "--torque", "0,0,1",
+        "--unity-map", unity_map, "--transport", "ideal", "--frame-model", "fixed",
+        "--no-float32", "--unity-clock-drift", "0", "-o", log, check=True,
+    )  # fmt: skip
+    u = read_stream(log, "/unity/model_rov_pose")
+    assert u.frame == get_convention(unity_map).name
+    out = run_uwval("compare", log, "--sync", "nearest", "--json")
+    assert out.returncode == 0, out.stderr
+    import json
+
+    doc = json.loads(out.stdout)
+    assert doc["frame"]["configured"] == get_convention(unity_map).name
+    assert doc["position_error_norm"]["max"] < 0.05  # hold lag only: the map round-trips

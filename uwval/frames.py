@@ -58,6 +58,15 @@ _UNITY_FROM_ENU_COMPASS = {
     "south": _perm([[-1, 0, 0], [0, 0, 1], [0, -1, 0]]),  # (-e, up, -n)
     "west": _perm([[0, 1, 0], [0, 0, 1], [-1, 0, 0]]),  # (n, up, -e)
 }
+# FRD.ConvertToRUF(v) = (v.y, -v.z, v.x); NED.ConvertToRUF per compass (the world axes;
+# the body stays FRD: the connector multiplies the FRD quaternion by the compass yaw)
+_UNITY_FROM_FRD = _perm([[0, 1, 0], [0, 0, -1], [1, 0, 0]])
+_UNITY_FROM_NED_COMPASS = {
+    "east": _perm([[-1, 0, 0], [0, 0, -1], [0, 1, 0]]),
+    "south": _perm([[0, -1, 0], [0, 0, -1], [-1, 0, 0]]),
+    "west": _perm([[1, 0, 0], [0, 0, -1], [0, -1, 0]]),
+}
+
 #: Compass settings of ROS-TCP-Connector (the direction Unity +Z faces), in enum order.
 COMPASS = ("north", "east", "south", "west")
 # NED world (x north, y east, z down) and FRD body (x forward, y right, z down).
@@ -81,6 +90,26 @@ CONVENTIONS: dict[str, Convention] = {
             "Unity RUF, ROS-TCP-Connector To<ENU>() compass map (east->x, north->z, up->y)",
         ),
         Convention("ned", _NED_FROM_ENU, _FRD_FROM_FLU, "Marine/Fossen: NED world, FRD body"),
+        # ROS-TCP-Connector's FRD space (and NED with the compass north) applied to what the
+        # ROS side sends, ENU/FLU from Gazebo: Unity = (v.y, -v.z, v.x) (FRD.ConvertToRUF);
+        # the map a Unity scene declaring NED/FRD makes of ENU data
+        Convention(
+            "unity-frd",
+            _UNITY_FROM_FRD,
+            _UNITY_FROM_FRD,
+            "Unity RUF, ROS-TCP-Connector To<FRD>() / To<NED>() (compass north) of ENU/FLU "
+            "data (x->z, y->x, z->-y)",
+        ),
+        *(
+            Convention(
+                f"unity-ned-{c}",
+                _UNITY_FROM_NED_COMPASS[c],
+                _UNITY_FROM_FRD,
+                f"Unity RUF, ROS-TCP-Connector To<NED>() with the compass set to {c}, of "
+                "ENU/FLU data",
+            )
+            for c in ("east", "south", "west")
+        ),
         *(
             Convention(
                 f"unity-enu-{c}",
@@ -104,6 +133,11 @@ ALIASES = {
     "frd": "ned",
     "unity-enu-north": "unity-enu",
     "unity-enu-east": "unity-flu",
+    "unity-ned": "unity-frd",
+    "unity-ned-north": "unity-frd",
+    # ROS-TCP-Connector's RUF space takes the message's values as Unity's own: of ENU data
+    # that is the canonical numbers themselves
+    "unity-ruf": "enu",
 }
 
 

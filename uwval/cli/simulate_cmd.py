@@ -206,7 +206,9 @@ def simulate(
         str,
         typer.Option(
             help="ROS-TCP-Connector map: unity-flu, unity-enu (compass north) or "
-            "unity-enu-south|west (its GeometryCompass setting; east = unity-flu).",
+            "unity-enu-south|west (its GeometryCompass setting; east = unity-flu); a scene "
+            "declaring FRD / NED / RUF: unity-frd (= unity-ned), unity-ned-east|south|west, "
+            "unity-ruf.",
         ),
     ] = "unity-flu",
     latency: Annotated[float, typer.Option(help="Injected one-way latency, s.")] = 0.0,
