@@ -208,3 +208,45 @@ def test_check_index_names_the_channel_and_the_fault() -> None:
 
     bad = {c: e[:-1] for c, e in ents.items()}  # the last message of each left out
     assert "missing from the index" in check_index(buf, bad)[0]
+
+
+@pytest.mark.parametrize(("fmt", "suffix"), FORMATS)
+def test_uniform_rows_decode_equals_rosbags(tmp_path: Path, fmt: str, suffix: str) -> None:
+    """Pose topics read from the containers are rows of one width; decoding them through
+    the (n, width) view gives rosbags' per-message values, also when some rows are bad."""
+    from uwval.io.decode import decode_poses
+    from uwval.io.fastdecode import _Bytes
+
+    p = gen.write_log(tmp_path / f"log{suffix}", fmt, seconds=2.0, image_bytes=0)
+    log = scan_log(p, [gen.GAZEBO, gen.APPLIED])
+    for topic in (gen.GAZEBO, gen.APPLIED):
+        raw = log.raw[topic]
+        assert _Bytes(raw.buf, raw.offset, raw.length).rows2d is not None, topic
+        fast = decode_poses(raw) if topic == gen.GAZEBO else None
+        if fast is not None:
+            slow = decode_poses(raw, fast=False)
+            assert fast.handled.all()
+            np.testing.assert_array_equal(fast.pose, slow.pose)
+            np.testing.assert_array_equal(fast.stamp, slow.stamp)
+            assert [fast.names[c] for c in fast.frame_code] == [
+                slow.names[c] for c in slow.frame_code
+            ]
+    if fmt == "bag":
+        return
+    # a big-endian CDR header on one message, a frame name without its NUL on another:
+    # those rows leave the fast path (rosbags decides), the others stay bit-identical
+    raw = log.raw[gen.GAZEBO]
+    w = int(raw.length[0])
+    buf = raw.buf.copy()
+    buf[3 * w + 1] = 0  # encapsulation kind 0x0000: big-endian CDR
+    frame_len = int(buf[12 * w + 12 : 12 * w + 16].view("<u4")[0])
+    buf[12 * w + 16 + frame_len - 1] = ord("x")  # the NUL of "world" overwritten
+    from uwval.io.fastdecode import fast_decode
+
+    dec = fast_decode(raw.msgtype, raw.encoding, buf, raw.offset, raw.length)
+    assert not dec.handled[3] and not dec.handled[12]
+    assert dec.handled.sum() == len(raw) - 2
+    ref = decode_poses(raw, fast=False)
+    keep = dec.handled
+    np.testing.assert_array_equal(dec.pose[keep], ref.pose[keep])
+    np.testing.assert_array_equal(dec.stamp[keep], ref.stamp[keep])
