@@ -203,6 +203,9 @@ def _scan(
         name = norm_topic(c.topic)
         if want is None or name in want:
             builders[cid] = TopicBuilder(name, normalize_type_name(c.msgtype), "ros1", c.msgdef)
+            if not times_only:  # the chunk infos' counts size one buffer (bounded)
+                total = sum(e.get(cid, 0) for e in chunk_info.values())
+                builders[cid].reserve(total, 4 * size + (1 << 20))
     times: dict[int, list[I64]] = {cid: [] for cid in conns}
     warns: list[str] = []
     released = 0
@@ -311,7 +314,12 @@ def _chunk(
                     rec = e[:, 2].astype(np.int64)
                     hl = gather(buf, rec, 4).view("<u4").reshape(-1).astype(np.int64)
                     dlen = gather(buf, rec + 4 + hl, 4).view("<u4").reshape(-1).astype(np.int64)
-                    builders[cid].add(buf, rec + 8 + hl, dlen, t)
+                    width = int(dlen[0])
+                    if width > 0 and int(dlen.min()) == int(dlen.max()):
+                        # one payload length (a pose topic), bounds checked by _index_ok
+                        builders[cid].take_rows(buf, rec + 8 + hl, width, t)
+                    else:
+                        builders[cid].add(buf, rec + 8 + hl, dlen, t)
             return
         warns.append(
             f"{path}: the index of the ROS 1 chunk at byte {cp} disagrees with its records "

@@ -126,12 +126,78 @@ def _fancy(buf: U8, starts: I64, width: int) -> U8:
     copy each, no (N, width) index array)."""
     if buf.shape[0] < width:
         return np.empty((0, width), dtype=np.uint8)
-    view = np.lib.stride_tricks.sliding_window_view(buf, width)
-    return view[starts]
+    return window(buf, width)[starts]
+
+
+def window(buf: U8, width: int) -> U8:
+    """Read-only (len(buf) - width + 1, width) view of ``buf`` whose row i starts at byte i.
+
+    Built directly on the buffer (a few microseconds: this runs once per topic per chunk,
+    thousands of times per log) when ``buf`` is contiguous; numpy's sliding_window_view
+    otherwise. ``buf`` must hold at least ``width`` bytes.
+    """
+    n = buf.shape[0] - width + 1
+    if buf.ndim == 1 and buf.flags.c_contiguous and buf.dtype == np.uint8:
+        view = np.ndarray((n, width), dtype=np.uint8, buffer=buf, strides=(1, 1))
+        view.flags.writeable = False
+        return view
+    return np.lib.stride_tricks.sliding_window_view(buf, width)
+
+
+def rows_at(buf: U8, starts: I64, width: int) -> U8:
+    """(N, width) copies of ``buf[starts[i] : starts[i] + width]``, one fancy index.
+
+    The caller has checked the bounds (0 <= starts, starts + width <= len(buf)): numpy
+    still refuses an index past the view, so a wrong bound is an IndexError, never bytes
+    from outside ``buf``.
+    """
+    if starts.shape[0] == 0 or width == 0:
+        return np.zeros((starts.shape[0], width), dtype=np.uint8)
+    if buf.shape[0] < width:
+        raise ValueError("rows_at: a row reaches outside the buffer")
+    return window(buf, width)[starts]
 
 
 def _u32(buf: U8, starts: I64) -> I64:
     return gather(buf, starts, 4).view("<u4").reshape(-1).astype(np.int64)
+
+
+class _Bytes:
+    """Byte access to a topic's messages: ``at(rows, k, m)`` is the (len(rows), m) bytes at
+    offset ``k`` of messages ``rows`` (sorted, unique: subsets of all messages).
+
+    When every message has the same length ``w`` and they tile ``buf`` in order (a pose
+    topic read by the container readers: offset i * w), the messages are the rows of one
+    (n, w) view, and a column range of all of them is a strided view, no index arrays."""
+
+    def __init__(self, buf: U8, offset: I64, length: I64) -> None:
+        self.buf, self.offset, self.length = buf, offset, length
+        n = offset.shape[0]
+        self.n = n
+        self.rows2d: U8 | None = None
+        w = int(length[0]) if n else 0
+        if (
+            n > 1
+            and w > 0
+            and buf.ndim == 1
+            and buf.shape[0] == n * w
+            and bool((length == w).all())
+            and bool(np.array_equal(offset, np.arange(0, n * w, w, dtype=np.int64)))
+        ):
+            self.rows2d = buf.reshape(n, w)
+        self.width = w if self.rows2d is not None else 0
+
+    def at(self, rows: I64, k: int, m: int) -> U8:
+        r = self.rows2d
+        if r is not None and k >= 0 and k + m <= self.width:
+            return r[:, k : k + m] if rows.shape[0] == self.n else r[rows, k : k + m]
+        return gather(self.buf, self.offset[rows] + k, m)
+
+    def at_least(self, rows: I64, size: int) -> I64:
+        """The rows whose message holds at least ``size`` bytes."""
+        if self.rows2d is not None:
+            return rows if self.width >= size else rows[:0]
+        return rows[self.length[rows] >= size]
 
 
 def _align(pos: int, size: int, cdr: bool) -> int:
@@ -157,9 +223,7 @@ def _walk(
     rows: I64,
     pos: int,
     leaf: _Leaf,
-    buf: U8,
-    offset: I64,
-    length: I64,
+    acc: _Bytes,
     cdr: bool,
     out: list[_Leaf],
 ) -> None:
@@ -179,10 +243,10 @@ def _walk(
                 stamp_at = base + pos
                 pos += 8
             pos = _align(pos, 4, cdr)
-            rows = rows[length[rows] >= base + pos + 4]  # too short for the length field
+            rows = acc.at_least(rows, base + pos + 4)  # too short for the length field
             if rows.size == 0:
                 return
-            slen = _u32(buf, offset[rows] + base + pos)
+            slen = acc.at(rows, base + pos, 4).view("<u4").reshape(-1).astype(np.int64)
             pos += 4
             lens_here = [int(slen[0])] if int(slen.min()) == int(slen.max()) else np.unique(slen)
             for s in lens_here:
@@ -190,10 +254,10 @@ def _walk(
                 nbytes = int(s) - (1 if cdr else 0)
                 if nbytes < 0 or int(s) > 1 << 20:
                     continue
-                sub = sub[length[sub] >= base + pos + int(s)]
+                sub = acc.at_least(sub, base + pos + int(s))
                 if cdr and sub.size:
                     # rosbags rejects a CDR string without its NUL: so does the fast path
-                    sub = sub[buf[offset[sub] + base + pos + nbytes] == 0]
+                    sub = sub[acc.at(sub, base + pos + nbytes, 1)[:, 0] == 0]
                 if sub.size == 0:
                     continue
                 nxt = _Leaf(**leaf.__dict__)
@@ -202,7 +266,7 @@ def _walk(
                     nxt.stamp_at, nxt.frame_at, nxt.frame_len = stamp_at, base + pos, nbytes
                 else:
                     nxt.child_at, nxt.child_len = base + pos, nbytes
-                _walk(fields, k + 1, sub, pos + int(s), nxt, buf, offset, length, cdr, out)
+                _walk(fields, k + 1, sub, pos + int(s), nxt, acc, cdr, out)
             return
         n = int(f)
         pos = _align(pos, 8, cdr)
@@ -212,7 +276,12 @@ def _walk(
         k += 1
     # CDR writers may pad the end to a multiple of 4 (never more than 7 bytes); ROS 1: exact.
     end = base + pos
-    extra = length[rows] - end
+    if acc.rows2d is not None:
+        if 0 <= acc.width - end < (8 if cdr else 1):
+            leaf.rows = rows
+            out.append(leaf)
+        return
+    extra = acc.length[rows] - end
     ok = (extra >= 0) & (extra < (8 if cdr else 1))
     if ok.any():
         leaf.rows = rows[ok]
@@ -231,47 +300,49 @@ def fast_decode(msgtype: str, encoding: str, buf: U8, offset: I64, length: I64) 
     if fields is None or n == 0 or encoding not in ("cdr", "ros1"):
         return dec
     cdr = encoding == "cdr"
+    acc = _Bytes(buf, offset, length)
     rows = np.arange(n, dtype=np.int64)
     if cdr:
         # Only little-endian plain CDR (encapsulation kind 0x0001) has this layout.
-        short = length < 4
-        rows = rows[~short]
-        head = gather(buf, offset[rows], 2)
+        rows = acc.at_least(rows, 4)
+        head = acc.at(rows, 0, 2)
         rows = rows[(head[:, 0] == 0) & (head[:, 1] == 1)]
     leaves: list[_Leaf] = []
     if rows.size:
-        _walk(
-            fields, 0, rows, 0, _Leaf(rows, -1, -1, 0, -1, 0, -1), buf, offset, length, cdr, leaves
-        )
+        _walk(fields, 0, rows, 0, _Leaf(rows, -1, -1, 0, -1, 0, -1), acc, cdr, leaves)
     for lf in leaves:
-        starts = offset[lf.rows]
+        every = lf.rows.shape[0] == n  # all messages: plain slices, not fancy indexing
+        into: slice | I64 = slice(None) if every else lf.rows
         if lf.stamp_at >= 0:
-            st = gather(buf, starts + lf.stamp_at, 8)
+            st = acc.at(lf.rows, lf.stamp_at, 8)
             sec = st[:, :4].copy().view("<i4").reshape(-1).astype(np.int64)
             nsec = st[:, 4:].copy().view("<u4").reshape(-1).astype(np.int64)
-            dec.stamp[lf.rows] = sec * 1_000_000_000 + nsec
+            dec.stamp[into] = sec * 1_000_000_000 + nsec
         if lf.pose_at >= 0:
-            dec.pose[lf.rows] = gather(buf, starts + lf.pose_at, 56).view("<f8")
+            pose = acc.at(lf.rows, lf.pose_at, 56)
+            if pose.strides[1] == 1 and pose.strides[0] % 8 and not pose.flags.c_contiguous:
+                pose = pose.copy()  # rows not 8-byte spaced: one copy, then reinterpret
+            dec.pose[into] = pose.view("<f8")
         ok = np.ones(lf.rows.shape[0], dtype=bool)
         if lf.frame_at >= 0:
-            ok &= _names(dec, dec.frame_code, lf.rows, buf, starts + lf.frame_at, lf.frame_len)
+            raw = acc.at(lf.rows, lf.frame_at, lf.frame_len)
+            ok &= _names(dec, dec.frame_code, lf.rows, raw)
         if lf.child_at >= 0:
-            ok &= _names(dec, dec.child_code, lf.rows, buf, starts + lf.child_at, lf.child_len)
+            raw = acc.at(lf.rows, lf.child_at, lf.child_len)
+            ok &= _names(dec, dec.child_code, lf.rows, raw)
         dec.handled[lf.rows[ok]] = True
     return dec
 
 
-def _names(
-    dec: Decoded, codes: I64, rows: I64, buf: U8, starts: I64, width: int
-) -> NDArray[np.bool_]:
-    """Fill ``codes[rows]`` with name indices for the ``width``-byte strings at ``starts``;
+def _names(dec: Decoded, codes: I64, rows: I64, raw: U8) -> NDArray[np.bool_]:
+    """Fill ``codes[rows]`` with name indices for the strings ``raw`` ((rows, width) bytes);
     returns which rows hold valid UTF-8 (the others are left to rosbags, which rejects them,
     so that both paths agree)."""
     n = rows.shape[0]
+    width = raw.shape[1]
     if width == 0:
         codes[rows] = dec.code("")
         return np.ones(n, dtype=bool)
-    raw = gather(buf, starts, width)
     if raw.shape[0] and bool((raw == raw[0]).all()):  # one name for the topic (usual): no sort
         try:
             codes[rows] = dec.code(bytes(raw[0]).decode("utf-8"))

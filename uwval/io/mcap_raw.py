@@ -184,6 +184,10 @@ class _Scanner:
         if self.want is None or norm_topic(ch.topic) in self.want:
             typ, enc, text = self.tables.msgtype(ch)
             b = TopicBuilder(norm_topic(ch.topic), typ, enc, text)
+            if self.summary is not None and not self.times_only:
+                # the summary's count sizes one buffer (bounded: a lying count cannot
+                # make it larger than a few times the file)
+                b.reserve(self.summary.counts.get(cid, 0), 4 * self.size + (1 << 20))
         self.builders[cid] = b
         return b
 
@@ -372,7 +376,13 @@ class _Scanner:
                 z = np.zeros(len(rec), np.int64)
                 b.add(buf[:0], z, z, log_time, copy=False)
                 continue
-            b.add(buf, rec + 31, rlens[cid] - 22, log_time)
+            rl = rlens[cid]
+            width = int(rl[0]) - 22
+            if width > 0 and int(rl.min()) == int(rl.max()):
+                # one payload length (a pose topic): one row gather, checked by check_index
+                b.take_rows(buf, rec + 31, width, log_time)
+            else:
+                b.add(buf, rec + 31, rl - 22, log_time)
 
     def _from_walk(self, buf: np.ndarray, walk: WalkResult, rec: int) -> None:
         """Add messages found by walking a chunk's records (Schema/Channel records too)."""

@@ -138,10 +138,77 @@ class TopicBuilder:
         self._lens: list[I64] = []
         self._times: list[I64] = []
         self._tag: list[object] = []
+        #: per segment: > 0 when it is fixed-width rows (offsets i * width, built lazily)
+        self._width: list[int] = []
         self.dropped: dict[str, int] = {}
+        #: expected message count (a container's own statistics; only sizes a buffer)
+        self.hint = 0
+        #: byte budget of that buffer (a lying count must not allocate more than this)
+        self.budget = 0
+        self._open: U8 | None = None  # (capacity, width) rows filled in place
+        self._fill = 0
+        self._open_times: list[I64] = []
 
     def __len__(self) -> int:
+        self._close()
         return sum(int(t.shape[0]) for t in self._times)
+
+    def reserve(self, count: int, budget: int) -> None:
+        """Expect ``count`` messages: fixed-width rows then go straight into one buffer of
+        up to ``budget`` bytes (no per-chunk pieces to concatenate at the end)."""
+        self.hint, self.budget = max(int(count), 0), max(int(budget), 0)
+
+    def take_rows(self, buf: U8, starts: I64, width: int, log_time: I64) -> None:
+        """Add the messages ``buf[starts[i] : starts[i] + width]`` (bounds checked by the
+        caller: ``0 <= starts`` and ``starts + width <= len(buf)``), logged at ``log_time``.
+
+        With a :meth:`reserve` hint, rows are copied into one preallocated buffer;
+        otherwise (or once it is full or the width changes) each call is its own segment.
+        """
+        from uwval.io.fastdecode import rows_at, window
+
+        n = int(starts.shape[0])
+        if n == 0:
+            return
+        st = self._open
+        if st is not None and (st.shape[1] != width or self._fill + n > st.shape[0]):
+            self._close()
+            st = None
+        if st is None and not self._bufs and self.hint >= n and width > 0:
+            cap = min(self.hint, self.budget // width)
+            if cap >= n:
+                st = self._open = np.empty((cap, width), dtype=np.uint8)
+                self._fill = 0
+                self._open_times = []
+                empty = np.zeros(0, dtype=np.int64)
+                self._bufs.append(empty.view(np.uint8))  # placeholders until _close
+                self._offs.append(empty)
+                self._lens.append(empty)
+                self._times.append(empty)
+                self._tag.append(None)
+                self._width.append(width)
+        if st is None:
+            self.add_rows(rows_at(buf, starts, width), log_time)
+            return
+        if buf.shape[0] < width:
+            raise ValueError(f"topic {self.name}: a message reaches outside its chunk")
+        st[self._fill : self._fill + n] = window(buf, width)[starts]  # chunk-sized temporary
+        self._fill += n
+        self._open_times.append(log_time.astype(np.int64, copy=False))
+
+    def _close(self) -> None:
+        """Turn the preallocated buffer being filled into an ordinary segment."""
+        st = self._open
+        if st is None:
+            return
+        self._open = None
+        rows = st[: self._fill]
+        if self._fill < st.shape[0]:
+            rows = rows.copy()  # do not keep the unused capacity alive
+        self._bufs[-1] = rows.reshape(-1)
+        times = self._open_times
+        self._times[-1] = times[0] if len(times) == 1 else np.concatenate(times)
+        self._open_times = []
 
     def drop(self, cause: str, n: int) -> None:
         """Count ``n`` messages of this topic lost for ``cause``."""
@@ -163,6 +230,7 @@ class TopicBuilder:
         ``copy`` compacts them out of ``buf`` now (``False``: ``buf`` holds only them
         already); ``tag`` names the segment's source, for :meth:`drop_tagged`.
         """
+        self._close()
         offset = offset.astype(np.int64, copy=False)
         length = length.astype(np.int64, copy=False)
         if not offset.size:
@@ -182,14 +250,31 @@ class TopicBuilder:
         self._lens.append(length)
         self._times.append(log_time.astype(np.int64, copy=False))
         self._tag.append(tag)
+        self._width.append(0)
+
+    def add_rows(self, rows: U8, log_time: I64, *, tag: object = None) -> None:
+        """Add messages of one length: row i of the (N, width) ``rows`` (owned from now on;
+        a copy already made out of the chunk) is the payload logged at ``log_time[i]`` ns."""
+        self._close()
+        n, width = rows.shape
+        if not n:
+            return
+        empty = np.zeros(0, dtype=np.int64)
+        self._bufs.append(rows.reshape(-1))
+        self._offs.append(empty)
+        self._lens.append(empty)
+        self._times.append(log_time.astype(np.int64, copy=False))
+        self._tag.append(tag)
+        self._width.append(int(width))
 
     def drop_tagged(self, tag: object) -> int:
         """Forget the segments added with ``tag`` (a chunk whose index turned out damaged);
         returns how many messages were forgotten."""
+        self._close()
         n = 0
         while self._tag and self._tag[-1] is tag and tag is not None:
             n += int(self._times[-1].shape[0])
-            for lst in (self._bufs, self._offs, self._lens, self._times, self._tag):
+            for lst in (self._bufs, self._offs, self._lens, self._times, self._tag, self._width):
                 lst.pop()
         return n
 
@@ -218,18 +303,31 @@ class TopicBuilder:
         """One RawTopic: the segments' buffers concatenated, offsets rebased."""
         topic = RawTopic(self.name, self.msgtype, self.encoding, self.msgdef)
         topic.dropped = dict(self.dropped)
+        self._close()
         if not self._bufs:
             return topic
-        if len(self._bufs) == 1:
-            topic.buf, topic.offset = self._bufs[0], self._offs[0]
-        else:
-            bases = np.cumsum([0] + [b.shape[0] for b in self._bufs[:-1]])
-            topic.buf = np.concatenate(self._bufs)
-            topic.offset = np.concatenate(
-                [o + int(base) for o, base in zip(self._offs, bases, strict=True)]
-            )
-        topic.length = np.concatenate(self._lens)
-        topic.log_time = np.concatenate(self._times)
+        topic.buf = self._bufs[0] if len(self._bufs) == 1 else np.concatenate(self._bufs)
+        topic.log_time = self._times[0] if len(self._times) == 1 else np.concatenate(self._times)
+        n = int(topic.log_time.shape[0])
+        w = self._width[0]
+        if w > 0 and all(x == w for x in self._width):  # one width: no per-segment arrays
+            topic.offset = np.arange(n, dtype=np.int64) * w
+            topic.length = np.full(n, w, dtype=np.int64)
+            return topic
+        offs, lens = [], []
+        base = 0
+        for b, o, ln, t, wd in zip(
+            self._bufs, self._offs, self._lens, self._times, self._width, strict=True
+        ):
+            if wd > 0:
+                m = int(t.shape[0])
+                o = np.arange(m, dtype=np.int64) * wd
+                ln = np.full(m, wd, dtype=np.int64)
+            offs.append(o + base if base else o)
+            lens.append(ln)
+            base += int(b.shape[0])
+        topic.offset = offs[0] if len(offs) == 1 else np.concatenate(offs)
+        topic.length = lens[0] if len(lens) == 1 else np.concatenate(lens)
         return topic
 
 
