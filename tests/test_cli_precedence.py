@@ -84,3 +84,15 @@ def test_evo_flags_beat_the_project_files_align(shared_data: Path, tmp_path: Pat
     out = run_uwval("compare", gt, est, "--align_origin", "--json", cwd=tmp_path)
     assert out.returncode == 0, out.stderr  # was: "--align sim3 contradicts --align_origin"
     assert json.loads(out.stdout)["alignment"]["mode"] == "origin"
+
+
+def test_report_and_check_read_t_max_diff_as_compare_does() -> None:
+    """report/check take compare's options through one helper: a max diff given without a
+    sync method means evo's nearest association there too; an explicit --sync wins."""
+    from uwval.cli.report_cmd import _compare_opts
+
+    given = _compare_opts(None, None, None, None, None, 0.01, None, None, None)
+    assert given["sync"] == "nearest" and given["max_diff"] == 0.01
+    explicit = _compare_opts(None, None, None, None, "interp", 0.01, None, None, None)
+    assert explicit["sync"] == "interp"
+    assert "sync" not in _compare_opts(None, None, None, None, None, None, None, None, None)

@@ -24,6 +24,28 @@ err_console = Console(stderr=True)
 _RESULT_SUFFIXES = (".json", ".csv", ".parquet")
 
 
+#: Compare's options as ``report`` and ``check`` take them (one log, a pair, a saved result).
+FormatOpt = Annotated[
+    str | None, typer.Option("--format", help="Input format (tum, kitti, euroc...), as compare")
+]
+FrameOpt = Annotated[str | None, typer.Option(help="Convention of the second stream, as compare")]
+SyncOpt = Annotated[str | None, typer.Option(help="interp or nearest, as compare")]
+MaxDiffOpt = Annotated[
+    float | None,
+    typer.Option(
+        "--max-diff", "--t_max_diff", help="nearest: max dt (s); without --sync it means nearest"
+    ),
+]
+OffsetOpt = Annotated[
+    str | None, typer.Option("--offset", "--t_offset", help="Clock offset (s) or 'auto'")
+]
+AlignOpt = Annotated[str | None, typer.Option(help="none, se3, sim3, origin or scale, as compare")]
+ConfigOpt = Annotated[
+    Path | None,
+    typer.Option(help="Project file: pairs, frames, thresholds (default: ./uwval.toml)"),
+]
+
+
 def _compare_opts(
     gazebo_topic: str | None,
     unity_topic: str | None,
@@ -51,6 +73,8 @@ def _compare_opts(
         "align": align,
     }
     opts = merged_options({k: v for k, v in given.items() if v is not None}, project)
+    if max_diff is not None and "sync" not in opts:  # as compare: evo's association
+        opts["sync"] = "nearest"
     opts.pop("pose_relation", None)  # compare's printout only: not part of the results
     if "offset" in opts:
         opts["offset"] = _parse_offset(str(opts["offset"]))
@@ -166,26 +190,13 @@ def report(
             "--results", help="Also save the results table here (.csv/.json/.parquet or a dir)."
         ),
     ] = None,
-    fmt: Annotated[
-        str | None, typer.Option("--format", help="Input format (tum, kitti, euroc...), as compare")
-    ] = None,
-    frame: Annotated[
-        str | None, typer.Option(help="Convention of the second stream, as compare")
-    ] = None,
-    sync: Annotated[str | None, typer.Option(help="interp or nearest, as compare")] = None,
-    max_diff: Annotated[
-        float | None, typer.Option("--max-diff", "--t_max_diff", help="nearest: max dt (s)")
-    ] = None,
-    offset: Annotated[
-        str | None, typer.Option("--offset", "--t_offset", help="Clock offset (s) or 'auto'")
-    ] = None,
-    align: Annotated[
-        str | None, typer.Option(help="none, se3, sim3, origin or scale, as compare")
-    ] = None,
-    config: Annotated[
-        Path | None,
-        typer.Option(help="Project file: pairs, frames, thresholds (default: ./uwval.toml)"),
-    ] = None,
+    fmt: FormatOpt = None,
+    frame: FrameOpt = None,
+    sync: SyncOpt = None,
+    max_diff: MaxDiffOpt = None,
+    offset: OffsetOpt = None,
+    align: AlignOpt = None,
+    config: ConfigOpt = None,
 ) -> None:
     """Write a self-contained HTML report (and optionally a PDF) of pose correspondence.
 
@@ -298,26 +309,13 @@ def check(
     ] = None,
     gazebo_topic: Annotated[str | None, typer.Option(help="Reference topic (one log).")] = None,
     unity_topic: Annotated[str | None, typer.Option(help="Unity topic (one log).")] = None,
-    fmt: Annotated[
-        str | None, typer.Option("--format", help="Input format (tum, kitti, euroc...), as compare")
-    ] = None,
-    frame: Annotated[
-        str | None, typer.Option(help="Convention of the second stream, as compare")
-    ] = None,
-    sync: Annotated[str | None, typer.Option(help="interp or nearest, as compare")] = None,
-    max_diff: Annotated[
-        float | None, typer.Option("--max-diff", "--t_max_diff", help="nearest: max dt (s)")
-    ] = None,
-    offset: Annotated[
-        str | None, typer.Option("--offset", "--t_offset", help="Clock offset (s) or 'auto'")
-    ] = None,
-    align: Annotated[
-        str | None, typer.Option(help="none, se3, sim3, origin or scale, as compare")
-    ] = None,
-    config: Annotated[
-        Path | None,
-        typer.Option(help="Project file: pairs, frames, thresholds (default: ./uwval.toml)"),
-    ] = None,
+    fmt: FormatOpt = None,
+    frame: FrameOpt = None,
+    sync: SyncOpt = None,
+    max_diff: MaxDiffOpt = None,
+    offset: OffsetOpt = None,
+    align: AlignOpt = None,
+    config: ConfigOpt = None,
 ) -> None:
     """CI gate: exit 1 and list what regressed when a threshold or the baseline is broken.
 
