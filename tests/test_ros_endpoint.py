@@ -574,6 +574,8 @@ def test_simulate_endpoint_into_uwval_serve_bit_exact(tmp_path: Path) -> None:
         t_ns, p, q, fid = wire.decode_pose_stamped(body, "ROS2")
         got.append([str(t_ns), fid] + [float(v).hex() for v in (*p, *q)])
     assert got == _mcap_poses(log)["/gazebo/model_rov_pose"]
+    # written as every simulate log: under a staging name, renamed when complete
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.mcap"]
 
 
 def test_compare_uses_the_recorded_clock_of_a_monotonic_unity_log(tmp_path: Path) -> None:

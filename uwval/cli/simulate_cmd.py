@@ -483,6 +483,7 @@ def _publish_to_endpoint(
     from uwval.bridge.unity_client import UnityClient
     from uwval.cli.pipeline import _ticks_of
     from uwval.io import open_writer
+    from uwval.io.atomic import atomic_output
     from uwval.simulator import SimulationStream
 
     host, port = parse_endpoint(endpoint)
@@ -504,11 +505,20 @@ def _publish_to_endpoint(
     applied = 0
     t0 = time.perf_counter()
     try:
-        with open_writer(
-            output,
-            format=log_format,
-            metadata={"run": spec.name, "endpoint": f"{host}:{port}", "topics": json.dumps(topics)},
-        ) as raw_writer:
+        # as every simulate log: a temporary name renamed when complete, a failed run kept as
+        # <stem>.partial<suffix>, a second writer of the same target refused
+        with (
+            atomic_output(output) as tmp,
+            open_writer(
+                tmp,
+                format=log_format,
+                metadata={
+                    "run": spec.name,
+                    "endpoint": f"{host}:{port}",
+                    "topics": json.dumps(topics),
+                },
+            ) as raw_writer,
+        ):
             writer = _LockedWriter(raw_writer)
             thread = None
             stop = threading.Event()
