@@ -146,7 +146,7 @@ def compare_logs(
     fmt: str | None = None,
     frame: str | None = None,
     pairs: Sequence[Any] | None = None,
-    recorded_clock: bool = True,
+    recorded_clock: bool | None = None,
     **options: Any,
 ) -> LogComparison:
     """Compare the Gazebo (reference) and Unity streams of one log, or of two files.
@@ -159,9 +159,9 @@ def compare_logs(
     to :func:`compare`. ``pairs`` (a project file's :class:`uwval.config.TopicPair` list:
     ``name``, ``reference``, ``other``, ``frame``) names the pairs of one log to compare when
     no topic is given; with two logs the first pair's topics are read; a ``frame`` given
-    here wins over a pair's. ``recorded_clock``: when no offset is given, put a Unity side
-    stamped on the monotonic clock on the epoch clock with the log's ``uwval.clock``
-    metadata (only when the two streams do not overlap in time).
+    here wins over a pair's. ``recorded_clock``: put a Unity side stamped on the monotonic
+    clock on the epoch clock with the log's ``uwval.clock`` metadata, when the two streams do
+    not overlap in time (default: when ``options`` give no ``offset``).
     """
     results: dict[str, ComparisonResult] = {}
     if path_b is None:
@@ -193,6 +193,8 @@ def compare_logs(
             ]
             if not pairs_l:
                 raise LogReadError(no_pair_message(path_a))
+        if recorded_clock is None:
+            recorded_clock = "offset" not in options
         clock_offset = _recorded_clock_offset(path_a) if recorded_clock else None
         for name, g, u in pairs_l:
             ref, oth = streams[g], streams[u]
@@ -202,7 +204,6 @@ def compare_logs(
             pair_options, note = options, None
             if (
                 clock_offset is not None
-                and options.get("offset", 0.0) in (0, 0.0, None)
                 and len(ref)
                 and len(oth)
                 and (oth.t[0] > ref.t[-1] or oth.t[-1] < ref.t[0])  # two clocks, no overlap
