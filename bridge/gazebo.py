@@ -176,6 +176,23 @@ class EndpointPublisher:
         self.connection.close()
 
 
+def paced(ticks: Iterable[Tick], speed: float, start_ns: int | None = None) -> Iterator[Tick]:
+    """Yield ``ticks`` at their wall-clock due times: tick ``t`` at ``start_ns + (t -
+    t_first) / speed`` on the ``time.monotonic_ns()`` clock (default start: now). ``speed``
+    0 or infinite: as fast as possible."""
+    fast = speed == 0 or speed == float("inf")
+    start = time.monotonic_ns() if start_ns is None else start_ns
+    t_first: int | None = None
+    for tick in ticks:
+        if t_first is None:
+            t_first = tick[0]
+        if not fast:
+            lag = ((tick[0] - t_first) / speed - (time.monotonic_ns() - start)) * 1e-9
+            if lag > 0:
+                time.sleep(lag)
+        yield tick
+
+
 def publish_ticks_realtime(
     ticks: Iterable[Tick],
     publisher: EndpointPublisher | GazeboPublisher,
@@ -201,15 +218,8 @@ def publish_ticks_realtime(
             service()
         time.sleep(min(0.01, max(0.0, (start - time.monotonic_ns()) * 1e-9)))
     sent = 0
-    t_first: int | None = None
-    for tick in ticks:
+    for tick in paced(ticks, speed, start):
         t_ns, poses = tick
-        if t_first is None:
-            t_first = t_ns
-        if speed > 0:
-            lag = ((t_ns - t_first) / speed - (time.monotonic_ns() - start)) * 1e-9
-            if lag > 0:
-                time.sleep(lag)
         publisher.publish_tick(tick)
         sent += 1
         if writer is not None:

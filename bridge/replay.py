@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from uwval.bridge.errors import BridgeError
-from uwval.bridge.gazebo import GazeboPublisher, Tick, ticks_from_streams
+from uwval.bridge.gazebo import GazeboPublisher, Tick, paced, ticks_from_streams
 from uwval.bridge.server import BridgeServer
 from uwval.io import read_stream
 
@@ -97,21 +97,13 @@ def replay_log(
     if wait_for_subscriber_s is not None:
         server.wait_for_subscribers(names[0], 1, timeout=wait_for_subscriber_s)
     stats = ReplayStats(log_duration_s=(ticks[-1][0] - ticks[0][0]) * 1e-9)
-    fast = speed == 0 or speed == float("inf")
     wall0 = time.perf_counter()
     n_pass = 0
     while loops == 0 or n_pass < loops:
-        t_first = ticks[0][0]
-        pass_start = time.perf_counter()
-        for k, tick in enumerate(ticks):
+        for k, tick in enumerate(paced(ticks, speed)):
             if should_stop is not None and should_stop():
                 stats.wall_time_s = time.perf_counter() - wall0
                 return stats
-            if not fast:
-                due = pass_start + (tick[0] - t_first) * 1e-9 / speed
-                delay = due - time.perf_counter()
-                if delay > 0:
-                    time.sleep(delay)
             reached = publisher.publish_tick(tick)
             stats.ticks += 1
             stats.published += len(reached)
