@@ -484,11 +484,16 @@ def test_protocol_auto_follows_the_handshake() -> None:
             conn.close()
 
 
-def test_bridge_unity_against_uwval_serve_records_both_sides(tmp_path: Path) -> None:
-    """CLI: host and port, ROS2 from the handshake, an absolute topic: the Gazebo-side poses
-    received are recorded bit-exact under their own name, the Unity side under /unity/."""
-    import numpy as np
-
+def _record_from_uwval_serve(
+    tmp_path: Path,
+    pose_at: Any,
+    n: int,
+    duration: str,
+) -> tuple[subprocess.CompletedProcess[str], Path, list[list[str]]]:
+    """``uwval bridge unity --clock monotonic`` recording from uwval's own ROS2 server, which
+    publishes ``n`` poses ``pose_at(k) -> (t_ns, position, quaternion)`` on
+    /gazebo/model_rov_pose every 20 ms once the client subscribed. Returns the CLI result,
+    the log and what was sent ([stamp, frame_id, 7 hex doubles] per pose)."""
     from uwval.bridge import protocol as wire
     from uwval.bridge.server import BridgeServer
 
@@ -500,12 +505,9 @@ def test_bridge_unity_against_uwval_serve_records_both_sides(tmp_path: Path) -> 
 
         def publish() -> None:
             srv.wait_for_subscribers(topic, timeout=30)
-            rng = np.random.default_rng(7)
             k = 0
-            while not stop.is_set() and k < 40:
-                t_ns = 1_795_000_000_000_000_000 + k * 20_000_000  # epoch-like stamps
-                p, q = rng.normal(size=3), rng.normal(size=4)
-                q /= np.linalg.norm(q)
+            while not stop.is_set() and k < n:
+                t_ns, p, q = pose_at(k)
                 srv.publish(topic, wire.encode_pose_stamped(t_ns, p, q, "world", "ROS2"))
                 sent.append([str(t_ns), "world"] + [float(v).hex() for v in (*p, *q)])
                 k += 1
@@ -515,11 +517,27 @@ def test_bridge_unity_against_uwval_serve_records_both_sides(tmp_path: Path) -> 
         t.start()
         log = tmp_path / "u.mcap"
         res = run_uwval(
-            "bridge", "unity", "--port", srv.port, "--gazebo-topic", topic, "--duration", "2",
-            "--clock", "monotonic", "-o", log, timeout=60,
+            "bridge", "unity", "--port", srv.port, "--gazebo-topic", topic, "--duration",
+            duration, "--clock", "monotonic", "-o", log, timeout=60,
         )  # fmt: skip
         stop.set()
         t.join(5)
+    return res, log, sent
+
+
+def test_bridge_unity_against_uwval_serve_records_both_sides(tmp_path: Path) -> None:
+    """CLI: host and port, ROS2 from the handshake, an absolute topic: the Gazebo-side poses
+    received are recorded bit-exact under their own name, the Unity side under /unity/."""
+    import numpy as np
+
+    rng = np.random.default_rng(7)
+
+    def pose_at(k: int) -> tuple[int, Any, Any]:
+        q = rng.normal(size=4)
+        return 1_795_000_000_000_000_000 + k * 20_000_000, rng.normal(size=3), q / np.linalg.norm(q)
+
+    topic = "/gazebo/model_rov_pose"
+    res, log, sent = _record_from_uwval_serve(tmp_path, pose_at, 40, "2")
     assert res.returncode == 0, res.stderr
     assert "(ROS2)" in " ".join(res.stderr.split())
     poses = _mcap_poses(log)
@@ -585,34 +603,12 @@ def test_compare_uses_the_recorded_clock_of_a_monotonic_unity_log(tmp_path: Path
     latency from the applied stamps is then the real few milliseconds, not 1.8e9 s."""
     import numpy as np
 
-    from uwval.bridge import protocol as wire
-    from uwval.bridge.server import BridgeServer
+    def pose_at(k: int) -> tuple[int, Any, Any]:
+        p = np.array([0.01 * k, np.sin(0.1 * k), 0.0])
+        q = np.array([0.0, 0.0, np.sin(0.01 * k), np.cos(0.01 * k)])
+        return time.time_ns(), p, q
 
-    topic = "/gazebo/model_rov_pose"
-    with BridgeServer("127.0.0.1", 0, protocol="ROS2") as srv:
-        srv.advertise(topic, wire.POSE_STAMPED)
-        stop = threading.Event()
-
-        def publish() -> None:
-            srv.wait_for_subscribers(topic, timeout=30)
-            k = 0
-            while not stop.is_set() and k < 100:
-                p = np.array([0.01 * k, np.sin(0.1 * k), 0.0])
-                q = np.array([0.0, 0.0, np.sin(0.01 * k), np.cos(0.01 * k)])
-                body = wire.encode_pose_stamped(time.time_ns(), p, q, "world", "ROS2")
-                srv.publish(topic, body)
-                k += 1
-                time.sleep(0.02)
-
-        t = threading.Thread(target=publish, daemon=True)
-        t.start()
-        log = tmp_path / "u.mcap"
-        res = run_uwval(
-            "bridge", "unity", "--port", srv.port, "--gazebo-topic", topic, "--duration", "2.5",
-            "--clock", "monotonic", "-o", log, timeout=60,
-        )  # fmt: skip
-        stop.set()
-        t.join(5)
+    res, log, _ = _record_from_uwval_serve(tmp_path, pose_at, 100, "2.5")
     assert res.returncode == 0, res.stderr
     out = run_uwval("compare", log, "--json")
     assert out.returncode == 0, out.stderr
