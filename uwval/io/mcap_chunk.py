@@ -6,6 +6,7 @@ string or a :class:`ValueError`, never a wrong offset.
 
 from __future__ import annotations
 
+import itertools
 import struct
 from dataclasses import dataclass, field
 from typing import Any
@@ -205,8 +206,22 @@ def walk_records(data: Buffer, start: int, end: int) -> WalkResult:
     return out
 
 
+def unaligned(buf: NDArray[np.uint8], dtype: str) -> NDArray[Any]:
+    """A read-only view of ``buf`` whose element i is the ``dtype`` value starting at byte i
+    (so ``view[offsets]`` gathers fields of records at arbitrary, unaligned offsets)."""
+    itemsize = np.dtype(dtype).itemsize
+    n = max(int(buf.shape[0]) - itemsize + 1, 0)
+    view: NDArray[Any] = np.ndarray((n,), dtype=dtype, buffer=buf, strides=(1,))
+    view.flags.writeable = False
+    return view
+
+
 def check_index(
-    buf: NDArray[np.uint8], ents: dict[int, NDArray[np.uint64]]
+    buf: NDArray[np.uint8],
+    ents: dict[int, NDArray[np.uint64]],
+    *,
+    limit: NDArray[np.int64] | None = None,
+    cuts: NDArray[np.int64] | None = None,
 ) -> tuple[str, WalkResult]:
     """Check a chunk's MessageIndex against its decompressed records.
 
@@ -218,9 +233,13 @@ def check_index(
 
     All channels' entries are checked together (one gather of the 23-byte record heads per
     chunk, not one per channel: a chunk of an interleaved log holds every topic).
-    """
-    from uwval.io.fastdecode import rows_at
 
+    Several chunks can be checked at once (:mod:`uwval.io.mcap_raw` batches them: the per-call
+    cost, not the bytes, dominates small chunks): ``buf`` is then their records end to end,
+    the entries' offsets are into ``buf``, ``limit`` is each entry's own chunk end in ``buf``
+    (in ``ents``' order, channel by channel) and ``cuts`` the chunk boundaries: no record may
+    cross one, and the bytes between indexed records are walked chunk by chunk.
+    """
     size = int(buf.shape[0])
     gaps = WalkResult()
     items = [(cid, e) for cid, e in ents.items() if len(e)]
@@ -236,15 +255,19 @@ def check_index(
         return items[k][0]
 
     rec_u = allE[:, 1]
-    out = rec_u > np.uint64(size - 31) if size >= 31 else np.ones(len(rec_u), dtype=bool)
+    if limit is None:
+        out = rec_u > np.uint64(size - 31) if size >= 31 else np.ones(len(rec_u), dtype=bool)
+    else:
+        out = (limit < 31) | (rec_u > (np.maximum(limit, 31) - 31).astype(np.uint64))
     if out.any():
         return f"channel {first(out)}: an entry points outside the chunk", gaps
     rec = rec_u.astype(np.int64)
-    head = rows_at(buf, rec, 23)
-    op = head[:, 0]
-    rl = head[:, 1:9].copy().view("<u8").reshape(-1)
-    ch = head[:, 9:11].copy().view("<u2").reshape(-1)
-    lt = head[:, 15:23].copy().view("<u8").reshape(-1)
+    # the record heads' fields, each one gather through an unaligned view (rec + 23 <= size)
+    u64 = unaligned(buf, "<u8")
+    op = buf[rec]
+    rl = u64[rec + 1]
+    ch = unaligned(buf, "<u2")[rec + 9]
+    lt = u64[rec + 15]
     cid_of = np.repeat(np.array([c for c, _ in items], dtype=np.int64), counts)
     checks = (
         (op != OP_MESSAGE, "an entry does not point at a Message record"),
@@ -260,7 +283,7 @@ def check_index(
         return f"channel {items[k][0]}: {what}", gaps
     rl64 = rl.astype(np.int64)
     stop = rec + 9 + rl64
-    past = stop > size
+    past = stop > (size if limit is None else limit)
     if past.any():
         return f"channel {first(past)}: a Message record runs past the chunk", gaps
     for k, (cid, _e) in enumerate(items):
@@ -271,6 +294,8 @@ def check_index(
         return "indexed records overlap", gaps
     holes = np.flatnonzero(s[1:] > t[:-1])
     spans = [(0, int(s[0]))] + [(int(t[i]), int(s[i + 1])) for i in holes] + [(int(t[-1]), size)]
+    if cuts is not None and cuts.size:
+        spans = _split_spans(spans, cuts)
     for a, b in spans:
         if a == b:
             continue
@@ -282,3 +307,14 @@ def check_index(
             return f"{n} message(s) at bytes {a}..{b} are missing from the index", gaps
         gaps.tables.extend(w.tables)
     return "", gaps
+
+
+def _split_spans(spans: list[tuple[int, int]], cuts: NDArray[np.int64]) -> list[tuple[int, int]]:
+    """``spans`` (sorted byte ranges) split at the chunk boundaries ``cuts`` (sorted) inside
+    them: records are walked chunk by chunk, never across a boundary."""
+    out: list[tuple[int, int]] = []
+    for a, b in spans:
+        inner = cuts[(cuts > a) & (cuts < b)] if b - a > 0 else cuts[:0]
+        edges = [a, *(int(x) for x in inner), b]
+        out.extend(itertools.pairwise(edges))
+    return out

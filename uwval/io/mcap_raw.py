@@ -21,14 +21,15 @@ from __future__ import annotations
 import contextlib
 import mmap
 import struct
-import zlib
 from collections.abc import Iterable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from uwval.errors import LogReadError
+from uwval.io.crc import crc32
 from uwval.io.mcap_chunk import (
     MAGIC,
     OP_CHANNEL,
@@ -45,6 +46,7 @@ from uwval.io.mcap_chunk import (
     U32,
     U64,
     Buffer,
+    ChunkHeader,
     Tables,
     WalkResult,
     check_index,
@@ -65,6 +67,14 @@ from uwval.io.raw import (
 )
 
 _MSG = struct.Struct("<HIQQ")
+#: decompressed bytes of chunks read together (see ``_Scanner.queue``): a few MB keeps the
+#: per-chunk numpy calls off small chunks while the batch buffers stay small (cache-sized)
+BATCH_BYTES = 2 << 20
+#: a queued chunk: (record start, content start, length, index locations, entries, where
+#: its records go in the batch buffer (lo, hi), the job decompressing them there)
+_Queued = tuple[
+    int, int, int, dict[int, tuple[int, int]], "dict[int, np.ndarray]", int, int, "Future[bool]"
+]
 
 
 @dataclass
@@ -93,7 +103,7 @@ def _read_summary(mm: Buffer, size: int, path: Path, warns: list[str]) -> _Summa
             "read without the summary"
         )
         return None
-    if crc and zlib.crc32(mm[summary_start : size - 8 - 4]) != crc:
+    if crc and crc32(mm[summary_start : size - 8 - 4]) != crc:
         warns.append(
             f"{path}: the summary section (byte {summary_start}) fails its CRC check; "
             "read without it"
@@ -145,7 +155,12 @@ def scan_mcap(path: Path, topics: Iterable[str] | None, *, times_only: bool = Fa
     try:
         if mm[:8] != MAGIC:
             raise LogReadError(f"{path}: not an MCAP file (bad magic bytes at offset 0)")
-        return _Scanner(path, mm, size, topics, times_only).run()
+        scanner = _Scanner(path, mm, size, topics, times_only)
+        try:
+            return scanner.run()
+        finally:
+            if scanner.pool is not None:  # no job may read the map once it is closed
+                scanner.pool.shutdown(wait=True, cancel_futures=True)
     finally:
         # Payloads are compacted copies, so the map can go.
         with contextlib.suppress(BufferError):  # a numpy view may still reference it
@@ -172,6 +187,16 @@ class _Scanner:
         self.lost = 0
         self.released = 0  # file map pages below this offset were dropped from RSS
         self.cut_detail = ""
+        #: complete chunks waiting to be read together, being decompressed into ``mem``
+        #: (``fill`` bytes used), and the full batch before them (in ``sealed_mem``), read
+        #: when this one is full; ``spare`` is the buffer of the batch read last
+        self.batch: list[_Queued] = []
+        self.sealed: list[_Queued] = []
+        empty = np.empty(0, dtype=np.uint8)
+        self.mem, self.sealed_mem = empty, empty
+        self.spare: np.ndarray | None = None
+        self.fill = 0
+        self.pool: ThreadPoolExecutor | None = None
 
     def builder(self, cid: int) -> TopicBuilder | None:
         """The builder of channel ``cid`` when its topic is wanted (``None`` otherwise)."""
@@ -206,9 +231,12 @@ class _Scanner:
             op, ln = REC.unpack_from(mm, pos)
             c = pos + 9
             if op != OP_MESSAGE_INDEX and pending is not None:
-                self.chunk(*pending, indexes)
+                self.queue(*pending, indexes)
                 pending, indexes = None, {}
-                self.released = release_pages(mm, self.released, pos)
+                if not self.batch and not self.sealed:
+                    self.released = release_pages(mm, self.released, pos)
+            if op not in (OP_CHUNK, OP_MESSAGE_INDEX) and (self.batch or self.sealed):
+                self.flush()  # records between chunks apply in file order
             if op == OP_CHUNK and c + ln > size and self.summary is None:
                 self.partial_chunk(pos, c)
                 self.lost = size - pos
@@ -244,7 +272,8 @@ class _Scanner:
                 break
             pos = c + ln
         if pending is not None:
-            self.chunk(*pending, indexes)
+            self.queue(*pending, indexes)
+        self.flush()
         return self.result()
 
     def resync(self, pos: int) -> int | None:
@@ -303,40 +332,156 @@ class _Scanner:
         total = sum(len(e) for e in ents.values())
         return f"{total} message(s) dropped" + (f" ({', '.join(parts)})" if parts else "")
 
+    def queue(self, rec: int, c: int, ln: int, indexes: dict[int, tuple[int, int]]) -> None:
+        """Take one complete Chunk record (and its MessageIndex records): chunks whose index
+        and header look usable are batched (:meth:`_seal`), any other is read alone by
+        :meth:`chunk`.
+
+        A batched chunk is decompressed straight into the batch's buffer and CRC-checked on
+        the inflate thread (zstd and the CRC release the GIL), while this thread reads the
+        batch before it: a batch is read when the next one is full, so the two overlap.
+        """
+        ents = self._entries(indexes)
+        if self._skip(ents):
+            return
+        hdr = None
+        if ents and any(len(e) for e in ents.values()):
+            try:
+                hdr = parse_chunk_header(self.mm, c, c + ln)
+            except ValueError:
+                hdr = None
+        if hdr is None or hdr.compression not in ("zstd", "lz4", ""):
+            self.flush()
+            self.chunk(rec, c, ln, indexes)
+            return
+        assert ents is not None
+        u = hdr.usize
+        if self.batch and self.fill + u > self.mem.shape[0]:
+            self._seal()
+        if not self.batch:
+            self.mem, self.fill = self._buffer(u), 0
+        lo, hi = self.fill, self.fill + u
+        self.fill = hi
+        if self.pool is None:
+            self.pool = ThreadPoolExecutor(1, thread_name_prefix="uwval-mcap-inflate")
+        job = self.pool.submit(self._inflate_into, hdr, self.mem[lo:hi])
+        self.batch.append((rec, c, ln, indexes, ents, lo, hi, job))
+        if self.fill >= BATCH_BYTES:
+            self._seal()
+
+    def _buffer(self, need: int) -> np.ndarray:
+        """A batch buffer of at least ``need`` bytes: the one of the batch read last (free
+        again: whatever is kept of a batch is copied out of it) or a new one (fresh pages
+        fault in on first touch, a cost per byte as large as decompressing)."""
+        spare, self.spare = self.spare, None
+        if spare is not None and spare.shape[0] >= need:
+            return spare
+        return np.empty(max(2 * BATCH_BYTES, need), dtype=np.uint8)
+
+    def _seal(self) -> None:
+        """The batch being filled is complete: read the one before it (its chunks are
+        decompressed by now), and keep this one decompressing meanwhile."""
+        sealed, mem = self.sealed, self.sealed_mem
+        self.sealed, self.sealed_mem = self.batch, self.mem
+        self.batch, self.fill = [], 0
+        self._read_items(sealed, mem)
+        self.spare = mem
+
+    def _inflate_into(self, hdr: ChunkHeader, dest: np.ndarray) -> bool:
+        """Decompress a chunk's records into ``dest`` (exactly its declared size) and check
+        its CRC (runs on the inflate thread). False when anything is off: the chunk is then
+        read alone by :meth:`chunk`, which says what is wrong."""
+        try:
+            with memoryview(self.mm)[hdr.data_at : hdr.data_at + hdr.data_len] as src:
+                if hdr.compression == "zstd":
+                    import zstandard
+
+                    out = dest.data  # a memoryview of the (contiguous) slice
+                    got = 0
+                    with zstandard.ZstdDecompressor().stream_reader(src) as reader:
+                        while got < len(out):
+                            n = reader.readinto(out[got:])
+                            if not n:
+                                break
+                            got += n
+                        if got != len(out) or reader.read(1):
+                            return False  # shorter or longer than its header says
+                elif hdr.compression == "lz4":
+                    import lz4.frame
+
+                    data = lz4.frame.decompress(src)
+                    if len(data) != dest.shape[0]:
+                        return False
+                    dest[:] = np.frombuffer(data, dtype=np.uint8)
+                else:
+                    if len(src) != dest.shape[0]:
+                        return False
+                    dest[:] = np.frombuffer(src, dtype=np.uint8)
+            return not hdr.crc or crc32(dest) == hdr.crc
+        except Exception:  # damaged input in any form: the lone read reports it
+            return False
+
+    def _skip(self, ents: dict[int, np.ndarray] | None) -> bool:
+        """Whether a chunk holds no wanted channel (known from the summary): its messages
+        are then counted from its index, and the chunk is not decompressed."""
+        if self.summary is None or not ents:
+            return False
+        if not all(cid in self.tables.channels for cid in ents):
+            return False
+        if any(self.builder(cid) is not None for cid in ents):
+            return False
+        for cid, e in ents.items():
+            self.tables.seen(cid, e[:, 0].astype(np.int64))
+        return True
+
     def chunk(self, rec: int, c: int, ln: int, indexes: dict[int, tuple[int, int]]) -> None:
         """Read one complete Chunk record (and its MessageIndex records) into the builders."""
         ents = self._entries(indexes)
-        where = f"{self.path}: MCAP chunk at byte {rec}"
-        if self.summary is not None and ents:
-            known = all(cid in self.tables.channels for cid in ents)
-            if known and not any(self.builder(cid) is not None for cid in ents):
-                for cid, e in ents.items():  # nothing wanted here: count from the index
-                    self.tables.seen(cid, e[:, 0].astype(np.int64))
-                return
+        if self._skip(ents):
+            return
+        data = self._inflate(c, ln)
+        if isinstance(data, tuple):
+            self._fail(rec, ents, *data)
+            return
+        self._records(rec, np.frombuffer(data, dtype=np.uint8), ents, indexes)
+
+    def _inflate(self, c: int, ln: int) -> bytes | tuple[str, str]:
+        """A chunk's records, decompressed and CRC-checked; or (what is wrong, drop cause)."""
         try:
             hdr = parse_chunk_header(self.mm, c, c + ln)
         except ValueError as exc:
-            self.warnings.append(
-                f"{where}: damaged chunk header ({exc}); {self._drop(ents, 'damaged_chunk')}"
-            )
-            return
+            return f"damaged chunk header ({exc})", "damaged_chunk"
         try:
             data = decompress(hdr.compression, self.mm, hdr.data_at, hdr.data_len, hdr.usize)
         except LogReadError as exc:
-            self.warnings.append(f"{where}: {exc}; {self._drop(ents, 'damaged_chunk')}")
-            return
+            return str(exc), "damaged_chunk"
         if len(data) != hdr.usize:
-            self.warnings.append(
-                f"{where}: decompresses to {len(data)} bytes, its header says {hdr.usize}; "
-                + self._drop(ents, "damaged_chunk")
+            return (
+                f"decompresses to {len(data)} bytes, its header says {hdr.usize}",
+                "damaged_chunk",
             )
-            return
-        if hdr.crc and zlib.crc32(data) != hdr.crc:
-            self.warnings.append(
-                f"{where} fails its CRC check; " + self._drop(ents, "crc_mismatch")
-            )
-            return
-        buf = np.frombuffer(data, dtype=np.uint8)
+        if hdr.crc and crc32(data) != hdr.crc:
+            return "fails its CRC check", "crc_mismatch"
+        return data
+
+    def _fail(self, rec: int, ents: dict[int, np.ndarray] | None, what: str, cause: str) -> None:
+        """Warn that the chunk at ``rec`` could not be read; count its messages dropped."""
+        sep = " " if what == "fails its CRC check" else ": "
+        self.warnings.append(
+            f"{self.path}: MCAP chunk at byte {rec}{sep}{what}; {self._drop(ents, cause)}"
+        )
+
+    def _records(
+        self,
+        rec: int,
+        buf: np.ndarray,
+        ents: dict[int, np.ndarray] | None,
+        indexes: dict[int, tuple[int, int]],
+    ) -> None:
+        """Add one decompressed chunk's wanted messages (its records are ``buf``, uint8):
+        located by its index when that checks out against the records, else by walking the
+        records (with a warning)."""
+        where = f"{self.path}: MCAP chunk at byte {rec}"
         if ents:
             reason, gaps = check_index(buf, ents)
             if not reason:
@@ -353,13 +498,86 @@ class _Scanner:
                 f"{where}: its MessageIndex records are malformed; "
                 "read the chunk by walking its records instead"
             )
-        walk = walk_records(data, 0, len(data))
+        size = int(buf.shape[0])
+        walk = walk_records(buf, 0, size)
         self._from_walk(buf, walk, rec)
-        if walk.stop < len(data):
+        if walk.stop < size:
             self.warnings.append(
                 f"{where}: record at byte {walk.stop} of the decompressed chunk is damaged "
-                f"({walk.reason}); the chunk's last {len(data) - walk.stop} bytes were not read"
+                f"({walk.reason}); the chunk's last {size - walk.stop} bytes were not read"
             )
+
+    def flush(self) -> None:
+        """Read every queued chunk now, in file order (a record that follows them, or the
+        end of the file, must see them read)."""
+        sealed, smem, batch, bmem = self.sealed, self.sealed_mem, self.batch, self.mem
+        self.sealed, self.batch, self.fill = [], [], 0
+        self._read_items(sealed, smem)
+        self._read_items(batch, bmem)
+
+    def _read_items(self, items: list[_Queued], mem: np.ndarray) -> None:
+        """Read queued chunks (decompressed into ``mem``), in file order.
+
+        The ones that decompressed and passed their CRC are checked and copied from
+        together (one index check and one row gather per channel for the whole run of them,
+        not per chunk). A chunk that did not is read alone by :meth:`chunk` (which reports
+        what is wrong), after the chunks before it.
+        """
+        run: list[_Queued] = []
+        for item in items:
+            if item[-1].result():
+                run.append(item)
+                continue
+            self._read_run(run, mem)
+            run = []
+            self.chunk(*item[:4])
+        self._read_run(run, mem)
+        if items:
+            _rec, last_c, last_ln = items[-1][:3]
+            self.released = release_pages(self.mm, self.released, last_c + last_ln)
+
+    def _read_run(self, run: list[_Queued], mem: np.ndarray) -> None:
+        """Add the wanted messages of chunks lying end to end in ``mem``, checking their
+        indexes together; when anything in them is off, each chunk is read (and reported)
+        on its own instead."""
+        if not run:
+            return
+        base = run[0][5]
+        buf = mem[base : run[-1][6]]
+        if len(run) == 1:
+            rec, _c, _ln, indexes, ents, _lo, _hi, _job = run[0]
+            self._records(rec, buf, ents, indexes)
+            return
+        ends = np.array([hi - base for *_, hi, _job in run], dtype=np.int64)
+        bases = np.array([lo - base for *_, lo, _hi, _job in run], dtype=np.int64)
+        per: dict[int, tuple[list[np.ndarray], list[int]]] = {}
+        for k, item in enumerate(run):
+            for cid, e in item[4].items():
+                arrs, ks = per.setdefault(cid, ([], []))
+                arrs.append(e)
+                ks.append(k)
+        joined: dict[int, np.ndarray] = {}
+        limits = []
+        for cid, (arrs, ks) in per.items():
+            counts = np.array([len(e) for e in arrs], dtype=np.int64)
+            e = np.concatenate(arrs)
+            e[:, 1] += np.repeat(bases[ks], counts).astype(np.uint64)
+            joined[cid] = e
+            limits.append(np.repeat(ends[ks], counts))
+        reason, gaps = check_index(buf, joined, limit=np.concatenate(limits), cuts=ends[:-1])
+        first_end = int(ends[0])
+        known = set(self.tables.channels), set(self.tables.schemas)
+        # Schema/Channel records past the first chunk could name a channel that earlier
+        # chunks of the run use: read chunk by chunk then, as a lone chunk would be read.
+        late = any(a >= first_end and not _known(op, buf, a, *known) for op, a, _ in gaps.tables)
+        if reason or late:
+            for rec, _c, _ln, indexes, ents, lo, hi, _job in run:
+                self._records(rec, mem[lo:hi], ents, indexes)
+            return
+        for op, a, b in gaps.tables:
+            k = int(np.searchsorted(ends, a, side="right"))
+            self.record_table(op, buf, a, b, run[k][0])
+        self._from_index(buf, joined, gaps.record_lengths)
 
     def _from_index(
         self, buf: np.ndarray, ents: dict[int, np.ndarray], rlens: dict[int, np.ndarray]
@@ -445,3 +663,12 @@ class _Scanner:
         if self.summary is None:
             log.unclean = "no summary or footer: the writer did not finish"
         return log
+
+
+def _known(op: int, b: Buffer, at: int, channels: set[int], schemas: set[int]) -> bool:
+    """Whether the Schema/Channel record whose content starts at ``at`` has an id already
+    known (a repeat, as writers put them in chunks); an unreadable id counts as unknown."""
+    if at + 2 > len(b):
+        return False
+    (i,) = U16.unpack_from(b, at)
+    return i in (channels if op == OP_CHANNEL else schemas)

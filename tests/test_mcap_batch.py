@@ -1,0 +1,173 @@
+"""Chunks read in batches (one index check and one row gather for several chunks) give
+exactly what reading them one by one gives: the same messages, drops and warnings, also when
+a chunk in the middle of a batch is damaged or a channel first appears in a later chunk."""
+
+from __future__ import annotations
+
+import struct
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent))
+
+import io_loggen as gen
+
+from uwval.io import mcap_raw
+from uwval.io.raw import RawLog
+
+TOPICS = ["/gazebo/model_rov_pose", "/unity/model_rov_pose", "/tf", "/camera/image_raw/compressed"]
+
+
+def _scan(path: Path, batch: int, monkeypatch: pytest.MonkeyPatch) -> RawLog:
+    monkeypatch.setattr(mcap_raw, "BATCH_BYTES", batch)
+    return mcap_raw.scan_mcap(path, TOPICS)
+
+
+def _same(a: RawLog, b: RawLog) -> None:
+    assert a.warnings == b.warnings
+    assert a.topics == b.topics
+    assert a.raw.keys() == b.raw.keys()
+    for name, ta in a.raw.items():
+        tb = b.raw[name]
+        assert ta.dropped == tb.dropped, name
+        assert np.array_equal(ta.log_time, tb.log_time), name
+        assert len(ta) == len(tb)
+        for i in range(len(ta)):
+            assert ta.payload(i) == tb.payload(i), (name, i)
+
+
+def _chunks(path: Path) -> list[tuple[int, dict[int, int]]]:
+    """(chunk record start, {channel: MessageIndex record start}) of every chunk."""
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as fh:
+        summary = make_reader(fh).get_summary()
+    assert summary is not None
+    return [(c.chunk_start_offset, dict(c.message_index_offsets)) for c in summary.chunk_indexes]
+
+
+@pytest.fixture(params=["zstd", "lz4", "none"])
+def log(tmp_path: Path, request: pytest.FixtureRequest) -> Path:
+    # small chunks: a batch (2 MB of records) holds dozens of them
+    return gen.write_log(
+        tmp_path / "log.mcap",
+        "mcap",
+        seconds=6.0,
+        image_bytes=500,
+        chunk_size=4096,
+        compression=request.param,
+    )
+
+
+def test_batches_read_what_single_chunks_read(log: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    assert len(_chunks(log)) > 20
+    calls: list[int] = []
+    check = mcap_raw.check_index
+
+    def counting(buf: np.ndarray, ents: dict, **kw: object) -> object:
+        calls.append(0 if kw.get("cuts") is None else len(kw["cuts"]) + 1)  # type: ignore[arg-type]
+        return check(buf, ents, **kw)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(mcap_raw, "check_index", counting)
+    batched = _scan(log, mcap_raw.BATCH_BYTES, monkeypatch)
+    assert max(calls) > 20  # the chunks were checked together, in one call
+    assert not batched.warnings
+    _same(batched, _scan(log, 0, monkeypatch))
+    assert len(batched.raw["/gazebo/model_rov_pose"]) == 600
+    # many small batches: their buffers are reused, nothing read earlier may change
+    _same(_scan(log, 20_000, monkeypatch), batched)
+
+
+def test_a_damaged_chunk_mid_batch_is_reported_alone(
+    log: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    data = bytearray(log.read_bytes())
+    chunks = _chunks(log)
+    start, _ = chunks[len(chunks) // 2]
+    data[start + 9 + 60] ^= 0xFF  # inside the (compressed) records
+    log.write_bytes(bytes(data))
+    batched = _scan(log, mcap_raw.BATCH_BYTES, monkeypatch)
+    assert len(batched.warnings) == 1
+    assert f"MCAP chunk at byte {start}" in batched.warnings[0]
+    assert sum(sum(t.dropped.values()) for t in batched.raw.values()) > 0
+    _same(batched, _scan(log, 0, monkeypatch))
+
+
+def test_a_wrong_index_entry_mid_batch_is_reported_for_its_chunk(
+    log: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    data = bytearray(log.read_bytes())
+    chunks = _chunks(log)
+    start, index_at = chunks[len(chunks) // 2 + 1]
+    at = min(index_at.values()) + 9 + 2 + 4  # the first entry's log time
+    (t,) = struct.unpack_from("<Q", data, at)
+    struct.pack_into("<Q", data, at, t + 1)
+    log.write_bytes(bytes(data))
+    batched = _scan(log, mcap_raw.BATCH_BYTES, monkeypatch)
+    assert len(batched.warnings) == 1
+    assert f"MCAP chunk at byte {start}: its MessageIndex disagrees" in batched.warnings[0]
+    _same(batched, _scan(log, 0, monkeypatch))
+
+
+def test_a_channel_first_seen_in_a_later_chunk(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from mcap.writer import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    typ = "geometry_msgs/msg/PoseStamped"
+    text, _ = ts.generate_msgdef(typ, ros_version=2)
+    path = tmp_path / "late.mcap"
+    with open(path, "wb") as fh:
+        w = Writer(fh, chunk_size=2048)
+        w.start(profile="ros2", library="uwval-tests")
+        sid = w.register_schema(name=typ, encoding="ros2msg", data=text.encode())
+        chans: dict[str, int] = {}
+        for k in range(400):
+            names = TOPICS[:1] if k < 200 else TOPICS[:2]  # the Unity topic starts later
+            for name in names:
+                if name not in chans:
+                    chans[name] = w.register_channel(
+                        topic=name, message_encoding="cdr", schema_id=sid
+                    )
+                msg = ts.types[typ](
+                    header=ts.types["std_msgs/msg/Header"](
+                        stamp=ts.types["builtin_interfaces/msg/Time"](sec=k, nanosec=0),
+                        frame_id="world",
+                    ),
+                    pose=ts.types["geometry_msgs/msg/Pose"](
+                        position=ts.types["geometry_msgs/msg/Point"](x=float(k), y=0.0, z=0.0),
+                        orientation=ts.types["geometry_msgs/msg/Quaternion"](
+                            x=0.0, y=0.0, z=0.0, w=1.0
+                        ),
+                    ),
+                )
+                t = k * 10_000_000
+                w.add_message(
+                    chans[name], log_time=t, publish_time=t, data=bytes(ts.serialize_cdr(msg, typ))
+                )
+        w.finish()
+    batched = _scan(path, mcap_raw.BATCH_BYTES, monkeypatch)
+    assert len(batched.raw[TOPICS[1]]) == 200
+    _same(batched, _scan(path, 0, monkeypatch))
+
+
+@pytest.mark.parametrize("delta", [-1, 1])
+def test_a_chunk_whose_size_is_wrong_mid_batch(
+    log: Path, monkeypatch: pytest.MonkeyPatch, delta: int
+) -> None:
+    data = bytearray(log.read_bytes())
+    chunks = _chunks(log)
+    start, _ = chunks[len(chunks) // 3]
+    at = start + 9 + 16  # the chunk's uncompressed size
+    (usize,) = struct.unpack_from("<Q", data, at)
+    struct.pack_into("<Q", data, at, usize + delta)
+    log.write_bytes(bytes(data))
+    batched = _scan(log, mcap_raw.BATCH_BYTES, monkeypatch)
+    assert len(batched.warnings) == 1
+    assert f"MCAP chunk at byte {start}" in batched.warnings[0]
+    _same(batched, _scan(log, 0, monkeypatch))
