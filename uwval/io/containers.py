@@ -13,6 +13,7 @@ import shutil
 import sqlite3
 import struct
 import tempfile
+import threading
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -252,31 +253,66 @@ def _query_db3(name: Path, uri: str, want: set[str] | None, compression: str) ->
             tops = rows.fetchall()
         except sqlite3.DatabaseError as exc:
             raise LogReadError(f"{name}: not a rosbag2 sqlite3 file: {one_line(exc)}") from exc
-        stats = dict(
-            (tid, (cnt, lo, hi))
-            for tid, cnt, lo, hi in con.execute(
-                "SELECT topic_id, COUNT(*), MIN(timestamp), MAX(timestamp) FROM messages "
-                "GROUP BY topic_id"
-            )
-        )
-        infos = []
+        # Every topic's count and span is one more pass over the table: sqlite runs it on
+        # its own connection and thread (it releases the GIL) while this one fetches.
+        stats_job = _db3_stats(uri)
         builders: dict[int, TopicBuilder] = {}
         for tid, tname, ttype, fmt in tops:
             n = norm_topic(tname)
-            cnt, lo, hi = stats.get(tid, (0, 0, 0))
-            infos.append(TopicInfo(n, normalize_type_name(ttype), int(cnt), int(lo), int(hi)))
             if want is not None and n not in want:
                 continue
             builders[tid] = TopicBuilder(
                 n, normalize_type_name(ttype), "cdr" if fmt == "cdr" else fmt
             )
-        _fetch_db3(con, name, builders, compression)
+        try:
+            _fetch_db3(con, name, builders, compression)
+        finally:
+            stats_job.join()
+        if isinstance(stats_job.result, BaseException):
+            raise stats_job.result
+        stats = stats_job.result
+        infos = []
+        for tid, tname, ttype, _fmt in tops:
+            cnt, lo, hi = stats.get(tid, (0, 0, 0))
+            infos.append(
+                TopicInfo(norm_topic(tname), normalize_type_name(ttype), int(cnt), int(lo), int(hi))
+            )
         raw = {b.name: b.build() for b in builders.values()}
     except sqlite3.DatabaseError as exc:
         raise LogReadError(f"{name}: damaged sqlite3 storage: {one_line(exc)}") from exc
     finally:
         con.close()
     return RawLog(name, infos, raw)
+
+
+class _StatsJob(threading.Thread):
+    """``SELECT topic_id, COUNT(*), MIN(timestamp), MAX(timestamp) ... GROUP BY topic_id`` on
+    a connection of its own; ``result`` is {topic id: (count, min, max)} or the exception."""
+
+    def __init__(self, uri: str) -> None:
+        super().__init__(name="uwval-db3-stats", daemon=True)
+        self.uri = uri
+        self.result: dict[int, tuple[int, int, int]] | BaseException = {}
+
+    def run(self) -> None:
+        try:
+            con = sqlite3.connect(self.uri, uri=True)
+            try:
+                rows = con.execute(
+                    "SELECT topic_id, COUNT(*), MIN(timestamp), MAX(timestamp) FROM messages "
+                    "GROUP BY topic_id"
+                ).fetchall()
+            finally:
+                con.close()
+            self.result = {tid: (cnt, lo, hi) for tid, cnt, lo, hi in rows}
+        except BaseException as exc:  # handed to the reading thread, which raises it
+            self.result = exc
+
+
+def _db3_stats(uri: str) -> _StatsJob:
+    job = _StatsJob(uri)
+    job.start()
+    return job
 
 
 #: Rows fetched from sqlite per step: bounds the Python objects alive at once (~15 MB).
