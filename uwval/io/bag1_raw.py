@@ -4,7 +4,9 @@ A bag's index section lists connections and chunk positions; each chunk is follo
 IndexData records giving, per connection, every message's time and offset inside the
 uncompressed chunk. From those offsets the payload positions are computed with two numpy
 gathers (the record's header length, then its data length) instead of parsing every
-message record in Python. Files this scanner cannot follow (unindexed, damaged) are handed
+message record in Python. The wanted connections' entries are checked against the records
+they point at (op, connection, time, bounds); the other connections are counted from the
+index. Files this scanner cannot follow (unindexed, damaged) are handed
 to rosbags' reader by :mod:`uwval.io.containers`, which reports the cause.
 """
 
@@ -22,7 +24,7 @@ from numpy.typing import NDArray
 
 from uwval.errors import LogReadError
 from uwval.io.fastdecode import gather
-from uwval.io.mcap_chunk import Buffer
+from uwval.io.mcap_chunk import Buffer, unaligned
 from uwval.io.raw import (
     RawLog,
     TopicBuilder,
@@ -305,15 +307,20 @@ def _chunk(
     data = _decompress(h["compression"].decode(), bytes(mm[ds : ds + dl]), _u32(h["size"]))
     buf = np.frombuffer(data, dtype=np.uint8)
     if entries is not None:
-        bad = next((c for c, e in entries.items() if not _index_ok(buf, c, e)), None)
+        # The wanted connections' entries are checked against their records; the others
+        # are only counted (from the index, as chunks holding no wanted connection are).
+        bad = next(
+            (c for c, e in entries.items() if c in builders and not _index_ok(buf, c, e)), None
+        )
         if bad is None:
+            u32 = unaligned(buf, "<u4")
             for cid, e in entries.items():
                 t = e[:, 0].astype(np.int64) * 1_000_000_000 + e[:, 1]
                 times.setdefault(cid, []).append(t)
                 if cid in builders:
                     rec = e[:, 2].astype(np.int64)
-                    hl = gather(buf, rec, 4).view("<u4").reshape(-1).astype(np.int64)
-                    dlen = gather(buf, rec + 4 + hl, 4).view("<u4").reshape(-1).astype(np.int64)
+                    hl = u32[rec].astype(np.int64)
+                    dlen = u32[rec + 4 + hl].astype(np.int64)
                     width = int(dlen[0])
                     if width > 0 and int(dlen.min()) == int(dlen.max()):
                         # one payload length (a pose topic), bounds checked by _index_ok
@@ -377,7 +384,8 @@ def _index_ok(buf: NDArray[np.uint8], cid: int, e: NDArray[np.uint32]) -> bool:
     rec = e[:, 2].astype(np.int64)
     if int(rec.max()) + 8 > size:
         return False
-    hl = gather(buf, rec, 4).view("<u4").reshape(-1).astype(np.int64)
+    u32 = unaligned(buf, "<u4")
+    hl = u32[rec].astype(np.int64)
     if int(hl.min()) != int(hl.max()) or int((rec + 8 + hl).max()) > size:
         return _index_ok_slow(buf, cid, e)
     h0 = int(hl[0])
@@ -400,7 +408,7 @@ def _index_ok(buf: NDArray[np.uint8], cid: int, e: NDArray[np.uint32]) -> bool:
     stamp = np.ascontiguousarray(heads[:, tpos + 5 : tpos + 13]).view("<u4").reshape(-1, 2)
     if not np.array_equal(stamp, e[:, :2]):
         return False
-    dlen = gather(buf, rec + 4 + hl, 4).view("<u4").reshape(-1).astype(np.int64)
+    dlen = u32[rec + 4 + hl].astype(np.int64)
     return bool(int((rec + 8 + hl + dlen).max()) <= size)
 
 
