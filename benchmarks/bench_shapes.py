@@ -222,6 +222,16 @@ def run(quick: bool = False) -> list[BenchRow]:
             notes=f"{reps} runs each, medians",
         )
     )
+    # the floor under every whole-command row: an interpreter that imports numpy, no more
+    floor = median([run_command([sys.executable, "-c", "import numpy"])[0] for _ in range(reps)])
+    rows.append(
+        BenchRow(
+            "floor: python -c 'import numpy' (under every whole-command row)",
+            floor,
+            "s",
+            notes=f"{reps} runs, median; 10x evo's time on a shape cannot go below this",
+        )
+    )
     # a user's whole compare of its own one-hour log (both pairs, defaults)
     own = files["mcap-1h"]
     cmd = [_exe("uwval"), "compare", str(own.paths[0])]

@@ -139,7 +139,7 @@ def read_streams(
         extra.add("/tf_static")
     log = scan_log(p, sorted(wanted | extra))
     log.warn_lost()
-    out: dict[str, PoseStream] = {}
+    jobs: list[tuple[str, RawTopic, str | None]] = []
     for t in topics:
         bare, topic_child = split_child(t)
         name = norm_topic(bare)
@@ -155,8 +155,12 @@ def read_streams(
                 f"{p}: topic {t!r}: {name} is {raw.msgtype}, which has no child frame; "
                 "'#CHILD' picks a child of a TF, Odometry or TransformStamped topic"
             )
+        jobs.append((t, raw, topic_child))
+
+    def stream(job: tuple[str, RawTopic, str | None]) -> PoseStream:
+        _asked, raw, topic_child = job
         try:
-            out[t] = _to_stream(
+            s = _to_stream(
                 p,
                 raw,
                 log,
@@ -167,11 +171,24 @@ def read_streams(
                 tf_static=tf_static,
                 fast=fast,
             )
-            if topic_child:  # the stream is named as asked: /tf#turtle1
-                out[t] = out[t].with_(topic=f"{name}#{topic_child}")
         except PoseStreamError as exc:
-            raise LogReadError(f"{p}: topic {name!r}: {exc}") from exc
-    return out
+            raise LogReadError(f"{p}: topic {raw.name!r}: {exc}") from exc
+        # the stream is named as asked: /tf#turtle1
+        return s.with_(topic=f"{raw.name}#{topic_child}") if topic_child else s
+
+    if len(jobs) > 1 and sum(len(raw) for _, raw, _ in jobs) >= PARALLEL_DECODE_MIN:
+        # Topics decode independently and numpy releases the GIL in their array work: two
+        # threads on two cores. Results and the first error are taken in the order asked.
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(2, thread_name_prefix="uwval-decode") as pool:
+            done = [pool.submit(stream, job) for job in jobs]
+            return {job[0]: d.result() for job, d in zip(jobs, done, strict=True)}
+    return {job[0]: stream(job) for job in jobs}
+
+
+#: Messages (all selected topics together) from which they are decoded on two threads.
+PARALLEL_DECODE_MIN = 100_000
 
 
 #: Message types (name endings) with a child_frame_id, besides TF messages.
