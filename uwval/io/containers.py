@@ -315,8 +315,8 @@ def _db3_stats(uri: str) -> _StatsJob:
     return job
 
 
-#: Rows fetched from sqlite per step: bounds the Python objects alive at once (~15 MB).
-DB3_BATCH = 1 << 16
+#: Rows fetched from sqlite per step: bounds the Python objects alive at once (~4 MB).
+DB3_BATCH = 1 << 14
 
 
 def _fetch_db3(

@@ -273,12 +273,13 @@ def _to_stream(
             raise LogReadError(
                 _no_pair(p, raw.name, dec, dec.frame_code, dec.child_code, parent, child)
             )
-        stamps = dec.stamp[keep]
-        log_time = raw.log_time[keep]
+        if keep.all():  # the usual case: no copies (a pose topic's arrays are 80 B/msg)
+            stamps, log_time, pose, kept = dec.stamp, raw.log_time, dec.pose, dec.frame_code
+        else:
+            stamps, log_time = dec.stamp[keep], raw.log_time[keep]
+            pose, kept = dec.pose[keep], dec.frame_code[keep]
         if time_src == "log" or (stamps < 0).all():
             stamps = log_time
-        pose = dec.pose[keep]
-        kept = dec.frame_code[keep]
         # one frame_id on the whole topic is the usual case: skip the sort of np.unique
         codes = kept[:1] if kept.size and bool((kept == kept[0]).all()) else np.unique(kept)
         frame_id = [dec.names[int(c)] for c in codes if c >= 0]
