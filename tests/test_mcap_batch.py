@@ -156,7 +156,7 @@ def test_a_channel_first_seen_in_a_later_chunk(
     _same(batched, _scan(path, 0, monkeypatch))
 
 
-@pytest.mark.parametrize("delta", [-1, 1])
+@pytest.mark.parametrize("delta", [-1, 1, 1 << 40])
 def test_a_chunk_whose_size_is_wrong_mid_batch(
     log: Path, monkeypatch: pytest.MonkeyPatch, delta: int
 ) -> None:

@@ -70,6 +70,9 @@ _MSG = struct.Struct("<HIQQ")
 #: decompressed bytes of chunks read together (see ``_Scanner.queue``): a few MB keeps the
 #: per-chunk numpy calls off small chunks while the batch buffers stay small (cache-sized)
 BATCH_BYTES = 2 << 20
+#: larger chunks (or a damaged size field claiming more) are read alone, never into a batch
+#: buffer sized by their header
+BATCH_MAX = 64 << 20
 #: a queued chunk: (record start, content start, length, index locations, entries, where
 #: its records go in the batch buffer (lo, hi), the job decompressing them there)
 _Queued = tuple[
@@ -350,7 +353,7 @@ class _Scanner:
                 hdr = parse_chunk_header(self.mm, c, c + ln)
             except ValueError:
                 hdr = None
-        if hdr is None or hdr.compression not in ("zstd", "lz4", ""):
+        if hdr is None or hdr.compression not in ("zstd", "lz4", "") or hdr.usize > BATCH_MAX:
             self.flush()
             self.chunk(rec, c, ln, indexes)
             return
