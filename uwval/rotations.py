@@ -200,3 +200,67 @@ def wrap_deg(a: F64) -> F64:
     w[w <= -180.0] += 360.0
     w[w > 180.0] -= 360.0
     return w.reshape(a.shape)
+
+
+def slerp_segments(
+    q0: F64,
+    q1: F64,
+    s: F64,
+    seg: NDArray[np.intp] | NDArray[np.int64] | None = None,
+    *,
+    out: F64 | None = None,
+) -> F64:
+    """``slerp(q0[seg], q1[seg], s)`` for (M, 4) endpoint pairs and (K,) fractions ``s``.
+
+    The same arithmetic as :func:`slerp`, operation for operation (equal to it to the bit),
+    arranged for interpolation: what depends on the pair only (the dot product, the short-arc
+    sign, the angle and its sine) is computed once per pair, then gathered for the K
+    fractions by ``seg`` (indices into the M pairs; ``None``: pair i for fraction i); the
+    rest runs on (4, K) component rows (no (K, 1) x (K, 4) broadcasts, slow in numpy). The
+    short-arc flip of q1 is a flip of its weight (exact: only the sign changes). Returns the
+    (K, 4) unit quaternions (x, y, z, w), written into ``out`` when given.
+    """
+    a0 = np.asarray(q0, dtype=np.float64).T
+    a1 = np.asarray(q1, dtype=np.float64).T
+    s = np.asarray(s, dtype=np.float64)
+    # dot product summed in numpy's order for a row of 4 (((a + b) + c) + d)
+    dot = a0[0] * a1[0]
+    for j in (1, 2, 3):
+        dot += a0[j] * a1[j]
+    flip = dot < 0
+    np.abs(dot, out=dot)
+    np.clip(dot, -1.0, 1.0, out=dot)
+    theta = np.arccos(dot, out=dot)
+    safe = np.sin(theta)
+    small = safe < 1e-9
+    safe[small] = 1.0
+    if seg is not None:
+        theta, safe, small, flip = theta[seg], safe[seg], small[seg], flip[seg]
+        g0, g1 = np.take(a0, seg, axis=1), np.take(a1, seg, axis=1)
+    else:
+        g0, g1 = a0.copy(), a1.copy()
+    one_minus = 1.0 - s
+    w0 = np.multiply(one_minus, theta)
+    np.sin(w0, out=w0)
+    w0 /= safe
+    w1 = np.multiply(s, theta)
+    np.sin(w1, out=w1)
+    w1 /= safe
+    if small.any():
+        np.copyto(w0, one_minus, where=small)
+        np.copyto(w1, s, where=small)
+    np.negative(w1, out=w1, where=flip)
+    g0 *= w0
+    g1 *= w1
+    g0 += g1
+    # norm as np.linalg.norm sums a row of 4: ((x^2 + y^2) + z^2) + w^2
+    norm = np.multiply(g0[0], g0[0])
+    for j in (1, 2, 3):
+        np.multiply(g0[j], g0[j], out=w1)
+        norm += w1
+    np.sqrt(norm, out=norm)
+    g0 /= norm
+    if out is None:
+        return np.ascontiguousarray(g0.T)
+    out[...] = g0.T
+    return out

@@ -34,7 +34,7 @@ from uwval.compat import StrEnum
 from uwval.errors import AlignmentError, PoseStreamError, UwvalError
 from uwval.frames import CONVENTIONS, convert_stream, get_convention
 from uwval.posestream import MAX_ABS_STAMP_S, PoseStream
-from uwval.rotations import geodesic_angle, rpy_from_quat, wrap_deg
+from uwval.rotations import geodesic_angle, rpy_from_quat
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -569,24 +569,8 @@ def _repeats(idx: I64) -> int:
     return int(np.count_nonzero(np.diff(idx) == 0)) if idx.size > 1 else 0
 
 
-def _rpy_deg(q: F64, axis: int) -> F64:
-    """One ROS angle (0 roll, 1 pitch, 2 yaw; fixed-axis XYZ) in degrees, from (N, 4) xyzw.
-
-    Same formulas as :func:`uwval.rotations.rpy_from_quat`, one angle at a time so that only
-    a few (N,) temporaries exist at once on large streams.
-    """
-    x, y, z, w = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    if axis == 0:
-        out = np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-    elif axis == 1:
-        out = np.arcsin(np.clip(2 * (w * y - z * x), -1.0, 1.0))
-    else:
-        out = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-    return np.asarray(np.degrees(out, out=out))
-
-
 #: Rows per step of the row-wise error series: a step's temporaries stay in the CPU cache
-#: (the quaternion columns are strided views of the logs' (N, 7) pose tables).
+#: (the quaternion columns are strided views of the (N, 4) orientation tables).
 ROW_CHUNK = 1 << 14
 
 
@@ -602,25 +586,130 @@ def _position_norm(ref_pos: F64, oth_pos: F64) -> F64:
     return out
 
 
+class _Scratch:
+    """Reusable (k,) float64 buffers of one step (no allocation per operation)."""
+
+    def __init__(self, k: int) -> None:
+        self.k = k
+        self._bufs: list[F64] = []
+
+    def get(self, i: int, k: int) -> F64:
+        while len(self._bufs) <= i:
+            self._bufs.append(np.empty(self.k))
+        return self._bufs[i][:k]
+
+
+def _rpy_deg_into(q: F64, out: F64, sc: _Scratch) -> None:
+    """ROS roll, pitch, yaw (fixed-axis XYZ) in degrees of (k, 4) xyzw quaternions into the
+    rows of ``out`` (3, k): :func:`uwval.rotations.rpy_from_quat`'s formulas, operation for
+    operation (equal to the bit), with the squares shared and no temporary allocated."""
+    k = q.shape[0]
+    x, y, z, w = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    a, b, yy = sc.get(0, k), sc.get(1, k), sc.get(2, k)
+    np.multiply(y, y, out=yy)
+    # roll = atan2(2 (w x + y z), 1 - 2 (x x + y y))
+    np.multiply(w, x, out=a)
+    np.multiply(y, z, out=b)
+    a += b
+    a *= 2
+    np.multiply(x, x, out=b)
+    b += yy
+    b *= 2
+    np.subtract(1, b, out=b)
+    np.arctan2(a, b, out=out[0])
+    # pitch = asin(clip(2 (w y - z x), -1, 1))
+    np.multiply(w, y, out=a)
+    np.multiply(z, x, out=b)
+    a -= b
+    a *= 2
+    np.clip(a, -1.0, 1.0, out=a)
+    np.arcsin(a, out=out[1])
+    # yaw = atan2(2 (w z + x y), 1 - 2 (y y + z z))
+    np.multiply(w, z, out=a)
+    np.multiply(x, y, out=b)
+    a += b
+    a *= 2
+    np.multiply(z, z, out=b)
+    np.add(yy, b, out=b)
+    b *= 2
+    np.subtract(1, b, out=b)
+    np.arctan2(a, b, out=out[2])
+    np.degrees(out, out=out)
+
+
+def _wrap_deg_into(a: F64, tmp: F64) -> None:
+    """:func:`uwval.rotations.wrap_deg` of a (k,) array in place (the same operations)."""
+    np.divide(a, 360.0, out=tmp)
+    np.round(tmp, out=tmp)
+    tmp *= 360.0
+    a -= tmp
+    np.add(a, 360.0, out=a, where=a <= -180.0)
+    np.subtract(a, 360.0, out=a, where=a > 180.0)
+
+
+def _geodesic_deg_into(a: F64, b: F64, out: F64, sc: _Scratch) -> None:
+    """:func:`uwval.rotations.geodesic_angle` (a, b) in degrees into ``out``, operation for
+    operation (equal to the bit), on (k, 4) xyzw rows without allocating temporaries."""
+    k = a.shape[0]
+    ax, ay, az, aw = a[:, 0], a[:, 1], a[:, 2], a[:, 3]
+    bx, by, bz, bw = b[:, 0], b[:, 1], b[:, 2], b[:, 3]
+    w, t, u, v, acc = (sc.get(i, k) for i in range(5))
+    # w = bw aw + bx ax + by ay + bz az (left to right)
+    np.multiply(bw, aw, out=w)
+    for p, r in ((bx, ax), (by, ay), (bz, az)):
+        np.multiply(p, r, out=t)
+        w += t
+    # v = bw a_v - aw b_v - (b_v x a_v), component by component; acc = |v|^2
+    for i, (a_i, b_i, b_j, a_k, b_k, a_j) in enumerate(
+        ((ax, bx, by, az, bz, ay), (ay, by, bz, ax, bx, az), (az, bz, bx, ay, by, ax))
+    ):
+        np.multiply(bw, a_i, out=v)
+        np.multiply(aw, b_i, out=t)
+        v -= t
+        np.multiply(b_j, a_k, out=t)
+        np.multiply(b_k, a_j, out=u)
+        t -= u
+        v -= t
+        if i == 0:
+            np.multiply(v, v, out=acc)
+        else:
+            np.multiply(v, v, out=t)
+            acc += t
+    np.sqrt(acc, out=acc)
+    np.abs(w, out=w)
+    np.arctan2(acc, w, out=out)
+    out *= 2.0
+    np.degrees(out, out=out)
+
+
+def _angle_errors(ref_quat: F64, oth_quat: F64) -> tuple[F64, F64, F64]:
+    """Reference ROS angles (3, N), wrapped errors other - reference (3, N) (roll, pitch,
+    yaw; deg) and the geodesic rotation error (N,) (deg), in one pass of ROW_CHUNK rows."""
+    n = ref_quat.shape[0]
+    ref_angle, err, rot = np.empty((3, n)), np.empty((3, n)), np.empty(n)
+    sc = _Scratch(min(n, ROW_CHUNK))
+    for s in range(0, n, ROW_CHUNK):
+        e = min(n, s + ROW_CHUNK)
+        rq, oq = ref_quat[s:e], oth_quat[s:e]
+        r, d = ref_angle[:, s:e], err[:, s:e]
+        _rpy_deg_into(rq, r, sc)
+        _rpy_deg_into(oq, d, sc)
+        d -= r
+        for j in range(3):
+            _wrap_deg_into(d[j], sc.get(0, e - s))
+        _geodesic_deg_into(oq, rq, rot[s:e], sc)
+    return ref_angle, err, rot
+
+
 def _rotation_error_deg(ref_quat: F64, oth_quat: F64) -> F64:
     """Geodesic angle of the rotation from reference to other per sample (deg)."""
-    out = np.empty(ref_quat.shape[0])
-    for s in range(0, ref_quat.shape[0], ROW_CHUNK):
-        sl = slice(s, s + ROW_CHUNK)
-        np.degrees(geodesic_angle(oth_quat[sl], ref_quat[sl]), out=out[sl])
-    return out
-
-
-def _angle_error(ref_quat: F64, oth_quat: F64, j: int) -> tuple[F64, F64]:
-    """(reference angle, wrapped error other - reference), degrees, for ROS angle ``j``."""
     n = ref_quat.shape[0]
-    ref_angle, err = np.empty(n), np.empty(n)
+    out = np.empty(n)
+    sc = _Scratch(min(n, ROW_CHUNK))
     for s in range(0, n, ROW_CHUNK):
-        sl = slice(s, s + ROW_CHUNK)
-        r = _rpy_deg(ref_quat[sl], j)
-        ref_angle[sl] = r
-        err[sl] = wrap_deg(_rpy_deg(oth_quat[sl], j) - r)
-    return ref_angle, err
+        e = min(n, s + ROW_CHUNK)
+        _geodesic_deg_into(oth_quat[s:e], ref_quat[s:e], out[s:e], sc)
+    return out
 
 
 def _error_series(ref_pos: F64, ref_quat: F64, oth_pos: F64, oth_quat: F64) -> dict[str, F64]:
@@ -628,35 +717,36 @@ def _error_series(ref_pos: F64, ref_quat: F64, oth_pos: F64, oth_quat: F64) -> d
     errors: dict[str, F64] = {}
     for j, ax in enumerate("xyz"):
         errors[ax] = oth_pos[:, j] - ref_pos[:, j]
+    _, err, rot = _angle_errors(ref_quat, oth_quat)
     for j, ax in enumerate(("roll", "pitch", "yaw")):
-        errors[ax] = _angle_error(ref_quat, oth_quat, j)[1]
+        errors[ax] = err[j]
     errors["position_norm"] = _position_norm(ref_pos, oth_pos)
-    errors["rotation_angle"] = _rotation_error_deg(ref_quat, oth_quat)
+    errors["rotation_angle"] = rot
     return errors
 
 
 def _axis_statistics(
     ref_pos: F64, ref_quat: F64, oth_pos: F64, oth_quat: F64
 ) -> tuple[dict[str, Any], dict[str, float], dict[str, float]]:
-    """Per-axis statistics, position-norm and rotation-angle statistics, one series at a time
-    (bounded memory on large streams)."""
+    """Per-axis statistics, position-norm and rotation-angle statistics."""
     axes: dict[str, Any] = {}
     for j, ax in enumerate("xyz"):
         err = oth_pos[:, j] - ref_pos[:, j]
         axes[ax] = axis_stats(err, ref_pos[:, j], oth_pos[:, j]) | {"unit": "m"}
         del err
+    ref_angle, err3, rot = _angle_errors(ref_quat, oth_quat)
     for j, ax in enumerate(("roll", "pitch", "yaw")):
-        ref_angle, err = _angle_error(ref_quat, oth_quat, j)
+        err = err3[j]
         # correlate continuous series: unwrap the reference, other = reference + wrapped error,
         # so a 179 -> -179 deg crossing is not a 358 deg jump in either series
-        ref_series = _unwrap_deg(ref_angle)
-        del ref_angle
+        ref_series = _unwrap_deg(ref_angle[j])
         axes[ax] = axis_stats(err, ref_series, ref_series + err, overwrite_other=True) | {
             "unit": "deg"
         }
         del ref_series, err
+    del ref_angle, err3
     position = norm_stats(_position_norm(ref_pos, oth_pos))
-    rotation = norm_stats(_rotation_error_deg(ref_quat, oth_quat))
+    rotation = norm_stats(rot)
     return axes, position, rotation
 
 

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 from uwval.errors import AlignmentError
 from uwval.io.stamps import seconds_from_ns
 from uwval.posestream import PoseStream
-from uwval.rotations import slerp
+from uwval.rotations import slerp_segments
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -153,6 +153,11 @@ def interpolate_at(
     before the first or after the last sample are invalid (never extrapolated); stamps whose
     bracketing samples are more than ``max_gap_ns`` apart are invalid (default: 5 nominal
     periods of ``stream``).
+
+    What depends on the bracketing pair only (position step, slerp's angle, sine, sign) is
+    computed once per pair of ``stream`` (:func:`uwval.rotations.slerp_segments`), what
+    depends on the fraction once per query; the arithmetic is :func:`uwval.rotations.slerp`'s,
+    operation for operation (equal to it to the bit).
     """
     t = stream.t - np.int64(offset_ns) if offset_ns else stream.t
     n = t.shape[0]
@@ -165,25 +170,48 @@ def interpolate_at(
     valid = np.empty(m, dtype=bool)
     pos, quat = np.empty((m, 3)), np.empty((m, 4))
     n_outside = n_gap = 0
-    # in steps of MATCH_CHUNK query stamps: slerp's (k, 4) temporaries stay small and cached
+    position, orientation = stream.position, stream.orientation
+    t_first, t_last = t[0], t[-1]
+    # in steps of MATCH_CHUNK query stamps: the (k, 4) temporaries stay small and cached
     for s in range(0, m, MATCH_CHUNK):
-        qc = q[s : s + MATCH_CHUNK]
+        e = min(m, s + MATCH_CHUNK)
+        qc = q[s:e]
         hi = np.searchsorted(t, qc, side="left")  # t[hi-1] < q <= t[hi]
-        outside_mask = (qc < t[0]) | (qc > t[-1])
-        hi = np.clip(hi, 1, n - 1)
+        outside_mask = (qc < t_first) | (qc > t_last)
+        np.clip(hi, 1, n - 1, out=hi)
         lo = hi - 1
-        span = t[hi] - t[lo]
-        gap_mask = ~outside_mask & (span > max_gap_ns)
+        t_lo, t_hi = t[lo], t[hi]
+        span = t_hi - t_lo
+        gap_mask = span > max_gap_ns
+        gap_mask &= ~outside_mask
         # exact hits on a sample are always valid, even next to a long gap
-        exact = (t[hi] == qc) | (t[lo] == qc)
-        gap_mask &= ~exact
-        valid[s : s + MATCH_CHUNK] = ~outside_mask & ~gap_mask
-        n_outside += int(outside_mask.sum())
-        n_gap += int(gap_mask.sum())
+        if gap_mask.any():
+            gap_mask &= (t_hi != qc) & (t_lo != qc)
+        np.logical_or(outside_mask, gap_mask, out=valid[s:e])
+        np.logical_not(valid[s:e], out=valid[s:e])
+        n_outside += int(np.count_nonzero(outside_mask))
+        n_gap += int(np.count_nonzero(gap_mask))
         # fraction from int64 differences: no precision lost on epoch-scale stamps
-        frac = (qc - t[lo]).astype(np.float64) / span.astype(np.float64)
+        frac = (qc - t_lo).astype(np.float64)
+        frac /= span.astype(np.float64)
         np.clip(frac, 0.0, 1.0, out=frac)
-        p0 = stream.position[lo]
-        pos[s : s + MATCH_CHUNK] = p0 + frac[:, None] * (stream.position[hi] - p0)
-        quat[s : s + MATCH_CHUNK] = slerp(stream.orientation[lo], stream.orientation[hi], frac)
+        # the pairs this step uses: one run of pairs (queries are sorted) unless the stream
+        # is much denser than the queries, then only the pairs used; (3|4, K) rows, no
+        # (K, 1) x (K, 3) broadcasts (slow in numpy)
+        a, b = int(lo[0]), int(lo[-1]) + 1
+        if b - a <= 2 * (e - s):
+            seg: I64 | None = lo - a
+            rows = position[a : b + 1].T
+            p0, dp = rows[:, :-1], rows[:, 1:] - rows[:, :-1]
+            q0, q1 = orientation[a:b], orientation[a + 1 : b + 1]
+        else:
+            seg = None
+            p0, q0 = np.take(position, lo, axis=0).T, np.take(orientation, lo, axis=0)
+            dp, q1 = np.take(position, hi, axis=0).T - p0, np.take(orientation, hi, axis=0)
+        if seg is not None:
+            p0, dp = np.take(p0, seg, axis=1), np.take(dp, seg, axis=1)
+        dp *= frac
+        dp += p0
+        pos[s:e] = dp.T
+        slerp_segments(q0, q1, frac, seg, out=quat[s:e])
     return Interpolated(pos, quat, valid, n_outside, n_gap, int(max_gap_ns))
