@@ -34,7 +34,13 @@ from uwval.compat import StrEnum
 from uwval.errors import AlignmentError, PoseStreamError, UwvalError
 from uwval.frames import CONVENTIONS, convert_stream, get_convention
 from uwval.posestream import MAX_ABS_STAMP_S, PoseStream
-from uwval.rotations import geodesic_angle, rpy_from_quat
+from uwval.rotations import (
+    Scratch,
+    geodesic_angle,
+    geodesic_deg,
+    geodesic_deg_into,
+    rpy_from_quat,
+)
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -586,20 +592,7 @@ def _position_norm(ref_pos: F64, oth_pos: F64) -> F64:
     return out
 
 
-class _Scratch:
-    """Reusable (k,) float64 buffers of one step (no allocation per operation)."""
-
-    def __init__(self, k: int) -> None:
-        self.k = k
-        self._bufs: list[F64] = []
-
-    def get(self, i: int, k: int) -> F64:
-        while len(self._bufs) <= i:
-            self._bufs.append(np.empty(self.k))
-        return self._bufs[i][:k]
-
-
-def _rpy_deg_into(q: F64, out: F64, sc: _Scratch) -> None:
+def _rpy_deg_into(q: F64, out: F64, sc: Scratch) -> None:
     """ROS roll, pitch, yaw (fixed-axis XYZ) in degrees of (k, 4) xyzw quaternions into the
     rows of ``out`` (3, k): :func:`uwval.rotations.rpy_from_quat`'s formulas, operation for
     operation (equal to the bit), with the squares shared and no temporary allocated."""
@@ -647,47 +640,12 @@ def _wrap_deg_into(a: F64, tmp: F64) -> None:
     np.subtract(a, 360.0, out=a, where=a > 180.0)
 
 
-def _geodesic_deg_into(a: F64, b: F64, out: F64, sc: _Scratch) -> None:
-    """:func:`uwval.rotations.geodesic_angle` (a, b) in degrees into ``out``, operation for
-    operation (equal to the bit), on (k, 4) xyzw rows without allocating temporaries."""
-    k = a.shape[0]
-    ax, ay, az, aw = a[:, 0], a[:, 1], a[:, 2], a[:, 3]
-    bx, by, bz, bw = b[:, 0], b[:, 1], b[:, 2], b[:, 3]
-    w, t, u, v, acc = (sc.get(i, k) for i in range(5))
-    # w = bw aw + bx ax + by ay + bz az (left to right)
-    np.multiply(bw, aw, out=w)
-    for p, r in ((bx, ax), (by, ay), (bz, az)):
-        np.multiply(p, r, out=t)
-        w += t
-    # v = bw a_v - aw b_v - (b_v x a_v), component by component; acc = |v|^2
-    for i, (a_i, b_i, b_j, a_k, b_k, a_j) in enumerate(
-        ((ax, bx, by, az, bz, ay), (ay, by, bz, ax, bx, az), (az, bz, bx, ay, by, ax))
-    ):
-        np.multiply(bw, a_i, out=v)
-        np.multiply(aw, b_i, out=t)
-        v -= t
-        np.multiply(b_j, a_k, out=t)
-        np.multiply(b_k, a_j, out=u)
-        t -= u
-        v -= t
-        if i == 0:
-            np.multiply(v, v, out=acc)
-        else:
-            np.multiply(v, v, out=t)
-            acc += t
-    np.sqrt(acc, out=acc)
-    np.abs(w, out=w)
-    np.arctan2(acc, w, out=out)
-    out *= 2.0
-    np.degrees(out, out=out)
-
-
 def _angle_errors(ref_quat: F64, oth_quat: F64) -> tuple[F64, F64, F64]:
     """Reference ROS angles (3, N), wrapped errors other - reference (3, N) (roll, pitch,
     yaw; deg) and the geodesic rotation error (N,) (deg), in one pass of ROW_CHUNK rows."""
     n = ref_quat.shape[0]
     ref_angle, err, rot = np.empty((3, n)), np.empty((3, n)), np.empty(n)
-    sc = _Scratch(min(n, ROW_CHUNK))
+    sc = Scratch(min(n, ROW_CHUNK))
     for s in range(0, n, ROW_CHUNK):
         e = min(n, s + ROW_CHUNK)
         rq, oq = ref_quat[s:e], oth_quat[s:e]
@@ -697,19 +655,13 @@ def _angle_errors(ref_quat: F64, oth_quat: F64) -> tuple[F64, F64, F64]:
         d -= r
         for j in range(3):
             _wrap_deg_into(d[j], sc.get(0, e - s))
-        _geodesic_deg_into(oq, rq, rot[s:e], sc)
+        geodesic_deg_into(oq, rq, rot[s:e], sc)
     return ref_angle, err, rot
 
 
 def _rotation_error_deg(ref_quat: F64, oth_quat: F64) -> F64:
     """Geodesic angle of the rotation from reference to other per sample (deg)."""
-    n = ref_quat.shape[0]
-    out = np.empty(n)
-    sc = _Scratch(min(n, ROW_CHUNK))
-    for s in range(0, n, ROW_CHUNK):
-        e = min(n, s + ROW_CHUNK)
-        _geodesic_deg_into(oth_quat[s:e], ref_quat[s:e], out[s:e], sc)
-    return out
+    return geodesic_deg(oth_quat, ref_quat, chunk=ROW_CHUNK)
 
 
 def _error_series(ref_pos: F64, ref_quat: F64, oth_pos: F64, oth_quat: F64) -> dict[str, F64]:
@@ -751,11 +703,13 @@ def _axis_statistics(
 
 
 def _unwrap_deg(a: F64) -> F64:
-    """np.unwrap(a, period=360) for degrees, with fewer temporaries."""
+    """np.unwrap(a, period=360) for degrees, with fewer temporaries (one besides the result)."""
     if a.size < 2:
         return a.copy()
     jumps = np.diff(a)
-    jumps = -360.0 * np.round(jumps / 360.0, out=jumps)
+    jumps /= 360.0
+    np.round(jumps, out=jumps)
+    jumps *= -360.0
     out = a.copy()
     out[1:] += np.cumsum(jumps, out=jumps)
     return out
