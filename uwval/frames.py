@@ -200,8 +200,11 @@ def _convert_quats(orientation: F64, mw: F64, mb: F64) -> F64:
     out[:, 3] = q[:, 3]
     if not np.array_equal(m, np.eye(3)):
         out = quat_multiply(quat_from_matrix(m[None])[0][None, :], out)
-    # w >= 0, as quat_from_matrix returns (q and -q are one rotation)
-    np.negative(out, out=out, where=(out[:, 3] < 0)[:, None])
+    # w >= 0, as quat_from_matrix returns (q and -q are one rotation); column by column (a
+    # (N, 1) mask broadcast over rows of 4 is slow in numpy)
+    flip = out[:, 3] < 0
+    for j in range(4):
+        np.negative(out[:, j], out=out[:, j], where=flip)
     return out
 
 

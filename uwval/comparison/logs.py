@@ -4,6 +4,7 @@ run :func:`uwval.comparison.compare` per topic pair (vehicle and camera), collec
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -241,23 +242,118 @@ def compare_logs(
 def _recorded_clock_offset(path: str | Path) -> float | None:
     """Seconds to add to the Unity stamps of a log ``uwval bridge unity --clock monotonic``
     wrote, from its ``uwval.clock`` metadata (Unix time minus monotonic time, and any
-    Unity clock offset); None for any other log, or one whose summary cannot be read."""
+    Unity clock offset); None for any other log, or one whose summary cannot be read.
+
+    The metadata records are found through the log's summary (:func:`_summary_metadata`,
+    a few small reads); a log without a readable summary is scanned by mcap's reader."""
     if Path(path).suffix != ".mcap":
         return None
     try:
-        from mcap.reader import make_reader
+        records = _summary_metadata(path, "uwval.clock")
+        if records is None:  # no summary: mcap's reader scans the log
+            from mcap.reader import make_reader
 
-        with open(path, "rb") as fh:
-            for record in make_reader(fh).iter_metadata():
-                if record.name == "uwval.clock" and record.metadata.get("unity_clock") == (
-                    "monotonic"
-                ):
-                    e_m = int(record.metadata["epoch_minus_monotonic_ns"])
-                    off = int(record.metadata.get("unity_clock_offset_ns", "0"))
-                    return (e_m - off) * 1e-9
+            with open(path, "rb") as fh:
+                records = [
+                    dict(r.metadata)
+                    for r in make_reader(fh).iter_metadata()
+                    if r.name == "uwval.clock"
+                ]
+        for metadata in records:
+            if metadata.get("unity_clock") == "monotonic":
+                e_m = int(metadata["epoch_minus_monotonic_ns"])
+                off = int(metadata.get("unity_clock_offset_ns", "0"))
+                return (e_m - off) * 1e-9
     except Exception:  # an unfinished or damaged summary: nothing recorded to use
         return None
     return None
+
+
+_MCAP_MAGIC = b"\x89MCAP0\r\n"
+_OP_FOOTER, _OP_METADATA, _OP_METADATA_INDEX, _OP_SUMMARY_OFFSET = 0x02, 0x0C, 0x0D, 0x0E
+
+
+def _mcap_string(buf: bytes, pos: int) -> tuple[str, int]:
+    """An MCAP string (uint32 length, UTF-8 bytes) at ``pos``: (text, position after it)."""
+    (n,) = struct.unpack_from("<I", buf, pos)
+    end = pos + 4 + n
+    if end > len(buf):
+        raise ValueError("string past the end of its record")
+    return buf[pos + 4 : end].decode(), end
+
+
+def _summary_metadata(path: str | Path, name: str) -> list[dict[str, str]] | None:
+    """The key/value maps of the MCAP metadata records called ``name``, in the order of the
+    log's summary (as mcap's ``iter_metadata`` yields them), read through the footer, the
+    summary offsets and the metadata index (MCAP spec: records are opcode u8, length u64,
+    body): a few small reads instead of importing and running mcap's reader. None when the
+    log has no summary (the caller then scans it); a damaged one raises."""
+    with open(path, "rb") as fh:
+        fh.seek(0, 2)
+        size = fh.tell()
+        tail_len = 1 + 8 + 20 + len(_MCAP_MAGIC)
+        if size < len(_MCAP_MAGIC) + tail_len:
+            return None
+        fh.seek(size - tail_len)
+        tail = fh.read(tail_len)
+        if tail[-8:] != _MCAP_MAGIC or tail[0] != _OP_FOOTER:
+            return None
+        length, summary_start, offsets_start, _crc = struct.unpack_from("<QQQI", tail, 1)
+        if length != 20 or summary_start == 0:
+            return None
+        footer_at = size - tail_len
+
+        def read(start: int, end: int) -> bytes:
+            if not 0 < start <= end <= footer_at:
+                raise ValueError("summary section outside the file")
+            fh.seek(start)
+            return fh.read(end - start)
+
+        def records(buf: bytes) -> list[tuple[int, bytes]]:
+            out, pos = [], 0
+            while pos < len(buf):
+                op, n = struct.unpack_from("<BQ", buf, pos)
+                end = pos + 9 + n
+                if end > len(buf):
+                    raise ValueError("record past the end of its section")
+                out.append((op, buf[pos + 9 : end]))
+                pos = end
+            return out
+
+        # the metadata index group, through the summary offsets when there are some
+        section = (summary_start, offsets_start or footer_at)
+        if offsets_start:
+            for op, body in records(read(offsets_start, footer_at)):
+                if op == _OP_SUMMARY_OFFSET and body[0] == _OP_METADATA_INDEX:
+                    start, n = struct.unpack_from("<QQ", body, 1)
+                    section = (start, start + n)
+                    break
+            else:
+                return []  # no metadata index group: the log has no metadata
+        found = []
+        for op, body in records(read(*section)):
+            if op != _OP_METADATA_INDEX:
+                continue
+            offset, n = struct.unpack_from("<QQ", body, 0)
+            if _mcap_string(body, 16)[0] != name:
+                continue
+            rec = read(offset, offset + n)
+            op_rec, n_rec = struct.unpack_from("<BQ", rec, 0)
+            if op_rec != _OP_METADATA or 9 + n_rec > len(rec):
+                raise ValueError("metadata index points at no metadata record")
+            body_rec = rec[9 : 9 + n_rec]
+            rec_name, pos = _mcap_string(body_rec, 0)
+            (map_len,) = struct.unpack_from("<I", body_rec, pos)
+            pos += 4
+            end = pos + map_len
+            if rec_name != name or end > len(body_rec):
+                raise ValueError("damaged metadata record")
+            values: dict[str, str] = {}
+            while pos < end:
+                key, pos = _mcap_string(body_rec, pos)
+                values[key], pos = _mcap_string(body_rec, pos)
+            found.append(values)
+        return found
 
 
 def _read_pair(

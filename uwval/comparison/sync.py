@@ -122,10 +122,20 @@ def index_or_slice(idx: I64) -> I64 | slice:
 
 
 def nominal_period_ns(t: I64) -> int:
-    """Median stamp spacing (ns): the stream's nominal period, robust to a few gaps."""
+    """Median stamp spacing (ns): the stream's nominal period, robust to a few gaps.
+
+    ``int(np.median(np.diff(t)))`` value for value (the middle spacing, or the float mean of
+    the two middle ones, truncated) by one in-place partition (np.median also imports
+    numpy.ma, ~6 ms of a compare's start-up)."""
     if t.shape[0] < 2:
         return 0
-    return int(np.median(np.diff(t)))
+    d = np.diff(t)
+    h = d.size // 2
+    d.partition(h)
+    mid = float(d[h])
+    if d.size % 2:
+        return int(mid)
+    return int((float(d[:h].max()) + mid) / 2.0)
 
 
 @dataclass(frozen=True)
