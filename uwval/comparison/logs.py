@@ -245,12 +245,16 @@ def _recorded_clock_offset(path: str | Path) -> float | None:
     Unity clock offset); None for any other log, or one whose summary cannot be read.
 
     The metadata records are found through the log's summary (:func:`_summary_metadata`,
-    a few small reads); a log without a readable summary is scanned by mcap's reader."""
+    a few small reads); a log without a summary, or whose summary does not parse, is left to
+    mcap's reader (as before)."""
     if Path(path).suffix != ".mcap":
         return None
     try:
         records = _summary_metadata(path, "uwval.clock")
-        if records is None:  # no summary: mcap's reader scans the log
+    except Exception:  # a damaged summary: mcap's reader decides, as before
+        records = None
+    try:
+        if records is None:  # no summary (or a damaged one): mcap's reader scans the log
             from mcap.reader import make_reader
 
             with open(path, "rb") as fh:
