@@ -10,6 +10,7 @@ one 3x3 formula serves every case and no quaternion formula is written by hand p
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -182,6 +183,20 @@ def convert_arrays(
     return np.ascontiguousarray(pos), _convert_quats(orientation, mw, mb)
 
 
+@functools.lru_cache(maxsize=256)
+def _quat_map(mw_bytes: bytes, mb_bytes: bytes) -> tuple[bool, F64, F64 | None]:
+    """The constants of :func:`_convert_quats` for one pair of 3x3 maps (given as bytes, to
+    be cached): whether M = mw mb^T is proper, Q = +-mb with det +1, and M's quaternion as
+    a (1, 4) row (None for the identity). Computed once per convention pair (the frame
+    doctor converts under every convention on each compare)."""
+    mw = np.frombuffer(mw_bytes).reshape(3, 3)
+    mb = np.frombuffer(mb_bytes).reshape(3, 3)
+    m = mw @ mb.T
+    qb = mb if np.linalg.det(mb) > 0 else -mb
+    left = None if np.array_equal(m, np.eye(3)) else quat_from_matrix(m[None])[0][None, :]
+    return bool(np.linalg.det(m) >= 0), qb, left
+
+
 def _convert_quats(orientation: F64, mw: F64, mb: F64) -> F64:
     """Quaternions of R' = mw R mb^T for signed permutations mw, mb, without matrices.
 
@@ -191,15 +206,14 @@ def _convert_quats(orientation: F64, mw: F64, mb: F64) -> F64:
     sign flips, no matrix round trip (3x faster; equal to it to rounding).
     """
     q = np.asarray(orientation, dtype=np.float64)
-    m = mw @ mb.T
-    if np.linalg.det(m) < 0:  # not a pair of conventions of one handedness: general path
+    proper, qb, left = _quat_map(mw.tobytes(), mb.tobytes())
+    if not proper:  # not a pair of conventions of one handedness: general path
         return quat_from_matrix(mw @ matrix_from_quat(q) @ mb.T)
-    qb = mb if np.linalg.det(mb) > 0 else -mb
     out = np.empty_like(q)
     out[:, :3] = q[:, :3] @ qb.T
     out[:, 3] = q[:, 3]
-    if not np.array_equal(m, np.eye(3)):
-        out = quat_multiply(quat_from_matrix(m[None])[0][None, :], out)
+    if left is not None:
+        out = quat_multiply(left, out)
     # w >= 0, as quat_from_matrix returns (q and -q are one rotation); column by column (a
     # (N, 1) mask broadcast over rows of 4 is slow in numpy)
     flip = out[:, 3] < 0
