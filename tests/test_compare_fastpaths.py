@@ -465,3 +465,70 @@ def test_the_plain_table_text_is_what_rich_prints(
     assert compare_run._table_text("t", ["axis", "n"], [["x", ":smile:"]], []) is None
     monkeypatch.setenv("FORCE_COLOR", "1")
     assert not compare_run._plain_output()
+
+
+def test_pairs_compared_in_threads_give_the_sequential_results(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from uwval.comparison import logs
+    from uwval.comparison.synthetic import camera_motion
+
+    g = vehicle_motion(3000, 100.0, seed=31)
+    u = unity_view(g, rate_hz=60.0, latency=0.02, noise=0.003, seed=32)
+    cam = camera_motion(g)
+    cam_u = unity_view(cam, rate_hz=60.0, latency=0.02, seed=33, topic="/unity/gui_camera_pose")
+    log = write_pair_log(tmp_path / "two.mcap", g, u, camera=(cam, cam_u))
+    monkeypatch.setattr(logs, "_second_cpu_free", lambda: True)
+    monkeypatch.setattr(logs, "PARALLEL_MIN_SAMPLES", 10**9)
+    one_by_one = logs.compare_logs(log).to_json()
+    threads: list[str] = []
+    real_compare = compare
+
+    def spy(*args: object, **kw: object) -> object:
+        import threading
+
+        threads.append(threading.current_thread().name)
+        return real_compare(*args, **kw)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(logs, "compare", spy)
+    monkeypatch.setattr(logs, "PARALLEL_MIN_SAMPLES", 1000)
+    assert logs.compare_logs(log).to_json() == one_by_one
+    assert len(threads) == 2 and all(t.startswith("uwval-compare") for t in threads)
+    assert list(one_by_one["topics"]) == ["model_rov_pose", "gui_camera_pose"]
+
+
+def test_an_error_of_the_first_pair_is_raised_as_one_by_one(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from uwval.comparison import logs
+    from uwval.comparison.synthetic import camera_motion
+    from uwval.errors import AlignmentError
+
+    g = vehicle_motion(2000, 100.0, seed=41)
+    cam = camera_motion(g)
+    log = write_pair_log(
+        tmp_path / "two.mcap",
+        g,
+        unity_view(g, seed=42),
+        camera=(cam, unity_view(cam, seed=43, topic="/unity/gui_camera_pose")),
+    )
+    monkeypatch.setattr(logs, "_second_cpu_free", lambda: True)
+    monkeypatch.setattr(logs, "PARALLEL_MIN_SAMPLES", 100)
+    # an offset that leaves no overlap: both pairs fail, the vehicle pair's error is raised
+    with pytest.raises(AlignmentError, match="model_rov_pose"):
+        logs.compare_logs(log, offset=1e6)
+
+
+@pytest.mark.parametrize(
+    ("cpus", "load", "free"), [(2, 0.2, True), (2, 1.2, True), (2, 1.6, False), (1, 0.0, False)]
+)
+def test_threads_only_when_a_second_cpu_is_free(
+    monkeypatch: pytest.MonkeyPatch, cpus: int, load: float, free: bool
+) -> None:
+    import os
+
+    from uwval.comparison import logs
+
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(cpus)), raising=False)
+    monkeypatch.setattr(os, "getloadavg", lambda: (load, load, load))
+    assert logs._second_cpu_free() is free
