@@ -14,6 +14,7 @@ validated inputs and the JSON contract; the steps themselves live in sync, align
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -595,9 +596,9 @@ def _position_norm(ref_pos: F64, oth_pos: F64) -> F64:
     return out
 
 
-def _rpy_deg_into(q: F64, out: F64, sc: Scratch) -> None:
+def _rpy_deg_into(q: F64, out: Sequence[F64], sc: Scratch) -> None:
     """ROS roll, pitch, yaw (fixed-axis XYZ) in degrees of (k, 4) xyzw quaternions into the
-    rows of ``out`` (3, k): :func:`uwval.rotations.rpy_from_quat`'s formulas, operation for
+    three (k,) arrays ``out``: :func:`uwval.rotations.rpy_from_quat`'s formulas, operation for
     operation (equal to the bit), with the squares shared and no temporary allocated."""
     k = q.shape[0]
     x, y, z, w = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
@@ -630,7 +631,8 @@ def _rpy_deg_into(q: F64, out: F64, sc: Scratch) -> None:
     b *= 2
     np.subtract(1, b, out=b)
     np.arctan2(a, b, out=out[2])
-    np.degrees(out, out=out)
+    for angle in out:
+        np.degrees(angle, out=angle)
 
 
 def _wrap_deg_into(a: F64, tmp: F64) -> None:
@@ -643,20 +645,23 @@ def _wrap_deg_into(a: F64, tmp: F64) -> None:
     np.subtract(a, 360.0, out=a, where=a > 180.0)
 
 
-def _angle_errors(ref_quat: F64, oth_quat: F64) -> tuple[F64, F64, F64]:
-    """Reference ROS angles (3, N), wrapped errors other - reference (3, N) (roll, pitch,
-    yaw; deg) and the geodesic rotation error (N,) (deg), in one pass of ROW_CHUNK rows."""
+def _angle_errors(ref_quat: F64, oth_quat: F64) -> tuple[list[F64], list[F64], F64]:
+    """Reference ROS angles, wrapped errors other - reference (roll, pitch, yaw; three (N,)
+    arrays each, deg) and the geodesic rotation error (N,) (deg), in one pass of ROW_CHUNK
+    rows (separate arrays: each can be let go as soon as its axis is done)."""
     n = ref_quat.shape[0]
-    ref_angle, err, rot = np.empty((3, n)), np.empty((3, n)), np.empty(n)
+    ref_angle = [np.empty(n) for _ in range(3)]
+    err = [np.empty(n) for _ in range(3)]
+    rot = np.empty(n)
     sc = Scratch(min(n, ROW_CHUNK))
     for s in range(0, n, ROW_CHUNK):
         e = min(n, s + ROW_CHUNK)
         rq, oq = ref_quat[s:e], oth_quat[s:e]
-        r, d = ref_angle[:, s:e], err[:, s:e]
+        r, d = [a[s:e] for a in ref_angle], [a[s:e] for a in err]
         _rpy_deg_into(rq, r, sc)
         _rpy_deg_into(oq, d, sc)
-        d -= r
         for j in range(3):
+            d[j] -= r[j]
             _wrap_deg_into(d[j], sc.get(0, e - s))
         geodesic_deg_into(oq, rq, rot[s:e], sc)
     return ref_angle, err, rot
@@ -691,31 +696,33 @@ def _axis_statistics(
         err = oth_j - ref_j
         axes[ax] = axis_stats(err, ref_j, oth_j, overwrite_other=True) | {"unit": "m"}
         del err, ref_j, oth_j
-    ref_angle, err3, rot = _angle_errors(ref_quat, oth_quat)
+    ref_angle, errs, rot = _angle_errors(ref_quat, oth_quat)
+    rotation = norm_stats(rot)
+    del rot
     for j, ax in enumerate(("roll", "pitch", "yaw")):
-        err = err3[j]
+        err = errs[j]
         # correlate continuous series: unwrap the reference, other = reference + wrapped error,
         # so a 179 -> -179 deg crossing is not a 358 deg jump in either series
-        ref_series = _unwrap_deg(ref_angle[j])
+        ref_series = _unwrap_deg(ref_angle[j], in_place=True)
         axes[ax] = axis_stats(err, ref_series, ref_series + err, overwrite_other=True) | {
             "unit": "deg"
         }
         del ref_series, err
-    del ref_angle, err3
+        ref_angle[j] = errs[j] = np.empty(0)  # this axis's series are let go
     position = norm_stats(_position_norm(ref_pos, oth_pos))
-    rotation = norm_stats(rot)
     return axes, position, rotation
 
 
-def _unwrap_deg(a: F64) -> F64:
-    """np.unwrap(a, period=360) for degrees, with fewer temporaries (one besides the result)."""
+def _unwrap_deg(a: F64, *, in_place: bool = False) -> F64:
+    """np.unwrap(a, period=360) for degrees, with fewer temporaries (one besides the result);
+    ``in_place``: ``a`` itself becomes the result."""
     if a.size < 2:
-        return a.copy()
+        return a if in_place else a.copy()
     jumps = np.diff(a)
     jumps /= 360.0
     np.round(jumps, out=jumps)
     jumps *= -360.0
-    out = a.copy()
+    out = a if in_place else a.copy()
     out[1:] += np.cumsum(jumps, out=jumps)
     return out
 
