@@ -369,12 +369,16 @@ def compare(
     else:
         offset_s = float(offset)
 
+    # the other stream's nominal period (its stamps' median step; frame and offset do not
+    # change it): the default gap limit of both interpolations and a sync_info entry
+    period_ns = nominal_period_ns(other.t)
+
     # ---- frame doctor on interpolated raw samples
     diagnosis: FrameDiagnosis | None = None
     if check_frame is None:
         check_frame = get_convention(configured).left_handed
     if (frame == "auto" or check_frame) and len(other) >= 2 and len(ref_c) >= 2:
-        diagnosis = _diagnose(ref_c, raw_other, offset_s, configured)
+        diagnosis = _diagnose(ref_c, raw_other, offset_s, configured, 5 * period_ns)
         if diagnosis is not None:
             if frame == "auto" and diagnosis.best is not None:  # adopt it; redo the offset
                 configured = diagnosis.best
@@ -393,7 +397,7 @@ def compare(
     # ---- time association
     sync_info: dict[str, Any] = {"method": sync, "n_reference": len(ref_c), "n_other": len(oth_c)}
     if sync == "interp":
-        max_gap_ns = None if max_gap is None else round(max_gap * 1e9)
+        max_gap_ns = 5 * period_ns if max_gap is None else round(max_gap * 1e9)
         interp = interpolate_at(
             oth_c, ref_c.t, max_gap_ns=max_gap_ns, offset_ns=-_offset_ns(offset_s)
         )
@@ -410,7 +414,7 @@ def compare(
             masked=interp.in_gap,
             dropped=interp.outside,
             max_gap_s=interp.max_gap_ns * 1e-9,
-            other_nominal_period_s=nominal_period_ns(oth_c.t) * 1e-9,
+            other_nominal_period_s=period_ns * 1e-9,
         )
         if interp.in_gap:
             warnings.append(
@@ -728,12 +732,18 @@ def _unwrap_deg(a: F64, *, in_place: bool = False) -> F64:
 
 
 def _diagnose(
-    ref_c: PoseStream, raw_other: PoseStream, offset_s: float, configured: str
+    ref_c: PoseStream,
+    raw_other: PoseStream,
+    offset_s: float,
+    configured: str,
+    max_gap_ns: int | None = None,
 ) -> FrameDiagnosis | None:
     """Run the frame doctor on up to ~20k reference stamps with the other stream interpolated."""
     step = max(1, len(ref_c) // 20_000)
     sub = ref_c.slice(slice(None, None, step))
-    interp = interpolate_at(raw_other, sub.t, offset_ns=-_offset_ns(offset_s))
+    interp = interpolate_at(
+        raw_other, sub.t, max_gap_ns=max_gap_ns, offset_ns=-_offset_ns(offset_s)
+    )
     ok = interp.valid
     if int(ok.sum()) < 3:
         return None
