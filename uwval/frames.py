@@ -197,6 +197,34 @@ def _quat_map(mw_bytes: bytes, mb_bytes: bytes) -> tuple[bool, F64, F64 | None]:
     return bool(np.linalg.det(m) >= 0), qb, left
 
 
+def _left_multiply(a: F64, b: F64) -> F64:
+    """``quat_multiply(a[None], b)`` for one quaternion ``a`` and (N, 4) ``b``, term for term
+    in the same order (equal to it to the bit), on contiguous copies of b's components (the
+    general product's (1,) x (N,) broadcasts over strided columns cost ~3x)."""
+    ax, ay, az, aw = (float(v) for v in a)
+    bx, by, bz, bw = np.ascontiguousarray(b.T)
+    out = np.empty_like(b)
+    t = np.empty_like(bx)
+    for j, terms in enumerate(
+        (
+            ((aw, bx, 1), (ax, bw, 1), (ay, bz, 1), (az, by, -1)),
+            ((aw, by, 1), (ax, bz, -1), (ay, bw, 1), (az, bx, 1)),
+            ((aw, bz, 1), (ax, by, 1), (ay, bx, -1), (az, bw, 1)),
+            ((aw, bw, 1), (ax, bx, -1), (ay, by, -1), (az, bz, -1)),
+        )
+    ):
+        (c0, v0, _), *rest = terms
+        acc = np.multiply(c0, v0)
+        for c, v, sign in rest:
+            np.multiply(c, v, out=t)
+            if sign > 0:
+                acc += t
+            else:
+                acc -= t
+        out[:, j] = acc
+    return out
+
+
 def _convert_quats(orientation: F64, mw: F64, mb: F64) -> F64:
     """Quaternions of R' = mw R mb^T for signed permutations mw, mb, without matrices.
 
@@ -213,12 +241,13 @@ def _convert_quats(orientation: F64, mw: F64, mb: F64) -> F64:
     out[:, :3] = q[:, :3] @ qb.T
     out[:, 3] = q[:, 3]
     if left is not None:
-        out = quat_multiply(left, out)
-    # w >= 0, as quat_from_matrix returns (q and -q are one rotation); column by column (a
-    # (N, 1) mask broadcast over rows of 4 is slow in numpy)
-    flip = out[:, 3] < 0
+        out = _left_multiply(left[0], out)
+    # w >= 0, as quat_from_matrix returns (q and -q are one rotation): times -1 or 1 column
+    # by column (exactly a negation; a masked negation or an (N, 1) broadcast over rows of 4
+    # is several times slower in numpy)
+    sign = np.where(out[:, 3] < 0, -1.0, 1.0)
     for j in range(4):
-        np.negative(out[:, j], out=out[:, j], where=flip)
+        out[:, j] *= sign
     return out
 
 
