@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 
 from uwval.errors import FrameError
 from uwval.posestream import PoseStream
-from uwval.rotations import matrix_from_quat, quat_from_matrix, quat_multiply
+from uwval.rotations import matrix_from_quat, quat_from_matrix
 
 F64 = NDArray[np.float64]
 
