@@ -14,6 +14,7 @@ Both are vectorised (``searchsorted`` over the whole stream, no per-pose loop).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -44,6 +45,22 @@ class NearestMatch:
 MATCH_CHUNK = 1 << 15
 
 
+def _sorted_search(
+    a: NDArray[Any], v: NDArray[Any], side: Literal["left", "right"], v_sorted: bool
+) -> I64:
+    """``np.searchsorted(a, v, side)``; for sorted ``v`` (``v_sorted``) the answers lie
+    between those of v[0] and v[-1], so only that stretch of ``a`` is searched (shorter
+    binary searches that stay in the CPU cache: ~1.7x faster on a 216k-stamp stream in
+    32k-stamp steps)."""
+    if v.size < 2 or not v_sorted:
+        return np.searchsorted(a, v, side=side)
+    i0 = int(np.searchsorted(a, v[0], side=side))
+    i1 = int(np.searchsorted(a, v[-1], side=side))
+    out = np.searchsorted(a[i0 : i1 + 1], v, side=side)
+    out += i0
+    return out
+
+
 def match_time_indices(
     stamps_1: F64, stamps_2: F64, max_diff: float, offset_2: float = 0.0
 ) -> tuple[I64, I64]:
@@ -63,12 +80,13 @@ def match_time_indices(
         empty = np.zeros(0, dtype=np.int64)
         return empty, empty
     first, last = s2[0] - max_diff, s2[-1] + max_diff
+    s1_sorted = bool((s1[1:] >= s1[:-1]).all())
     out_1 = np.empty(n1, dtype=np.int64)
     out_2 = np.empty(n1, dtype=np.int64)
     k = 0
     for start in range(0, n1, MATCH_CHUNK):
         c = s1[start : start + MATCH_CHUNK]
-        idx = np.searchsorted(s2, c, side="right")
+        idx = _sorted_search(s2, c, "right", s1_sorted)
         np.minimum(idx, n2 - 1, out=idx)
         diff_ub = s2[idx] - c
         prev = np.maximum(idx - 1, 0)
@@ -181,12 +199,13 @@ def interpolate_at(
     pos, quat = np.empty((m, 3)), np.empty((m, 4))
     n_outside = n_gap = 0
     position, orientation = stream.position, stream.orientation
+    q_sorted = bool((q[1:] >= q[:-1]).all())  # stamps usually are: faster paths below
     t_first, t_last = t[0], t[-1]
     # in steps of MATCH_CHUNK query stamps: the (k, 4) temporaries stay small and cached
     for s in range(0, m, MATCH_CHUNK):
         e = min(m, s + MATCH_CHUNK)
         qc = q[s:e]
-        hi = np.searchsorted(t, qc, side="left")  # t[hi-1] < q <= t[hi]
+        hi = _sorted_search(t, qc, "left", q_sorted)  # t[hi-1] < q <= t[hi]
         outside_mask = (qc < t_first) | (qc > t_last)
         np.clip(hi, 1, n - 1, out=hi)
         lo = hi - 1
@@ -209,7 +228,7 @@ def interpolate_at(
         # is much denser than the queries, then only the pairs used; (3|4, K) rows, no
         # (K, 1) x (K, 3) broadcasts (slow in numpy)
         a, b = int(lo[0]), int(lo[-1]) + 1
-        if b - a <= 2 * (e - s):
+        if q_sorted and b - a <= 2 * (e - s):
             seg: I64 | None = lo - a
             rows = position[a : b + 1].T
             p0, dp = rows[:, :-1], rows[:, 1:] - rows[:, :-1]
