@@ -573,8 +573,10 @@ def _run_compare(
 
         for res in result.results.values():
             res.stats["ape"] = ape_statistics(res.reference, res.other, pose_relation)
-    doc = result.to_json()
-    text = json.dumps(doc, indent=1, allow_nan=False)
+    # the whole JSON document only when something is written from it (a table needs none)
+    wants_doc = as_json or output is not None or save_results is not None
+    doc = result.to_json() if wants_doc else {}
+    text = json.dumps(doc, indent=1, allow_nan=False) if wants_doc else ""
     if output is not None:
         _write_output(output, text + "\n", "the JSON result")
     if save_results is not None:
