@@ -658,9 +658,14 @@ def _angle_errors(ref_quat: F64, oth_quat: F64) -> tuple[list[F64], list[F64], F
     err = [np.empty(n) for _ in range(3)]
     rot = np.empty(n)
     sc = Scratch(min(n, ROW_CHUNK))
+    # each step's quaternions copied component-major once: every product below then reads
+    # contiguous components instead of strided columns of the (N, 4) tables
+    r_rows, o_rows = np.empty((4, min(n, ROW_CHUNK))), np.empty((4, min(n, ROW_CHUNK)))
     for s in range(0, n, ROW_CHUNK):
         e = min(n, s + ROW_CHUNK)
-        rq, oq = ref_quat[s:e], oth_quat[s:e]
+        np.copyto(r_rows[:, : e - s], ref_quat[s:e].T)
+        np.copyto(o_rows[:, : e - s], oth_quat[s:e].T)
+        rq, oq = r_rows[:, : e - s].T, o_rows[:, : e - s].T
         r, d = [a[s:e] for a in ref_angle], [a[s:e] for a in err]
         _rpy_deg_into(rq, r, sc)
         _rpy_deg_into(oq, d, sc)
