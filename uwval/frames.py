@@ -242,12 +242,11 @@ def _convert_quats(orientation: F64, mw: F64, mb: F64) -> F64:
     out[:, 3] = q[:, 3]
     if left is not None:
         out = _left_multiply(left[0], out)
-    # w >= 0, as quat_from_matrix returns (q and -q are one rotation): times -1 or 1 column
-    # by column (exactly a negation; a masked negation or an (N, 1) broadcast over rows of 4
-    # is several times slower in numpy)
-    sign = np.where(out[:, 3] < 0, -1.0, 1.0)
-    for j in range(4):
-        out[:, j] *= sign
+    # w >= 0, as quat_from_matrix returns (q and -q are one rotation): the rows with w < 0
+    # negated (often none; a masked negation over all rows is several times slower)
+    flip = np.flatnonzero(out[:, 3] < 0)
+    if flip.size:
+        out[flip] = -out[flip]
     return out
 
 
