@@ -33,11 +33,6 @@ from typing import Any
 
 from uwval.errors import ConfigError
 
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - Python 3.10
-    import tomli as tomllib
-
 #: The file looked for in the current folder.
 CONFIG_NAME = "uwval.toml"
 
@@ -94,6 +89,11 @@ def load_config(
     path = find_config(explicit, cwd)
     if path is None:
         return None
+    # imported here: a compare without a project file does not load the TOML parser
+    if sys.version_info >= (3, 11):
+        import tomllib
+    else:  # pragma: no cover - Python 3.10
+        import tomli as tomllib
     try:
         obj = tomllib.loads(path.read_text())
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:

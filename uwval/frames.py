@@ -10,6 +10,7 @@ one 3x3 formula serves every case and no quaternion formula is written by hand p
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -17,7 +18,7 @@ from numpy.typing import NDArray
 
 from uwval.errors import FrameError
 from uwval.posestream import PoseStream
-from uwval.rotations import matrix_from_quat, quat_from_matrix, quat_multiply
+from uwval.rotations import matrix_from_quat, quat_from_matrix
 
 F64 = NDArray[np.float64]
 
@@ -182,6 +183,48 @@ def convert_arrays(
     return np.ascontiguousarray(pos), _convert_quats(orientation, mw, mb)
 
 
+@functools.lru_cache(maxsize=256)
+def _quat_map(mw_bytes: bytes, mb_bytes: bytes) -> tuple[bool, F64, F64 | None]:
+    """The constants of :func:`_convert_quats` for one pair of 3x3 maps (given as bytes, to
+    be cached): whether M = mw mb^T is proper, Q = +-mb with det +1, and M's quaternion as
+    a (1, 4) row (None for the identity). Computed once per convention pair (the frame
+    doctor converts under every convention on each compare)."""
+    mw = np.frombuffer(mw_bytes).reshape(3, 3)
+    mb = np.frombuffer(mb_bytes).reshape(3, 3)
+    m = mw @ mb.T
+    qb = mb if np.linalg.det(mb) > 0 else -mb
+    left = None if np.array_equal(m, np.eye(3)) else quat_from_matrix(m[None])[0][None, :]
+    return bool(np.linalg.det(m) >= 0), qb, left
+
+
+def _left_multiply(a: F64, b: F64) -> F64:
+    """``quat_multiply(a[None], b)`` for one quaternion ``a`` and (N, 4) ``b``, term for term
+    in the same order (equal to it to the bit), on contiguous copies of b's components (the
+    general product's (1,) x (N,) broadcasts over strided columns cost ~3x)."""
+    ax, ay, az, aw = (float(v) for v in a)
+    bx, by, bz, bw = np.ascontiguousarray(b.T)
+    out = np.empty_like(b)
+    t = np.empty_like(bx)
+    for j, terms in enumerate(
+        (
+            ((aw, bx, 1), (ax, bw, 1), (ay, bz, 1), (az, by, -1)),
+            ((aw, by, 1), (ax, bz, -1), (ay, bw, 1), (az, bx, 1)),
+            ((aw, bz, 1), (ax, by, 1), (ay, bx, -1), (az, bw, 1)),
+            ((aw, bw, 1), (ax, bx, -1), (ay, by, -1), (az, bz, -1)),
+        )
+    ):
+        (c0, v0, _), *rest = terms
+        acc = np.multiply(c0, v0)
+        for c, v, sign in rest:
+            np.multiply(c, v, out=t)
+            if sign > 0:
+                acc += t
+            else:
+                acc -= t
+        out[:, j] = acc
+    return out
+
+
 def _convert_quats(orientation: F64, mw: F64, mb: F64) -> F64:
     """Quaternions of R' = mw R mb^T for signed permutations mw, mb, without matrices.
 
@@ -191,17 +234,19 @@ def _convert_quats(orientation: F64, mw: F64, mb: F64) -> F64:
     sign flips, no matrix round trip (3x faster; equal to it to rounding).
     """
     q = np.asarray(orientation, dtype=np.float64)
-    m = mw @ mb.T
-    if np.linalg.det(m) < 0:  # not a pair of conventions of one handedness: general path
+    proper, qb, left = _quat_map(mw.tobytes(), mb.tobytes())
+    if not proper:  # not a pair of conventions of one handedness: general path
         return quat_from_matrix(mw @ matrix_from_quat(q) @ mb.T)
-    qb = mb if np.linalg.det(mb) > 0 else -mb
     out = np.empty_like(q)
     out[:, :3] = q[:, :3] @ qb.T
     out[:, 3] = q[:, 3]
-    if not np.array_equal(m, np.eye(3)):
-        out = quat_multiply(quat_from_matrix(m[None])[0][None, :], out)
-    # w >= 0, as quat_from_matrix returns (q and -q are one rotation)
-    np.negative(out, out=out, where=(out[:, 3] < 0)[:, None])
+    if left is not None:
+        out = _left_multiply(left[0], out)
+    # w >= 0, as quat_from_matrix returns (q and -q are one rotation): the rows with w < 0
+    # negated (often none; a masked negation over all rows is several times slower)
+    flip = np.flatnonzero(out[:, 3] < 0)
+    if flip.size:
+        out[flip] = -out[flip]
     return out
 
 

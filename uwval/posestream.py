@@ -7,6 +7,8 @@ carried as metadata; the arrays are never lists of 4x4 matrices.
 
 from __future__ import annotations
 
+import math
+import weakref
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -78,9 +80,9 @@ class PoseStream:
             )
         if self.applied_stamp is not None and self.applied_stamp.shape != (n,):
             raise PoseStreamError(f"{where}: applied_stamp must have shape ({n},)")
-        if n > 0:
+        if n > 0 and not _stamps_checked(self.t):
             _check_stamp_range(self.t, where)
-        if n > 1 and not bool(np.all(np.diff(self.t) > 0)):
+        if n > 1 and not _stamps_checked(self.t) and not bool(np.all(np.diff(self.t) > 0)):
             raise PoseStreamError(
                 f"{where}: stamps must be strictly increasing (use PoseStream.from_arrays "
                 "to sort and drop duplicates)"
@@ -114,7 +116,8 @@ class PoseStream:
         """
         where = _describe(topic, source)
         t_arr = np.asarray(t)
-        if t_arr.dtype.kind == "f":
+        kind = t_arr.dtype.kind
+        if kind == "f":
             if not np.all(np.isfinite(t_arr)):
                 bad = int(np.flatnonzero(~np.isfinite(t_arr))[0])
                 raise PoseStreamError(f"{where}: stamp of sample {bad} is not finite")
@@ -144,26 +147,40 @@ class PoseStream:
             raise PoseStreamError(
                 f"{where}: orientation must have shape ({n}, 4), got {quat.shape}"
             )
-        finite = np.isfinite(pos).all(axis=1) & np.isfinite(quat).all(axis=1)
-        if not finite.all():
+        # min and max propagate NaN and show +-inf: two fast reductions per array clear the
+        # usual all-finite case; the row-wise scan only runs to name a bad sample
+        if n and not all(math.isfinite(float(f(a))) for a in (pos, quat) for f in (np.min, np.max)):
+            finite = np.isfinite(pos).all(axis=1) & np.isfinite(quat).all(axis=1)
             bad = int(np.flatnonzero(~finite)[0])
             raise PoseStreamError(
                 f"{where}: sample {bad} (t={t_arr[bad]} ns) has a NaN or infinite value "
                 f"({int((~finite).sum())} such samples)"
             )
         repairs: dict[str, int] = {}
-        norms = np.linalg.norm(quat, axis=1)
-        off = np.abs(norms - 1.0)
-        if n and float(off.max()) > QUAT_NORM_TOLERANCE:
-            bad = int(np.argmax(off))
-            raise PoseStreamError(
-                f"{where}: quaternion of sample {bad} has norm {norms[bad]:.6g}, "
-                f"more than {QUAT_NORM_TOLERANCE} from 1 (is it x, y, z, w order?)"
-            )
-        renorm = off > 1e-9
-        if renorm.any():
-            quat = quat / norms[:, None]
-            repairs["renormalized"] = int(renorm.sum())
+        # unit quaternions (the usual case) are cleared by a fast approximate |q| (einsum,
+        # within ~1e-15 of numpy's norm): exact norms only when some row may be off by 1e-9
+        approx = np.einsum("ij,ij->i", quat, quat)
+        np.sqrt(approx, out=approx)
+        approx -= 1.0
+        if n and float(np.abs(approx, out=approx).max()) > 1e-9 - 1e-12:
+            norms = quat_norms(quat)
+            off = np.abs(norms - 1.0)
+            if float(off.max()) > QUAT_NORM_TOLERANCE:
+                bad = int(np.argmax(off))
+                raise PoseStreamError(
+                    f"{where}: quaternion of sample {bad} has norm {norms[bad]:.6g}, "
+                    f"more than {QUAT_NORM_TOLERANCE} from 1 (is it x, y, z, w order?)"
+                )
+            n_renorm = int(np.count_nonzero(off > 1e-9))
+            if n_renorm:
+                # quat / norms[:, None] (every row), column by column: a (N, 1) broadcast
+                # is slow in numpy
+                unit = np.empty_like(quat)
+                for j in range(4):
+                    np.divide(quat[:, j], norms, out=unit[:, j])
+                quat = unit
+                repairs["renormalized"] = n_renorm
+        del approx
         stamps = None if applied_stamp is None else np.asarray(applied_stamp, dtype=np.int64)
         if n > 1:
             d = np.diff(t_arr)
@@ -187,6 +204,11 @@ class PoseStream:
                 t_arr, pos, quat = t_arr[keep], pos[keep], quat[keep]
                 if stamps is not None:
                     stamps = stamps[keep]
+        if t_arr.ndim == 1 and t_arr.dtype == np.int64:
+            if kind == "f" and n:
+                _check_stamp_range(t_arr, where)  # rounding may reach past the bound
+            # sorted, no duplicates, in range, our own copy: its checks need not run again
+            _remember_checked(t_arr)
         return cls(
             t=t_arr,
             position=pos,
@@ -253,6 +275,52 @@ class PoseStream:
         if self.applied_stamp is not None:
             data["applied_stamp"] = self.applied_stamp.astype(np.float64) * 1e-9
         return pd.DataFrame(data)
+
+
+#: Stamp arrays of streams built by :meth:`PoseStream.from_arrays` (by id, with a weak
+#: reference to tell a reused id): strictly increasing and in range, made read-only, so the
+#: checks of ``__post_init__`` need not run again for streams derived from them
+#: (``with_``, frame conversion, aligned views). A contiguous forward slice of one is too.
+_CHECKED_STAMPS: dict[int, weakref.ref[I64]] = {}
+
+
+def _remember_checked(t: I64) -> None:
+    """Mark a stamp array ``from_arrays`` validated and owns as checked (and read-only)."""
+    t.flags.writeable = False
+    key = id(t)
+
+    def forget(_ref: weakref.ref[I64]) -> None:
+        _CHECKED_STAMPS.pop(key, None)
+
+    _CHECKED_STAMPS[key] = weakref.ref(t, forget)
+
+
+def _stamps_checked(t: I64) -> bool:
+    """Whether ``t`` is a checked stamp array or a contiguous forward slice of one."""
+    if t.flags.writeable:
+        return False
+    for a in (t, t.base):
+        ref = _CHECKED_STAMPS.get(id(a)) if a is not None else None
+        if ref is not None and ref() is a:
+            return a is t or (
+                isinstance(a, np.ndarray)
+                and t.dtype == a.dtype
+                and t.ndim == 1
+                and t.strides == a.strides
+            )
+    return False
+
+
+def quat_norms(q: F64) -> F64:
+    """|q| per row of (N, 4) quaternions, equal to ``np.linalg.norm(q, axis=1)`` to the bit
+    (the same sum of squares in the same order, ((x^2 + y^2) + z^2) + w^2), from columns:
+    a reduction along rows of 4 is slow in numpy."""
+    out = np.multiply(q[:, 0], q[:, 0])
+    sq = np.empty_like(out)
+    for j in (1, 2, 3):
+        np.multiply(q[:, j], q[:, j], out=sq)
+        out += sq
+    return np.sqrt(out, out=out)
 
 
 def _check_stamp_range(t: I64, where: str) -> None:

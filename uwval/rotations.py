@@ -200,3 +200,129 @@ def wrap_deg(a: F64) -> F64:
     w[w <= -180.0] += 360.0
     w[w > 180.0] -= 360.0
     return w.reshape(a.shape)
+
+
+def slerp_segments(
+    q0: F64,
+    q1: F64,
+    s: F64,
+    seg: NDArray[np.intp] | NDArray[np.int64] | None = None,
+    *,
+    out: F64 | None = None,
+) -> F64:
+    """``slerp(q0[seg], q1[seg], s)`` for (M, 4) endpoint pairs and (K,) fractions ``s``.
+
+    The same arithmetic as :func:`slerp`, operation for operation (equal to it to the bit),
+    arranged for interpolation: what depends on the pair only (the dot product, the short-arc
+    sign, the angle and its sine) is computed once per pair, then gathered for the K
+    fractions by ``seg`` (indices into the M pairs; ``None``: pair i for fraction i); the
+    rest runs on (4, K) component rows (no (K, 1) x (K, 4) broadcasts, slow in numpy). The
+    short-arc flip of q1 is a flip of its weight (exact: only the sign changes). Returns the
+    (K, 4) unit quaternions (x, y, z, w), written into ``out`` when given.
+    """
+    a0 = np.asarray(q0, dtype=np.float64).T
+    a1 = np.asarray(q1, dtype=np.float64).T
+    s = np.asarray(s, dtype=np.float64)
+    # dot product summed in numpy's order for a row of 4 (((a + b) + c) + d)
+    dot = a0[0] * a1[0]
+    for j in (1, 2, 3):
+        dot += a0[j] * a1[j]
+    flip = dot < 0
+    np.abs(dot, out=dot)
+    np.clip(dot, -1.0, 1.0, out=dot)
+    theta = np.arccos(dot, out=dot)
+    safe = np.sin(theta)
+    small = safe < 1e-9
+    safe[small] = 1.0
+    if seg is not None:
+        theta, safe, small, flip = theta[seg], safe[seg], small[seg], flip[seg]
+        g0, g1 = np.take(a0, seg, axis=1), np.take(a1, seg, axis=1)
+    else:
+        g0, g1 = a0.copy(), a1.copy()
+    one_minus = 1.0 - s
+    w0 = np.multiply(one_minus, theta)
+    np.sin(w0, out=w0)
+    w0 /= safe
+    w1 = np.multiply(s, theta)
+    np.sin(w1, out=w1)
+    w1 /= safe
+    if small.any():
+        np.copyto(w0, one_minus, where=small)
+        np.copyto(w1, s, where=small)
+    np.negative(w1, out=w1, where=flip)
+    g0 *= w0
+    g1 *= w1
+    g0 += g1
+    # norm as np.linalg.norm sums a row of 4: ((x^2 + y^2) + z^2) + w^2
+    norm = np.multiply(g0[0], g0[0])
+    for j in (1, 2, 3):
+        np.multiply(g0[j], g0[j], out=w1)
+        norm += w1
+    np.sqrt(norm, out=norm)
+    g0 /= norm
+    if out is None:
+        return np.ascontiguousarray(g0.T)
+    out[...] = g0.T
+    return out
+
+
+class Scratch:
+    """float64 work buffers of ``k`` elements, reused by every step of a chunked loop (the
+    steps' operations write into them: no allocation per operation); ``get(i, m)`` is the
+    first ``m`` elements of buffer ``i``."""
+
+    def __init__(self, k: int) -> None:
+        self.k = k
+        self._bufs: list[F64] = []
+
+    def get(self, i: int, k: int) -> F64:
+        while len(self._bufs) <= i:
+            self._bufs.append(np.empty(self.k))
+        return self._bufs[i][:k]
+
+
+def geodesic_deg_into(a: F64, b: F64, out: F64, sc: Scratch) -> None:
+    """:func:`geodesic_angle` (a, b) in degrees into ``out``, operation for
+    operation (equal to the bit), on (k, 4) xyzw rows without allocating temporaries."""
+    k = a.shape[0]
+    ax, ay, az, aw = a[:, 0], a[:, 1], a[:, 2], a[:, 3]
+    bx, by, bz, bw = b[:, 0], b[:, 1], b[:, 2], b[:, 3]
+    w, t, u, v, acc = (sc.get(i, k) for i in range(5))
+    # w = bw aw + bx ax + by ay + bz az (left to right)
+    np.multiply(bw, aw, out=w)
+    for p, r in ((bx, ax), (by, ay), (bz, az)):
+        np.multiply(p, r, out=t)
+        w += t
+    # v = bw a_v - aw b_v - (b_v x a_v), component by component; acc = |v|^2
+    for i, (a_i, b_i, b_j, a_k, b_k, a_j) in enumerate(
+        ((ax, bx, by, az, bz, ay), (ay, by, bz, ax, bx, az), (az, bz, bx, ay, by, ax))
+    ):
+        np.multiply(bw, a_i, out=v)
+        np.multiply(aw, b_i, out=t)
+        v -= t
+        np.multiply(b_j, a_k, out=t)
+        np.multiply(b_k, a_j, out=u)
+        t -= u
+        v -= t
+        if i == 0:
+            np.multiply(v, v, out=acc)
+        else:
+            np.multiply(v, v, out=t)
+            acc += t
+    np.sqrt(acc, out=acc)
+    np.abs(w, out=w)
+    np.arctan2(acc, w, out=out)
+    out *= 2.0
+    np.degrees(out, out=out)
+
+
+def geodesic_deg(a: F64, b: F64, *, chunk: int = 1 << 14) -> F64:
+    """``np.degrees(geodesic_angle(a, b))`` for (N, 4) xyzw arrays, equal to it to the bit,
+    in steps of ``chunk`` rows with reused buffers (no (N,) temporary per operation)."""
+    n = a.shape[0]
+    out = np.empty(n)
+    sc = Scratch(min(n, chunk))
+    for s in range(0, n, chunk):
+        e = min(n, s + chunk)
+        geodesic_deg_into(a[s:e], b[s:e], out[s:e], sc)
+    return out

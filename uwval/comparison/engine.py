@@ -14,6 +14,7 @@ validated inputs and the JSON contract; the steps themselves live in sync, align
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -34,7 +35,13 @@ from uwval.compat import StrEnum
 from uwval.errors import AlignmentError, PoseStreamError, UwvalError
 from uwval.frames import CONVENTIONS, convert_stream, get_convention
 from uwval.posestream import MAX_ABS_STAMP_S, PoseStream
-from uwval.rotations import geodesic_angle, rpy_from_quat, wrap_deg
+from uwval.rotations import (
+    Scratch,
+    geodesic_angle,
+    geodesic_deg,
+    geodesic_deg_into,
+    rpy_from_quat,
+)
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -362,12 +369,16 @@ def compare(
     else:
         offset_s = float(offset)
 
+    # the other stream's nominal period (its stamps' median step; frame and offset do not
+    # change it): the default gap limit of both interpolations and a sync_info entry
+    period_ns = nominal_period_ns(other.t)
+
     # ---- frame doctor on interpolated raw samples
     diagnosis: FrameDiagnosis | None = None
     if check_frame is None:
         check_frame = get_convention(configured).left_handed
     if (frame == "auto" or check_frame) and len(other) >= 2 and len(ref_c) >= 2:
-        diagnosis = _diagnose(ref_c, raw_other, offset_s, configured)
+        diagnosis = _diagnose(ref_c, raw_other, offset_s, configured, 5 * period_ns)
         if diagnosis is not None:
             if frame == "auto" and diagnosis.best is not None:  # adopt it; redo the offset
                 configured = diagnosis.best
@@ -386,7 +397,7 @@ def compare(
     # ---- time association
     sync_info: dict[str, Any] = {"method": sync, "n_reference": len(ref_c), "n_other": len(oth_c)}
     if sync == "interp":
-        max_gap_ns = None if max_gap is None else round(max_gap * 1e9)
+        max_gap_ns = 5 * period_ns if max_gap is None else round(max_gap * 1e9)
         interp = interpolate_at(
             oth_c, ref_c.t, max_gap_ns=max_gap_ns, offset_ns=-_offset_ns(offset_s)
         )
@@ -403,7 +414,7 @@ def compare(
             masked=interp.in_gap,
             dropped=interp.outside,
             max_gap_s=interp.max_gap_ns * 1e-9,
-            other_nominal_period_s=nominal_period_ns(oth_c.t) * 1e-9,
+            other_nominal_period_s=period_ns * 1e-9,
         )
         if interp.in_gap:
             warnings.append(
@@ -547,8 +558,11 @@ def check_pose_values(stream: PoseStream) -> None:
     pos, quat = stream.position, stream.orientation
     if len(stream) == 0:
         return
-    big = float(np.max(np.abs(pos)))  # NaN propagates
-    if not (big <= MAX_POSITION_M) or not bool(np.isfinite(quat).all()):
+    # max |p| as max(max p, -min p), and min/max of the quaternions: reductions without
+    # temporaries; NaN propagates through each, inf shows in them
+    big = max(float(pos.max()), -float(pos.min()))  # both NaN when one value is
+    q_ok = math.isfinite(float(quat.min())) and math.isfinite(float(quat.max()))
+    if not (big <= MAX_POSITION_M) or not q_ok:
         finite = np.isfinite(pos).all(axis=1) & np.isfinite(quat).all(axis=1)
         if not finite.all():
             bad = int(np.flatnonzero(~finite)[0])
@@ -569,24 +583,8 @@ def _repeats(idx: I64) -> int:
     return int(np.count_nonzero(np.diff(idx) == 0)) if idx.size > 1 else 0
 
 
-def _rpy_deg(q: F64, axis: int) -> F64:
-    """One ROS angle (0 roll, 1 pitch, 2 yaw; fixed-axis XYZ) in degrees, from (N, 4) xyzw.
-
-    Same formulas as :func:`uwval.rotations.rpy_from_quat`, one angle at a time so that only
-    a few (N,) temporaries exist at once on large streams.
-    """
-    x, y, z, w = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    if axis == 0:
-        out = np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-    elif axis == 1:
-        out = np.arcsin(np.clip(2 * (w * y - z * x), -1.0, 1.0))
-    else:
-        out = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-    return np.asarray(np.degrees(out, out=out))
-
-
 #: Rows per step of the row-wise error series: a step's temporaries stay in the CPU cache
-#: (the quaternion columns are strided views of the logs' (N, 7) pose tables).
+#: (the quaternion columns are strided views of the (N, 4) orientation tables).
 ROW_CHUNK = 1 << 14
 
 
@@ -602,25 +600,85 @@ def _position_norm(ref_pos: F64, oth_pos: F64) -> F64:
     return out
 
 
+def _rpy_deg_into(q: F64, out: Sequence[F64], sc: Scratch) -> None:
+    """ROS roll, pitch, yaw (fixed-axis XYZ) in degrees of (k, 4) xyzw quaternions into the
+    three (k,) arrays ``out``: :func:`uwval.rotations.rpy_from_quat`'s formulas, operation for
+    operation (equal to the bit), with the squares shared and no temporary allocated."""
+    k = q.shape[0]
+    x, y, z, w = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    a, b, yy = sc.get(0, k), sc.get(1, k), sc.get(2, k)
+    np.multiply(y, y, out=yy)
+    # roll = atan2(2 (w x + y z), 1 - 2 (x x + y y))
+    np.multiply(w, x, out=a)
+    np.multiply(y, z, out=b)
+    a += b
+    a *= 2
+    np.multiply(x, x, out=b)
+    b += yy
+    b *= 2
+    np.subtract(1, b, out=b)
+    np.arctan2(a, b, out=out[0])
+    # pitch = asin(clip(2 (w y - z x), -1, 1))
+    np.multiply(w, y, out=a)
+    np.multiply(z, x, out=b)
+    a -= b
+    a *= 2
+    np.clip(a, -1.0, 1.0, out=a)
+    np.arcsin(a, out=out[1])
+    # yaw = atan2(2 (w z + x y), 1 - 2 (y y + z z))
+    np.multiply(w, z, out=a)
+    np.multiply(x, y, out=b)
+    a += b
+    a *= 2
+    np.multiply(z, z, out=b)
+    np.add(yy, b, out=b)
+    b *= 2
+    np.subtract(1, b, out=b)
+    np.arctan2(a, b, out=out[2])
+    for angle in out:
+        np.degrees(angle, out=angle)
+
+
+def _wrap_deg_into(a: F64, tmp: F64) -> None:
+    """:func:`uwval.rotations.wrap_deg` of a (k,) array in place (the same operations)."""
+    np.divide(a, 360.0, out=tmp)
+    np.round(tmp, out=tmp)
+    tmp *= 360.0
+    a -= tmp
+    np.add(a, 360.0, out=a, where=a <= -180.0)
+    np.subtract(a, 360.0, out=a, where=a > 180.0)
+
+
+def _angle_errors(ref_quat: F64, oth_quat: F64) -> tuple[list[F64], list[F64], F64]:
+    """Reference ROS angles, wrapped errors other - reference (roll, pitch, yaw; three (N,)
+    arrays each, deg) and the geodesic rotation error (N,) (deg), in one pass of ROW_CHUNK
+    rows (separate arrays: each can be let go as soon as its axis is done)."""
+    n = ref_quat.shape[0]
+    ref_angle = [np.empty(n) for _ in range(3)]
+    err = [np.empty(n) for _ in range(3)]
+    rot = np.empty(n)
+    sc = Scratch(min(n, ROW_CHUNK))
+    # each step's quaternions copied component-major once: every product below then reads
+    # contiguous components instead of strided columns of the (N, 4) tables
+    r_rows, o_rows = np.empty((4, min(n, ROW_CHUNK))), np.empty((4, min(n, ROW_CHUNK)))
+    for s in range(0, n, ROW_CHUNK):
+        e = min(n, s + ROW_CHUNK)
+        np.copyto(r_rows[:, : e - s], ref_quat[s:e].T)
+        np.copyto(o_rows[:, : e - s], oth_quat[s:e].T)
+        rq, oq = r_rows[:, : e - s].T, o_rows[:, : e - s].T
+        r, d = [a[s:e] for a in ref_angle], [a[s:e] for a in err]
+        _rpy_deg_into(rq, r, sc)
+        _rpy_deg_into(oq, d, sc)
+        for j in range(3):
+            d[j] -= r[j]
+            _wrap_deg_into(d[j], sc.get(0, e - s))
+        geodesic_deg_into(oq, rq, rot[s:e], sc)
+    return ref_angle, err, rot
+
+
 def _rotation_error_deg(ref_quat: F64, oth_quat: F64) -> F64:
     """Geodesic angle of the rotation from reference to other per sample (deg)."""
-    out = np.empty(ref_quat.shape[0])
-    for s in range(0, ref_quat.shape[0], ROW_CHUNK):
-        sl = slice(s, s + ROW_CHUNK)
-        np.degrees(geodesic_angle(oth_quat[sl], ref_quat[sl]), out=out[sl])
-    return out
-
-
-def _angle_error(ref_quat: F64, oth_quat: F64, j: int) -> tuple[F64, F64]:
-    """(reference angle, wrapped error other - reference), degrees, for ROS angle ``j``."""
-    n = ref_quat.shape[0]
-    ref_angle, err = np.empty(n), np.empty(n)
-    for s in range(0, n, ROW_CHUNK):
-        sl = slice(s, s + ROW_CHUNK)
-        r = _rpy_deg(ref_quat[sl], j)
-        ref_angle[sl] = r
-        err[sl] = wrap_deg(_rpy_deg(oth_quat[sl], j) - r)
-    return ref_angle, err
+    return geodesic_deg(oth_quat, ref_quat, chunk=ROW_CHUNK)
 
 
 def _error_series(ref_pos: F64, ref_quat: F64, oth_pos: F64, oth_quat: F64) -> dict[str, F64]:
@@ -628,56 +686,69 @@ def _error_series(ref_pos: F64, ref_quat: F64, oth_pos: F64, oth_quat: F64) -> d
     errors: dict[str, F64] = {}
     for j, ax in enumerate("xyz"):
         errors[ax] = oth_pos[:, j] - ref_pos[:, j]
+    _, err, rot = _angle_errors(ref_quat, oth_quat)
     for j, ax in enumerate(("roll", "pitch", "yaw")):
-        errors[ax] = _angle_error(ref_quat, oth_quat, j)[1]
+        errors[ax] = err[j]
     errors["position_norm"] = _position_norm(ref_pos, oth_pos)
-    errors["rotation_angle"] = _rotation_error_deg(ref_quat, oth_quat)
+    errors["rotation_angle"] = rot
     return errors
 
 
 def _axis_statistics(
     ref_pos: F64, ref_quat: F64, oth_pos: F64, oth_quat: F64
 ) -> tuple[dict[str, Any], dict[str, float], dict[str, float]]:
-    """Per-axis statistics, position-norm and rotation-angle statistics, one series at a time
-    (bounded memory on large streams)."""
+    """Per-axis statistics, position-norm and rotation-angle statistics."""
     axes: dict[str, Any] = {}
     for j, ax in enumerate("xyz"):
-        err = oth_pos[:, j] - ref_pos[:, j]
-        axes[ax] = axis_stats(err, ref_pos[:, j], oth_pos[:, j]) | {"unit": "m"}
-        del err
+        # contiguous copies of the columns: faster reductions; the other's copy is scratch
+        ref_j, oth_j = ref_pos[:, j].copy(), oth_pos[:, j].copy()
+        err = oth_j - ref_j
+        axes[ax] = axis_stats(err, ref_j, oth_j, overwrite_other=True) | {"unit": "m"}
+        del err, ref_j, oth_j
+    ref_angle, errs, rot = _angle_errors(ref_quat, oth_quat)
+    rotation = norm_stats(rot)
+    del rot
     for j, ax in enumerate(("roll", "pitch", "yaw")):
-        ref_angle, err = _angle_error(ref_quat, oth_quat, j)
+        err = errs[j]
         # correlate continuous series: unwrap the reference, other = reference + wrapped error,
         # so a 179 -> -179 deg crossing is not a 358 deg jump in either series
-        ref_series = _unwrap_deg(ref_angle)
-        del ref_angle
+        ref_series = _unwrap_deg(ref_angle[j], in_place=True)
         axes[ax] = axis_stats(err, ref_series, ref_series + err, overwrite_other=True) | {
             "unit": "deg"
         }
         del ref_series, err
+        ref_angle[j] = errs[j] = np.empty(0)  # this axis's series are let go
     position = norm_stats(_position_norm(ref_pos, oth_pos))
-    rotation = norm_stats(_rotation_error_deg(ref_quat, oth_quat))
     return axes, position, rotation
 
 
-def _unwrap_deg(a: F64) -> F64:
-    """np.unwrap(a, period=360) for degrees, with fewer temporaries."""
+def _unwrap_deg(a: F64, *, in_place: bool = False) -> F64:
+    """np.unwrap(a, period=360) for degrees, with fewer temporaries (one besides the result);
+    ``in_place``: ``a`` itself becomes the result."""
     if a.size < 2:
-        return a.copy()
+        return a if in_place else a.copy()
     jumps = np.diff(a)
-    jumps = -360.0 * np.round(jumps / 360.0, out=jumps)
-    out = a.copy()
+    jumps /= 360.0
+    np.round(jumps, out=jumps)
+    jumps *= -360.0
+    out = a if in_place else a.copy()
     out[1:] += np.cumsum(jumps, out=jumps)
     return out
 
 
 def _diagnose(
-    ref_c: PoseStream, raw_other: PoseStream, offset_s: float, configured: str
+    ref_c: PoseStream,
+    raw_other: PoseStream,
+    offset_s: float,
+    configured: str,
+    max_gap_ns: int | None = None,
 ) -> FrameDiagnosis | None:
     """Run the frame doctor on up to ~20k reference stamps with the other stream interpolated."""
     step = max(1, len(ref_c) // 20_000)
     sub = ref_c.slice(slice(None, None, step))
-    interp = interpolate_at(raw_other, sub.t, offset_ns=-_offset_ns(offset_s))
+    interp = interpolate_at(
+        raw_other, sub.t, max_gap_ns=max_gap_ns, offset_ns=-_offset_ns(offset_s)
+    )
     ok = interp.valid
     if int(ok.sum()) < 3:
         return None

@@ -4,6 +4,8 @@ run :func:`uwval.comparison.compare` per topic pair (vehicle and camera), collec
 
 from __future__ import annotations
 
+import os
+import struct
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -196,6 +198,7 @@ def compare_logs(
         if recorded_clock is None:
             recorded_clock = "offset" not in options
         clock_offset = _recorded_clock_offset(path_a) if recorded_clock else None
+        jobs: list[tuple[str, PoseStream, PoseStream, str | None, dict[str, Any], str | None]] = []
         for name, g, u in pairs_l:
             ref, oth = streams[g], streams[u]
             pair_frame = frame if frame not in (None, "auto") else (frames.get(name) or frame)
@@ -213,9 +216,11 @@ def compare_logs(
                     f"clock offset {clock_offset:+.9f} s from the log's uwval.clock metadata "
                     "(the Unity side was stamped on the monotonic clock)"
                 )
-            results[name] = compare(ref, oth, frame=pair_frame, **pair_options)
+            jobs.append((name, ref, oth, pair_frame, pair_options, note))
+        for (name, *_, note), res in zip(jobs, _compare_pairs(jobs), strict=True):
+            results[name] = res
             if note:
-                results[name].warnings.insert(0, note)
+                res.warnings.insert(0, note)
         return LogComparison(results, pairs_l[0][0], [str(path_a)])
 
     pair_name = None
@@ -238,26 +243,171 @@ def compare_logs(
     return LogComparison(results, name, [str(path_a), str(path_b)])
 
 
+#: Pairs of one log are compared in threads (numpy releases the GIL in its loops) when at
+#: least two of them have this many samples on each side and a second CPU is free.
+PARALLEL_MIN_SAMPLES = 20_000
+
+
+def _second_cpu_free() -> bool:
+    """Whether this process may run on two CPUs and the last minute's load (which counts
+    this process) leaves one of them free on average: a second thread gains only on a CPU
+    that is not busy (on a busy one, the threads' switching costs ~15 % more than comparing
+    the pairs one after the other)."""
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # not Linux
+        cpus = os.cpu_count() or 1
+    try:
+        load = os.getloadavg()[0]
+    except (AttributeError, OSError):  # no load average (Windows)
+        load = 0.0
+    return cpus >= 2 and load < cpus - 0.5
+
+
+def _compare_pairs(
+    jobs: Sequence[tuple[str, PoseStream, PoseStream, str | None, dict[str, Any], str | None]],
+) -> list[ComparisonResult]:
+    """:func:`compare` of each (name, reference, other, frame, options, note), in order.
+
+    The vehicle and camera pairs of a long log are compared concurrently on two CPUs (the
+    results are the same numbers: each comparison is its own computation). An error is the
+    first pair's error, in order, as when the pairs are compared one after the other.
+    """
+    big = [j for j in jobs if min(len(j[1]), len(j[2])) >= PARALLEL_MIN_SAMPLES]
+    if len(big) < 2 or not _second_cpu_free():
+        return [compare(ref, oth, frame=fr, **opts) for _, ref, oth, fr, opts, _ in jobs]
+    from concurrent.futures import ThreadPoolExecutor
+
+    pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="uwval-compare")
+    try:
+        futures = [
+            pool.submit(compare, ref, oth, frame=fr, **opts) for _, ref, oth, fr, opts, _ in jobs
+        ]
+        return [f.result() for f in futures]
+    finally:
+        # on an error or Ctrl-C, pairs not started yet are dropped
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
 def _recorded_clock_offset(path: str | Path) -> float | None:
     """Seconds to add to the Unity stamps of a log ``uwval bridge unity --clock monotonic``
     wrote, from its ``uwval.clock`` metadata (Unix time minus monotonic time, and any
-    Unity clock offset); None for any other log, or one whose summary cannot be read."""
+    Unity clock offset); None for any other log, or one whose summary cannot be read.
+
+    The metadata records are found through the log's summary (:func:`_summary_metadata`,
+    a few small reads); a log without a summary, or whose summary does not parse, is left to
+    mcap's reader (as before)."""
     if Path(path).suffix != ".mcap":
         return None
     try:
-        from mcap.reader import make_reader
+        records = _summary_metadata(path, "uwval.clock")
+    except Exception:  # a damaged summary: mcap's reader decides, as before
+        records = None
+    try:
+        if records is None:  # no summary (or a damaged one): mcap's reader scans the log
+            from mcap.reader import make_reader
 
-        with open(path, "rb") as fh:
-            for record in make_reader(fh).iter_metadata():
-                if record.name == "uwval.clock" and record.metadata.get("unity_clock") == (
-                    "monotonic"
-                ):
-                    e_m = int(record.metadata["epoch_minus_monotonic_ns"])
-                    off = int(record.metadata.get("unity_clock_offset_ns", "0"))
-                    return (e_m - off) * 1e-9
+            with open(path, "rb") as fh:
+                records = [
+                    dict(r.metadata)
+                    for r in make_reader(fh).iter_metadata()
+                    if r.name == "uwval.clock"
+                ]
+        for metadata in records:
+            if metadata.get("unity_clock") == "monotonic":
+                e_m = int(metadata["epoch_minus_monotonic_ns"])
+                off = int(metadata.get("unity_clock_offset_ns", "0"))
+                return (e_m - off) * 1e-9
     except Exception:  # an unfinished or damaged summary: nothing recorded to use
         return None
     return None
+
+
+_MCAP_MAGIC = b"\x89MCAP0\r\n"
+_OP_FOOTER, _OP_METADATA, _OP_METADATA_INDEX, _OP_SUMMARY_OFFSET = 0x02, 0x0C, 0x0D, 0x0E
+
+
+def _mcap_string(buf: bytes, pos: int) -> tuple[str, int]:
+    """An MCAP string (uint32 length, UTF-8 bytes) at ``pos``: (text, position after it)."""
+    (n,) = struct.unpack_from("<I", buf, pos)
+    end = pos + 4 + n
+    if end > len(buf):
+        raise ValueError("string past the end of its record")
+    return buf[pos + 4 : end].decode(), end
+
+
+def _summary_metadata(path: str | Path, name: str) -> list[dict[str, str]] | None:
+    """The key/value maps of the MCAP metadata records called ``name``, in the order of the
+    log's summary (as mcap's ``iter_metadata`` yields them), read through the footer, the
+    summary offsets and the metadata index (MCAP spec: records are opcode u8, length u64,
+    body): a few small reads instead of importing and running mcap's reader. None when the
+    log has no summary (the caller then scans it); a damaged one raises."""
+    with open(path, "rb") as fh:
+        fh.seek(0, 2)
+        size = fh.tell()
+        tail_len = 1 + 8 + 20 + len(_MCAP_MAGIC)
+        if size < len(_MCAP_MAGIC) + tail_len:
+            return None
+        fh.seek(size - tail_len)
+        tail = fh.read(tail_len)
+        if tail[-8:] != _MCAP_MAGIC or tail[0] != _OP_FOOTER:
+            return None
+        length, summary_start, offsets_start, _crc = struct.unpack_from("<QQQI", tail, 1)
+        if length != 20 or summary_start == 0:
+            return None
+        footer_at = size - tail_len
+
+        def read(start: int, end: int) -> bytes:
+            if not 0 < start <= end <= footer_at:
+                raise ValueError("summary section outside the file")
+            fh.seek(start)
+            return fh.read(end - start)
+
+        def records(buf: bytes) -> list[tuple[int, bytes]]:
+            out, pos = [], 0
+            while pos < len(buf):
+                op, n = struct.unpack_from("<BQ", buf, pos)
+                end = pos + 9 + n
+                if end > len(buf):
+                    raise ValueError("record past the end of its section")
+                out.append((op, buf[pos + 9 : end]))
+                pos = end
+            return out
+
+        # the metadata index group, through the summary offsets when there are some
+        section = (summary_start, offsets_start or footer_at)
+        if offsets_start:
+            for op, body in records(read(offsets_start, footer_at)):
+                if op == _OP_SUMMARY_OFFSET and body[0] == _OP_METADATA_INDEX:
+                    start, n = struct.unpack_from("<QQ", body, 1)
+                    section = (start, start + n)
+                    break
+            else:
+                return []  # no metadata index group: the log has no metadata
+        found = []
+        for op, body in records(read(*section)):
+            if op != _OP_METADATA_INDEX:
+                continue
+            offset, n = struct.unpack_from("<QQ", body, 0)
+            if _mcap_string(body, 16)[0] != name:
+                continue
+            rec = read(offset, offset + n)
+            op_rec, n_rec = struct.unpack_from("<BQ", rec, 0)
+            if op_rec != _OP_METADATA or 9 + n_rec > len(rec):
+                raise ValueError("metadata index points at no metadata record")
+            body_rec = rec[9 : 9 + n_rec]
+            rec_name, pos = _mcap_string(body_rec, 0)
+            (map_len,) = struct.unpack_from("<I", body_rec, pos)
+            pos += 4
+            end = pos + map_len
+            if rec_name != name or end > len(body_rec):
+                raise ValueError("damaged metadata record")
+            values: dict[str, str] = {}
+            while pos < end:
+                key, pos = _mcap_string(body_rec, pos)
+                values[key], pos = _mcap_string(body_rec, pos)
+            found.append(values)
+        return found
 
 
 def _read_pair(

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from uwval.comparison.stats import median, percentiles
 from uwval.errors import AlignmentError
 from uwval.posestream import PoseStream
 from uwval.rotations import geodesic_angle
@@ -460,10 +461,10 @@ def latency_stats(other: PoseStream, offset_s: float = 0.0) -> dict[str, Any] | 
     return {
         "n": int(lat.size),
         "mean_ms": float(lat.mean()),
-        "median_ms": float(np.median(lat)),
+        "median_ms": median(lat),
         "std_ms": float(lat.std()),
         "min_ms": float(lat.min()),
         "max_ms": float(lat.max()),
-        "p95_ms": float(np.percentile(lat, 95)),
+        "p95_ms": percentiles(lat, (95.0,))[0],
         "offset_applied_s": offset_s,
     }

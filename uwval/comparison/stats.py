@@ -61,6 +61,12 @@ def percentiles(values: F64, q: tuple[float, ...], *, overwrite: bool = False) -
         raise ValueError(f"percentiles must be in [0, 100], got {q}")
     if bool(np.isnan(x).any()):
         return [math.nan] * len(q)
+    return _percentiles_no_nan(x, q, overwrite=overwrite)
+
+
+def _percentiles_no_nan(x: F64, q: tuple[float, ...], *, overwrite: bool) -> list[float]:
+    """:func:`percentiles` of a non-empty 1-D float64 series known to hold no NaN."""
+    n = int(x.size)
     # numpy: q / 100 in float64, virtual index (n - 1) * q, neighbours floor and floor + 1
     # (both the last element, and gamma computed against index -1, at or past n - 1)
     virtual = [(n - 1) * (float(v) / 100.0) for v in q]
@@ -84,6 +90,12 @@ def median(values: F64) -> float:
         raise ValueError("median of an empty series")
     if bool(np.isnan(x).any()):
         return math.nan
+    return _median_no_nan(x)
+
+
+def _median_no_nan(x: F64) -> float:
+    """:func:`median` of a non-empty 1-D float64 series known to hold no NaN."""
+    n = int(x.size)
     h = n // 2
     if n % 2:
         return order_statistics(x, {h})[h]
@@ -91,23 +103,38 @@ def median(values: F64) -> float:
     return (at[h - 1] + at[h]) / 2.0
 
 
+def _std_given_mean(x: F64, mean: float, scratch: F64 | None = None) -> float:
+    """``float(np.std(x))`` (ddof 0) given ``mean == float(np.mean(x))``, value for value:
+    numpy's own steps (x - mean, squared in place, summed, / n, square root) without
+    computing the mean again. ``scratch`` (x's shape) receives the deviations when given."""
+    d = np.subtract(x, mean, out=scratch)
+    np.multiply(d, d, out=d)
+    return math.sqrt(float(d.sum()) / x.size)
+
+
 def norm_stats(err: F64) -> dict[str, float]:
     """Statistics of a non-negative error series named and computed exactly as evo does.
 
     mean, median, std (population, ddof = 0), min, max, rmse = sqrt(mean(e^2)), sse = sum(e^2).
+    Each value equals numpy's (np.mean, np.median, np.std...) to the bit; the sum of squares
+    and the mean are computed once.
     """
     e = np.asarray(err, dtype=np.float64)
     if e.size == 0:
         return {k: math.nan for k in ("mean", "median", "std", "min", "max", "rmse", "sse")}
-    sq = np.power(e, 2)
+    mean = float(np.mean(e))
+    # a NaN anywhere makes the mean NaN; otherwise the median needs no NaN scan
+    med = median(e) if math.isnan(mean) else _median_no_nan(e)
+    sq = np.multiply(e, e)  # np.power(e, 2), value for value
+    sse = float(np.sum(sq))
     return {
-        "mean": float(np.mean(e)),
-        "median": median(e),
-        "std": float(np.std(e)),
+        "mean": mean,
+        "median": med,
+        "std": _std_given_mean(e, mean, sq),
         "min": float(np.min(e)),
         "max": float(np.max(e)),
-        "rmse": math.sqrt(float(np.mean(sq))),
-        "sse": float(np.sum(sq)),
+        "rmse": math.sqrt(sse / e.size),
+        "sse": sse,
     }
 
 
@@ -184,8 +211,9 @@ def pearson(a: F64, b: F64, *, overwrite_b: bool = False) -> dict[str, Any]:
     # a series is constant when its spread is at rounding level relative to its magnitude,
     # or below CONSTANT_FLOOR absolutely (1e-9 m or deg: quaternion round-off on an axis
     # that does not move gives ~1e-14 deg of noise, whose r would be meaningless)
-    scale_x = max(float(np.abs(x).max()), 1e-300)  # before xm, ym: one temporary at a time
-    scale_y = max(float(np.abs(y).max()), 1e-300)
+    # max |v| as max(max v, -min v): the same value, no |v| temporary
+    scale_x = max(float(x.max()), -float(x.min()), 1e-300)
+    scale_y = max(float(y.max()), -float(y.min()), 1e-300)
     xm = x - x.mean()
     if overwrite_b and y is b and y.flags.writeable:
         ym = y
@@ -237,16 +265,20 @@ def axis_stats(
         return stats
     ae = np.abs(e)
     mae, ae_max = float(ae.mean()), float(ae.max())  # before the partition reorders ae
-    p50, p95 = percentiles(ae, (50.0, 95.0), overwrite=True)
-    del ae
+    if math.isnan(mae):  # a NaN somewhere (|e| >= 0: no inf - inf)
+        p50 = p95 = math.nan
+    else:
+        p50, p95 = _percentiles_no_nan(ae, (50.0, 95.0), overwrite=True)
+    bias = float(e.mean())
     stats = {
         "mae": mae,
         "rmse": math.sqrt(float(np.einsum("i,i->", e, e)) / e.size),
         "max": ae_max,
         "p95": float(p95),
         "median": float(p50),
-        "bias": float(e.mean()),
-        "std": float(e.std()),
+        "bias": bias,
+        "std": _std_given_mean(e, bias, ae),  # ae's memory is free again
     }
+    del ae
     stats.update(pearson(reference, other, overwrite_b=overwrite_other))
     return stats

@@ -14,6 +14,7 @@ Both are vectorised (``searchsorted`` over the whole stream, no per-pose loop).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -21,7 +22,7 @@ from numpy.typing import NDArray
 from uwval.errors import AlignmentError
 from uwval.io.stamps import seconds_from_ns
 from uwval.posestream import PoseStream
-from uwval.rotations import slerp
+from uwval.rotations import slerp_segments
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -44,6 +45,22 @@ class NearestMatch:
 MATCH_CHUNK = 1 << 15
 
 
+def _sorted_search(
+    a: NDArray[Any], v: NDArray[Any], side: Literal["left", "right"], v_sorted: bool
+) -> I64:
+    """``np.searchsorted(a, v, side)``; for sorted ``v`` (``v_sorted``) the answers lie
+    between those of v[0] and v[-1], so only that stretch of ``a`` is searched (shorter
+    binary searches that stay in the CPU cache: ~1.7x faster on a 216k-stamp stream in
+    32k-stamp steps)."""
+    if v.size < 2 or not v_sorted:
+        return np.searchsorted(a, v, side=side)
+    i0 = int(np.searchsorted(a, v[0], side=side))
+    i1 = int(np.searchsorted(a, v[-1], side=side))
+    out = np.searchsorted(a[i0 : i1 + 1], v, side=side)
+    out += i0
+    return out
+
+
 def match_time_indices(
     stamps_1: F64, stamps_2: F64, max_diff: float, offset_2: float = 0.0
 ) -> tuple[I64, I64]:
@@ -63,12 +80,13 @@ def match_time_indices(
         empty = np.zeros(0, dtype=np.int64)
         return empty, empty
     first, last = s2[0] - max_diff, s2[-1] + max_diff
+    s1_sorted = bool((s1[1:] >= s1[:-1]).all())
     out_1 = np.empty(n1, dtype=np.int64)
     out_2 = np.empty(n1, dtype=np.int64)
     k = 0
     for start in range(0, n1, MATCH_CHUNK):
         c = s1[start : start + MATCH_CHUNK]
-        idx = np.searchsorted(s2, c, side="right")
+        idx = _sorted_search(s2, c, "right", s1_sorted)
         np.minimum(idx, n2 - 1, out=idx)
         diff_ub = s2[idx] - c
         prev = np.maximum(idx - 1, 0)
@@ -122,10 +140,20 @@ def index_or_slice(idx: I64) -> I64 | slice:
 
 
 def nominal_period_ns(t: I64) -> int:
-    """Median stamp spacing (ns): the stream's nominal period, robust to a few gaps."""
+    """Median stamp spacing (ns): the stream's nominal period, robust to a few gaps.
+
+    ``int(np.median(np.diff(t)))`` value for value (the middle spacing, or the float mean of
+    the two middle ones, truncated) by one in-place partition (np.median also imports
+    numpy.ma, ~6 ms of a compare's start-up)."""
     if t.shape[0] < 2:
         return 0
-    return int(np.median(np.diff(t)))
+    d = np.diff(t)
+    h = d.size // 2
+    d.partition(h)
+    mid = float(d[h])
+    if d.size % 2:
+        return int(mid)
+    return int((float(d[:h].max()) + mid) / 2.0)
 
 
 @dataclass(frozen=True)
@@ -153,6 +181,11 @@ def interpolate_at(
     before the first or after the last sample are invalid (never extrapolated); stamps whose
     bracketing samples are more than ``max_gap_ns`` apart are invalid (default: 5 nominal
     periods of ``stream``).
+
+    What depends on the bracketing pair only (position step, slerp's angle, sine, sign) is
+    computed once per pair of ``stream`` (:func:`uwval.rotations.slerp_segments`), what
+    depends on the fraction once per query; the arithmetic is :func:`uwval.rotations.slerp`'s,
+    operation for operation (equal to it to the bit).
     """
     t = stream.t - np.int64(offset_ns) if offset_ns else stream.t
     n = t.shape[0]
@@ -165,25 +198,49 @@ def interpolate_at(
     valid = np.empty(m, dtype=bool)
     pos, quat = np.empty((m, 3)), np.empty((m, 4))
     n_outside = n_gap = 0
-    # in steps of MATCH_CHUNK query stamps: slerp's (k, 4) temporaries stay small and cached
+    position, orientation = stream.position, stream.orientation
+    q_sorted = bool((q[1:] >= q[:-1]).all())  # stamps usually are: faster paths below
+    t_first, t_last = t[0], t[-1]
+    # in steps of MATCH_CHUNK query stamps: the (k, 4) temporaries stay small and cached
     for s in range(0, m, MATCH_CHUNK):
-        qc = q[s : s + MATCH_CHUNK]
-        hi = np.searchsorted(t, qc, side="left")  # t[hi-1] < q <= t[hi]
-        outside_mask = (qc < t[0]) | (qc > t[-1])
-        hi = np.clip(hi, 1, n - 1)
+        e = min(m, s + MATCH_CHUNK)
+        qc = q[s:e]
+        hi = _sorted_search(t, qc, "left", q_sorted)  # t[hi-1] < q <= t[hi]
+        outside_mask = (qc < t_first) | (qc > t_last)
+        np.clip(hi, 1, n - 1, out=hi)
         lo = hi - 1
-        span = t[hi] - t[lo]
-        gap_mask = ~outside_mask & (span > max_gap_ns)
+        t_lo, t_hi = t[lo], t[hi]
+        span = t_hi - t_lo
+        gap_mask = span > max_gap_ns
+        gap_mask &= ~outside_mask
         # exact hits on a sample are always valid, even next to a long gap
-        exact = (t[hi] == qc) | (t[lo] == qc)
-        gap_mask &= ~exact
-        valid[s : s + MATCH_CHUNK] = ~outside_mask & ~gap_mask
-        n_outside += int(outside_mask.sum())
-        n_gap += int(gap_mask.sum())
+        if gap_mask.any():
+            gap_mask &= (t_hi != qc) & (t_lo != qc)
+        np.logical_or(outside_mask, gap_mask, out=valid[s:e])
+        np.logical_not(valid[s:e], out=valid[s:e])
+        n_outside += int(np.count_nonzero(outside_mask))
+        n_gap += int(np.count_nonzero(gap_mask))
         # fraction from int64 differences: no precision lost on epoch-scale stamps
-        frac = (qc - t[lo]).astype(np.float64) / span.astype(np.float64)
+        frac = (qc - t_lo).astype(np.float64)
+        frac /= span.astype(np.float64)
         np.clip(frac, 0.0, 1.0, out=frac)
-        p0 = stream.position[lo]
-        pos[s : s + MATCH_CHUNK] = p0 + frac[:, None] * (stream.position[hi] - p0)
-        quat[s : s + MATCH_CHUNK] = slerp(stream.orientation[lo], stream.orientation[hi], frac)
+        # the pairs this step uses: one run of pairs (queries are sorted) unless the stream
+        # is much denser than the queries, then only the pairs used; (3|4, K) rows, no
+        # (K, 1) x (K, 3) broadcasts (slow in numpy)
+        a, b = int(lo[0]), int(lo[-1]) + 1
+        if q_sorted and b - a <= 2 * (e - s):
+            seg: I64 | None = lo - a
+            rows = position[a : b + 1].T
+            p0, dp = rows[:, :-1], rows[:, 1:] - rows[:, :-1]
+            q0, q1 = orientation[a:b], orientation[a + 1 : b + 1]
+        else:
+            seg = None
+            p0, q0 = np.take(position, lo, axis=0).T, np.take(orientation, lo, axis=0)
+            dp, q1 = np.take(position, hi, axis=0).T - p0, np.take(orientation, hi, axis=0)
+        if seg is not None:
+            p0, dp = np.take(p0, seg, axis=1), np.take(dp, seg, axis=1)
+        dp *= frac
+        dp += p0
+        pos[s:e] = dp.T
+        slerp_segments(q0, q1, frac, seg, out=quat[s:e])
     return Interpolated(pos, quat, valid, n_outside, n_gap, int(max_gap_ns))
