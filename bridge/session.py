@@ -21,7 +21,7 @@ import time
 from array import array
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field, replace
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -202,14 +202,9 @@ class BridgeSession:
         self.seed = int(seed)
         self.faults = opts.fault_model(self.seed)
         self.scene = opts.render_loop(self.seed)
-        # uwval's own writers take raw bytes (write_raw); any other PoseWriter is used as is
-        fast = (
-            _StructEncoding(cast("PoseLogWriter", writer))
-            if hasattr(writer, "write_raw")
-            else writer
-        )
+        # the recorder encodes blocks of messages for writers that take raw bytes (uwval's)
         self.recorder = BridgeRecorder(
-            fast, unity_map=self.scene.unity_map, flush_every=opts.flush_every
+            writer, unity_map=self.scene.unity_map, flush_every=opts.flush_every
         )
         self.stats = SessionStats(protocol=self.protocol, unity_map=self.scene.unity_map)
         self._latencies = array("q")
