@@ -233,7 +233,9 @@ class McapBlockWriter:
         self._channels: dict[str, Any] = {}  # topic -> Channel record
         self._next_seq: dict[int, int] = {}
         self._counts: dict[int, int] = {}
-        self._pending_defs: list[Any] = []  # schema/channel records for the next chunk
+        # schema/channel records for the open chunk: (slot, record); a channel's records go
+        # just before its first message, as mcap's writer places them
+        self._pending_defs: list[tuple[int, Any]] = []
         self._segments: list[tuple[int, U8, I64, I64]] = []  # channel, records, log, rank
         self._pending_bytes = 0
         self._pending_n = 0
@@ -270,7 +272,9 @@ class McapBlockWriter:
     def _emit(self) -> None:
         self._fh.write(self._rb.end())
 
-    def _channel(self, topic: str, msgtype: str) -> int:
+    def _channel(self, topic: str, msgtype: str, rank: int) -> int:
+        """The channel id of ``topic``; a new one (and its schema) is recorded into the open
+        chunk just before the message of batch rank ``rank``."""
         ch = self._channels.get(topic)
         if ch is not None:
             return int(ch.id)
@@ -285,7 +289,7 @@ class McapBlockWriter:
                 id=len(self._schemas) + 1, data=text.encode(), encoding="ros2msg", name=msgtype
             )
             self._schemas[msgtype] = schema
-            self._pending_defs.append(schema)
+            self._pending_defs.append((3 * rank, schema))
         ch = Channel(
             id=len(self._channels) + 1,
             topic=topic,
@@ -296,7 +300,7 @@ class McapBlockWriter:
         self._channels[topic] = ch
         self._next_seq[ch.id] = 0
         self._counts[ch.id] = 0
-        self._pending_defs.append(ch)
+        self._pending_defs.append((3 * rank + 1, ch))
         return int(ch.id)
 
     def write_blocks(self, blocks: list[RawBlock]) -> None:
@@ -313,7 +317,8 @@ class McapBlockWriter:
                 raise LogWriteError(
                     f"{self.path}: cannot write to {b.topic}: negative log time {int(log.min())} ns"
                 )
-            cid = self._channel(b.topic, b.msgtype)
+            ranks = np.asarray(b.ranks, dtype=np.int64) + base
+            cid = self._channel(b.topic, b.msgtype, int(ranks.min()))
             width = b.rows.shape[1]
             rec = np.empty((n, _MSG_HEAD + width), dtype=np.uint8)
             rec[:, 0] = 0x05  # Message
@@ -327,7 +332,7 @@ class McapBlockWriter:
             rec[:, 31:] = b.rows
             self._next_seq[cid] += n
             self._counts[cid] += n
-            self._segments.append((cid, rec, log, np.asarray(b.ranks, dtype=np.int64) + base))
+            self._segments.append((cid, rec, log, ranks))
             self._pending_bytes += rec.size
             lo, hi = int(log.min()), int(log.max())
             self._start = lo if self._n == 0 else min(self._start, lo)
@@ -370,8 +375,8 @@ class McapBlockWriter:
         )
 
     def _finish_chunk(self) -> None:
-        """Write the open chunk (schema/channel records first, then the messages in rank
-        order) and its message indexes."""
+        """Write the open chunk (the messages in rank order, a new channel's schema and
+        channel records just before its first message) and its message indexes."""
         import zlib
 
         import zstandard
@@ -380,26 +385,26 @@ class McapBlockWriter:
 
         if not self._segments:
             return
-        defs = RecordBuilder()
-        for d in self._pending_defs:
-            d.write(defs)
-        head = defs.end()
+        # slots 3r, 3r + 1: a schema, a channel before message r; 3r + 2: message r
+        size = np.zeros(3 * self._pending_n, dtype=np.int64)
+        defs = []
+        for slot, record in self._pending_defs:
+            rb = RecordBuilder()
+            record.write(rb)
+            defs.append((slot, rb.end()))
+            size[slot] = len(defs[-1][1])
         self._pending_defs = []
-        n_total = self._pending_n
-        size = np.empty(n_total, dtype=np.int64)
         for _, rec, _, ranks in self._segments:
-            size[ranks] = rec.shape[1]
-        offset = np.empty(n_total, dtype=np.int64)
-        offset[0] = len(head)
+            size[3 * ranks + 2] = rec.shape[1]
+        offset = np.zeros(size.size, dtype=np.int64)
         np.cumsum(size[:-1], out=offset[1:])
-        offset[1:] += len(head)
-        total = len(head) + int(size.sum())
-        buf = np.empty(total, dtype=np.uint8)
-        buf[: len(head)] = np.frombuffer(head, dtype=np.uint8)
+        buf = np.empty(int(size.sum()), dtype=np.uint8)
+        for slot, raw in defs:
+            buf[offset[slot] : offset[slot] + len(raw)] = np.frombuffer(raw, dtype=np.uint8)
         per_channel: dict[int, list[tuple[I64, I64]]] = {}
         lo = hi = None
         for cid, rec, log, ranks in self._segments:
-            off = offset[ranks]
+            off = offset[3 * ranks + 2]
             buf[off[:, None] + np.arange(rec.shape[1])] = rec
             per_channel.setdefault(cid, []).append((log, off))
             a, z = int(log.min()), int(log.max())
@@ -423,7 +428,9 @@ class McapBlockWriter:
         offsets: dict[int, int] = {}
         parts = []
         pos = 0
-        for cid in sorted(per_channel):  # MessageIndex records, built with numpy
+        first = {cid: min(int(o.min()) for _, o in parts_) for cid, parts_ in per_channel.items()}
+        # MessageIndex records, built with numpy, in the order the channels first appear
+        for cid in sorted(per_channel, key=first.__getitem__):
             log = np.concatenate([p[0] for p in per_channel[cid]])
             off = np.concatenate([p[1] for p in per_channel[cid]])
             order = np.argsort(off, kind="stable")
