@@ -37,7 +37,9 @@ def poses(n: int, seed: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return t, pos, q / np.linalg.norm(q, axis=1, keepdims=True)
 
 
-@pytest.mark.parametrize("frame_id", ["", "w", "world", "unity-flu", "unity-ned-south", "ÿé"])
+@pytest.mark.parametrize(
+    "frame_id", ["", "w", "ab", "abc", "ÿé", "world", "abcdef", "unity-flu", "unity-ned-south"]
+)
 @pytest.mark.parametrize("encoding", ["cdr", "ros1"])
 def test_blocks_are_rosbags_bytes(frame_id: str, encoding: str) -> None:
     """Every row equals rosbags' serializer of that message (frame_id lengths 0-15 cover
