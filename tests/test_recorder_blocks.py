@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from uwval.bridge.recorder import (
+    Bag1BlockWriter,
     BridgeRecorder,
     McapBlockWriter,
     encode_header_block,
@@ -23,6 +24,7 @@ from uwval.errors import LogWriteError
 from uwval.io import read_stream
 from uwval.io.mcap_io import McapPoseWriter
 from uwval.io.ros import HEADER, POSE_STAMPED, header_msg, pose_stamped, typestore
+from uwval.io.writers import Rosbag1PoseWriter
 
 FORMATS = ["mcap", "rosbag2", "rosbag2-mcap", "rosbag1"]
 SUFFIX = {"mcap": ".mcap", "rosbag2": "", "rosbag2-mcap": "", "rosbag1": ".bag"}
@@ -201,6 +203,31 @@ def test_mcap_block_file_is_the_mcap_writers_file_byte_for_byte(tmp_path: Path) 
     report = scan_mcap(b)
     assert report.complete and report.lost_bytes == 0, report.describe()
     assert report.messages["/unity/model_rov_pose/applied_stamp"] == 700
+
+
+def test_ros1_block_file_is_the_rosbags_writers_file_byte_for_byte(tmp_path: Path) -> None:
+    """Bag1BlockWriter's bag equals uwval's Rosbag1PoseWriter's (rosbags' Writer, message by
+    message): bag header, connection records where rosbags puts them, chunks split after the
+    message that passes 1 MiB (here several, some inside one recorder block), index data,
+    chunk infos; and it keeps only the open chunk's index."""
+    a, b = tmp_path / "rosbags.bag", tmp_path / "blocks.bag"
+    n = 9000
+    t, pos, q = poses(n)
+    for path in (a, b):
+        writer: Any = (Rosbag1PoseWriter if path == a else Bag1BlockWriter)(
+            path, metadata={"run": "x"}
+        )
+        rec = BridgeRecorder(writer if path == b else PerMessage(writer), flush_every=20000)
+        for k in range(n):
+            rec.gazebo_pose("model_rov_pose", int(t[k]), pos[k], q[k])
+            if k % 3:
+                rec.unity_pose("gui_camera_pose", int(t[k]) + 3, pos[k], q[k], int(t[k]))
+        if path == b:
+            assert len(writer._infos) == 2  # chunks written; the open one's index only:
+            assert sum(p[0].size for v in writer._index.values() for p in v) < 12000
+        rec.close()
+    assert a.read_bytes() == b.read_bytes()
+    assert len(rosbags_messages(b)) == 1 + n + 2 * (n - n // 3)
 
 
 def test_block_writer_refuses_what_mcap_cannot_hold(tmp_path: Path) -> None:
