@@ -19,6 +19,7 @@ from __future__ import annotations
 import struct
 import time
 from array import array
+from bisect import bisect_right
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from typing import TYPE_CHECKING, Any
@@ -124,8 +125,8 @@ class _Flight:
 
     def needed_by(self, t_ns: int) -> int:
         """How many of the sent messages have a stamp <= t_ns (stamps are sorted)."""
-        pending = np.frombuffer(self._stamps, dtype=np.int64)[self.received - self._base :]
-        return int(np.searchsorted(pending, t_ns, side="right")) + self.received
+        lo = self.received - self._base
+        return bisect_right(self._stamps, t_ns, lo) + self._base
 
 
 _HEADER_CDR = struct.Struct("<4siII")  # encapsulation, sec, nanosec, len(frame_id + NUL)
