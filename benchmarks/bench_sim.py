@@ -101,35 +101,58 @@ def _exe(name: str) -> str:
 
 
 def whole_simulate(
-    duration_s: float, reps: int, formats: tuple[str, ...] = ("mcap",)
+    duration_s: float,
+    reps: int,
+    formats: tuple[str, ...] = ("mcap",),
+    before_cmd: list[str] | None = None,
 ) -> list[BenchRow]:
     """``uwval simulate --duration D [--format F]`` as a user runs it, in a fresh process:
     wall time and peak RSS (wait4's figure: the largest process of the command's tree, the
-    physics child included), median / max of ``reps`` runs. For an hour the rows carry the
-    figures before (issue 15's 79 s / 531 MiB for MCAP, and main before the block write path)
-    and the targets: < 250 MiB, >= 5x faster than 79 s."""
+    physics child included), median / max of ``reps`` runs.
+
+    ``before_cmd``: the command of an earlier uwval (e.g. a checkout of the code before the
+    change, see benchmarks/README.md "simulate, one hour"), run alternately with this one
+    (before, after, before, ...) so both see the same machine load; otherwise the "before"
+    figures are the recorded ones. For an hour the MCAP rows also carry issue 15's 79 s /
+    531 MiB and its targets: < 250 MiB, >= 5x faster than 79 s."""
     import os
     import tempfile
     from pathlib import Path
 
     from benchmarks.common import run_command
 
+    def once(exe: list[str], fmt: str, k: int) -> tuple[float, float]:
+        with tempfile.TemporaryDirectory() as d:
+            out = Path(d) / f"run{k}{SUFFIX[fmt]}"
+            return run_command(
+                [*exe, "simulate", "--duration", f"{duration_s:g}", "--format", fmt, "-o", str(out)]
+            )
+
     hour = duration_s >= 3600
     rows: list[BenchRow] = []
     for fmt in formats:
-        walls, rss = [], []
+        after: list[tuple[float, float]] = []
+        before: list[tuple[float, float]] = []
+        loads = []
         for k in range(reps):
-            with tempfile.TemporaryDirectory() as d:
-                out = Path(d) / f"run{k}{SUFFIX[fmt]}"
-                cmd = [_exe("uwval"), "simulate", "--duration", f"{duration_s:g}"]
-                cmd += ["--format", fmt, "-o", str(out)]
-                w, m = run_command(cmd)
-            walls.append(w)
-            rss.append(m)
-        t, m = median(walls), max(rss)
-        load = os.getloadavg()[0]
-        before = SIMULATE_HOUR_BEFORE.get(fmt) if hour else None
-        runs = f"{reps} runs: {', '.join(f'{w:.1f}' for w in walls)} s; load {load:.1f}"
+            if before_cmd:
+                before.append(once(before_cmd, fmt, k))
+            after.append(once([_exe("uwval")], fmt, k))
+            loads.append(os.getloadavg()[0])
+        t, m = median([w for w, _ in after]), max(r for _, r in after)
+        load = f"load {min(loads):.1f}-{max(loads):.1f}"
+        runs = f"{reps} runs: {', '.join(f'{w:.1f}' for w, _ in after)} s; {load}"
+        if before:
+            b_t, b_m = median([w for w, _ in before]), max(r for _, r in before)
+            b_name = "before (measured alternately: " + ", ".join(f"{w:.1f}" for w, _ in before)
+            b_name += " s)"
+        elif hour and fmt in SIMULATE_HOUR_BEFORE:
+            b_t, b_m = SIMULATE_HOUR_BEFORE[fmt]
+            b_name = "main before the block write path (recorded)"
+        else:
+            b_t = b_m = float("nan")
+            b_name = ""
+        has_before = b_name != ""
         if hour and fmt == "mcap":
             issue_t, issue_m = SIMULATE_HOUR_ISSUE
             rows.append(
@@ -161,8 +184,8 @@ def whole_simulate(
                 f"uwval simulate --duration {duration_s:g} ({fmt}), wall",
                 t,
                 "s",
-                before[0] if before else None,
-                "main before the block write path" if before else "",
+                b_t if has_before else None,
+                b_name,
                 notes=runs,
             )
         )
@@ -171,27 +194,30 @@ def whole_simulate(
                 f"uwval simulate --duration {duration_s:g} ({fmt}), peak RSS",
                 m,
                 "MiB",
-                before[1] if before else None,
-                "main before the block write path" if before else "",
+                b_m if has_before else None,
+                b_name,
                 target="< 250 MiB" if hour else "",
                 met=(m < 250.0) if hour else None,
-                notes=f"max over {reps} runs; physics streamed in chunks, recorder in blocks",
+                notes=f"max over {reps} runs",
             )
         )
     return rows
 
 
 if __name__ == "__main__":
-    # ``--hour [FORMAT,...]``: only ``uwval simulate --duration 3600`` (3 runs per format)
+    # ``--hour [FORMAT,...] [--before CMD]``: only ``uwval simulate --duration 3600`` (3 runs
+    # per format), alternating with the earlier uwval command CMD when given
     if "--hour" in sys.argv:
         i = sys.argv.index("--hour")
-        fmts = sys.argv[i + 1].split(",") if len(sys.argv) > i + 1 else ["mcap"]
-        rows = whole_simulate(3600.0, 3, tuple(fmts))
+        nxt = sys.argv[i + 1] if len(sys.argv) > i + 1 else "--"
+        fmts = ["mcap"] if nxt.startswith("--") else nxt.split(",")
+        before = sys.argv[sys.argv.index("--before") + 1] if "--before" in sys.argv else None
+        rows = whole_simulate(3600.0, 3, tuple(fmts), [before] if before else None)
     else:
         rows = run(quick="--quick" in sys.argv)
     for row in rows:
         print(
             f"{row.name}: {row.uwval:,.4g} {row.unit}  target {row.target or '-'}  "
-            f"met={row.met}  before {row.peer if row.peer is not None else '-'} "
+            f"met={row.met}  before {'-' if row.peer is None else f'{row.peer:.4g}'} "
             f"({row.peer_name or '-'})  {row.notes}"
         )
