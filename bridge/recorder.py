@@ -564,8 +564,8 @@ class Bag1BlockWriter:
         from rosbags.rosbag1.writer import Header
 
         self.path = Path(path)
-        try:
-            self._fh = open(self.path, "xb")  # noqa: SIM115 - closed in close()
+        try:  # an earlier file is replaced, as uwval's open_writer does
+            self._fh = open(self.path, "wb")  # noqa: SIM115 - closed in close()
         except OSError as exc:
             raise LogWriteError(f"{self.path}: cannot create ROS 1 bag: {exc}") from exc
         self._conns: dict[str, Any] = {}  # topic -> rosbags Connection
@@ -1053,8 +1053,9 @@ def open_log_writer(
     path: str | Path, format: str = "mcap", metadata: dict[str, str] | None = None
 ) -> Any:
     """The log writer of a recorded run: :class:`McapBlockWriter` for ``mcap`` and
-    :class:`Bag1BlockWriter` for ``rosbag1`` (blocks of messages at once), uwval's writers
-    (:func:`uwval.io.open_writer`) for rosbag2."""
+    :class:`Bag1BlockWriter` for ``rosbag1`` (blocks of messages at once; an earlier file
+    there is replaced, as uwval's writers do), uwval's writers (:func:`uwval.io.open_writer`)
+    for rosbag2 (rosbags' writer, message by message)."""
     if format == "mcap":
         return McapBlockWriter(path, metadata=metadata)
     if format in ("rosbag1", "bag"):

@@ -244,3 +244,12 @@ def test_block_writer_refuses_what_mcap_cannot_hold(tmp_path: Path) -> None:
         rec.flush()
     with pytest.raises(LogWriteError, match="cannot open"):
         McapBlockWriter(tmp_path / "no" / "such" / "dir.mcap")
+    with pytest.raises(LogWriteError, match="cannot create ROS 1 bag"):
+        Bag1BlockWriter(tmp_path)  # a directory
+    old = tmp_path / "old.bag"
+    old.write_bytes(b"an earlier log")
+    with open_log_writer(old, "rosbag1") as w:  # replaced, as uwval's writers do
+        w.write_header("/h", 5, 5, "world")
+        with pytest.raises(LogWriteError, match="outside ROS 1 time"):
+            w.write_header("/h", 5, -5, "world")
+    assert [m[:2] for m in rosbags_messages(old)] == [("/h", 5)]
