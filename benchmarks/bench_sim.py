@@ -76,52 +76,148 @@ def run(quick: bool = False) -> list[BenchRow]:
     return rows
 
 
-#: ``uwval simulate --duration 3600`` before issue 15 (whole run held in memory), idle machine.
-SIMULATE_HOUR_BEFORE_S = 79.0
+#: ``uwval simulate --duration 3600`` (default options, MCAP) as issue 15 measured it: the whole
+#: run held in memory, idle machine (153 s when loaded).
+SIMULATE_HOUR_ISSUE = (79.0, 531.0)
+#: The same command on main before the recorder's block write path (physics already streamed
+#: in a child process, per-message ``add_message``), 2026-11-25 17:03 UTC, load ~1.2, per
+#: format: (wall s, peak RSS MiB).
+SIMULATE_HOUR_BEFORE = {
+    "mcap": (15.30, 79.2),
+    "rosbag1": (15.41, 224.0),
+    "rosbag2": (20.78, 83.8),
+    "rosbag2-mcap": (16.97, 82.4),
+}
+SUFFIX = {"mcap": ".mcap", "rosbag1": ".bag", "rosbag2": "", "rosbag2-mcap": ""}
 
 
-def whole_simulate(duration_s: float, reps: int) -> list[BenchRow]:
-    """``uwval simulate --duration D`` as a user runs it: wall time and peak RSS (wait4's
-    figure: the largest process of the command's tree, the physics child included).
-    Targets for an hour: < 250 MiB, >= 5x faster than 79 s."""
+def _exe(name: str) -> str:
+    """The console script ``name`` of this interpreter's environment (else from PATH)."""
+    import shutil
+    from pathlib import Path
+
+    here = Path(sys.executable).parent / name
+    return str(here) if here.exists() else (shutil.which(name) or name)
+
+
+def whole_simulate(
+    duration_s: float,
+    reps: int,
+    formats: tuple[str, ...] = ("mcap",),
+    before_cmd: list[str] | None = None,
+) -> list[BenchRow]:
+    """``uwval simulate --duration D [--format F]`` as a user runs it, in a fresh process:
+    wall time and peak RSS (wait4's figure: the largest process of the command's tree, the
+    physics child included), median / max of ``reps`` runs.
+
+    ``before_cmd``: the command of an earlier uwval (e.g. a checkout of the code before the
+    change, see benchmarks/README.md "simulate, one hour"), run alternately with this one
+    (before, after, before, ...) so both see the same machine load; otherwise the "before"
+    figures are the recorded ones. For an hour the MCAP rows also carry issue 15's 79 s /
+    531 MiB and its targets: < 250 MiB, >= 5x faster than 79 s."""
+    import os
     import tempfile
     from pathlib import Path
 
-    from benchmarks.bench_shapes import _exe
     from benchmarks.common import run_command
 
-    with tempfile.TemporaryDirectory() as d:
-        out = Path(d) / "run.mcap"
-        cmd = [_exe("uwval"), "simulate", "--duration", f"{duration_s:g}", "-o", str(out)]
-        runs = [run_command(cmd) for _ in range(reps)]
-    t = median([r[0] for r in runs])
-    m = max(r[1] for r in runs)
+    def once(exe: list[str], fmt: str, k: int) -> tuple[float, float]:
+        with tempfile.TemporaryDirectory() as d:
+            out = Path(d) / f"run{k}{SUFFIX[fmt]}"
+            return run_command(
+                [*exe, "simulate", "--duration", f"{duration_s:g}", "--format", fmt, "-o", str(out)]
+            )
+
     hour = duration_s >= 3600
-    return [
-        BenchRow(
-            f"uwval simulate --duration {duration_s:g} (50 Hz, bridged, MCAP), wall",
-            t,
-            "s",
-            SIMULATE_HOUR_BEFORE_S if hour else None,
-            "before issue 15 (79 s, idle)" if hour else "",
-            ">= 5x faster than before" if hour else "",
-            (SIMULATE_HOUR_BEFORE_S / t >= 5.0) if hour else None,
-            notes=f"{reps} runs, median",
-        ),
-        BenchRow(
-            f"uwval simulate --duration {duration_s:g}, peak RSS",
-            m,
-            "MiB",
-            target="< 250 MiB",
-            met=m < 250.0,
-            notes="max over runs; physics streamed in chunks (a child process for long runs)",
-        ),
-    ]
+    rows: list[BenchRow] = []
+    for fmt in formats:
+        after: list[tuple[float, float]] = []
+        before: list[tuple[float, float]] = []
+        loads = []
+        for k in range(reps):
+            if before_cmd:
+                before.append(once(before_cmd, fmt, k))
+            after.append(once([_exe("uwval")], fmt, k))
+            loads.append(os.getloadavg()[0])
+        t, m = median([w for w, _ in after]), max(r for _, r in after)
+        load = f"load {min(loads):.1f}-{max(loads):.1f}"
+        runs = f"{reps} runs: {', '.join(f'{w:.1f}' for w, _ in after)} s; {load}"
+        if before:
+            b_t, b_m = median([w for w, _ in before]), max(r for _, r in before)
+            b_name = "before (measured alternately: " + ", ".join(f"{w:.1f}" for w, _ in before)
+            b_name += " s)"
+        elif hour and fmt in SIMULATE_HOUR_BEFORE:
+            b_t, b_m = SIMULATE_HOUR_BEFORE[fmt]
+            b_name = "main before the block write path (recorded)"
+        else:
+            b_t = b_m = float("nan")
+            b_name = ""
+        has_before = b_name != ""
+        if hour and fmt == "mcap":
+            issue_t, issue_m = SIMULATE_HOUR_ISSUE
+            rows.append(
+                BenchRow(
+                    f"uwval simulate --duration {duration_s:g} ({fmt}), wall",
+                    t,
+                    "s",
+                    issue_t,
+                    "issue 15 (whole run in memory, idle)",
+                    ">= 5x faster than 79 s",
+                    issue_t / t >= 5.0,
+                    notes=runs,
+                )
+            )
+            rows.append(
+                BenchRow(
+                    f"uwval simulate --duration {duration_s:g} ({fmt}), peak RSS",
+                    m,
+                    "MiB",
+                    issue_m,
+                    "issue 15 (whole run in memory)",
+                    "< 250 MiB",
+                    m < 250.0,
+                    notes=f"max over {reps} runs",
+                )
+            )
+        rows.append(
+            BenchRow(
+                f"uwval simulate --duration {duration_s:g} ({fmt}), wall",
+                t,
+                "s",
+                b_t if has_before else None,
+                b_name,
+                notes=runs,
+            )
+        )
+        rows.append(
+            BenchRow(
+                f"uwval simulate --duration {duration_s:g} ({fmt}), peak RSS",
+                m,
+                "MiB",
+                b_m if has_before else None,
+                b_name,
+                target="< 250 MiB" if hour else "",
+                met=(m < 250.0) if hour else None,
+                notes=f"max over {reps} runs",
+            )
+        )
+    return rows
 
 
 if __name__ == "__main__":
-    for row in run(quick="--quick" in sys.argv):
+    # ``--hour [FORMAT,...] [--before CMD]``: only ``uwval simulate --duration 3600`` (3 runs
+    # per format), alternating with the earlier uwval command CMD when given
+    if "--hour" in sys.argv:
+        i = sys.argv.index("--hour")
+        nxt = sys.argv[i + 1] if len(sys.argv) > i + 1 else "--"
+        fmts = ["mcap"] if nxt.startswith("--") else nxt.split(",")
+        before = sys.argv[sys.argv.index("--before") + 1] if "--before" in sys.argv else None
+        rows = whole_simulate(3600.0, 3, tuple(fmts), [before] if before else None)
+    else:
+        rows = run(quick="--quick" in sys.argv)
+    for row in rows:
         print(
             f"{row.name}: {row.uwval:,.4g} {row.unit}  target {row.target or '-'}  "
-            f"met={row.met}  {row.notes}"
+            f"met={row.met}  before {'-' if row.peer is None else f'{row.peer:.4g}'} "
+            f"({row.peer_name or '-'})  {row.notes}"
         )

@@ -19,9 +19,10 @@ from __future__ import annotations
 import struct
 import time
 from array import array
+from bisect import bisect_right
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field, replace
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -124,8 +125,8 @@ class _Flight:
 
     def needed_by(self, t_ns: int) -> int:
         """How many of the sent messages have a stamp <= t_ns (stamps are sorted)."""
-        pending = np.frombuffer(self._stamps, dtype=np.int64)[self.received - self._base :]
-        return int(np.searchsorted(pending, t_ns, side="right")) + self.received
+        lo = self.received - self._base
+        return bisect_right(self._stamps, t_ns, lo) + self._base
 
 
 _HEADER_CDR = struct.Struct("<4siII")  # encapsulation, sec, nanosec, len(frame_id + NUL)
@@ -202,14 +203,9 @@ class BridgeSession:
         self.seed = int(seed)
         self.faults = opts.fault_model(self.seed)
         self.scene = opts.render_loop(self.seed)
-        # uwval's own writers take raw bytes (write_raw); any other PoseWriter is used as is
-        fast = (
-            _StructEncoding(cast("PoseLogWriter", writer))
-            if hasattr(writer, "write_raw")
-            else writer
-        )
+        # the recorder encodes blocks of messages for writers that take raw bytes (uwval's)
         self.recorder = BridgeRecorder(
-            fast, unity_map=self.scene.unity_map, flush_every=opts.flush_every
+            writer, unity_map=self.scene.unity_map, flush_every=opts.flush_every
         )
         self.stats = SessionStats(protocol=self.protocol, unity_map=self.scene.unity_map)
         self._latencies = array("q")

@@ -117,8 +117,8 @@ def run_one(job: RunJob) -> dict[str, Any]:
     stays bounded however long the run. Module-level so that process pools and Dask
     workers can run it.
     """
+    from uwval.bridge.recorder import open_log_writer
     from uwval.bridge.session import BridgeSession, ticks_from_streams
-    from uwval.io import open_writer
     from uwval.io.atomic import atomic_output
     from uwval.simulator import SimulationStream
 
@@ -147,7 +147,7 @@ def run_one(job: RunJob) -> dict[str, Any]:
     # log, two runs never write one file, a failed run leaves <stem>.partial<suffix>.
     with (
         atomic_output(path) as tmp,
-        open_writer(tmp, format=opts.log_format, metadata=metadata) as writer,
+        open_log_writer(tmp, format=opts.log_format, metadata=metadata) as writer,
     ):
         stats = BridgeSession(writer, opts, seed=spec.seed).run(ticks)
     return {
