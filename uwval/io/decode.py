@@ -114,7 +114,7 @@ def decode_poses(raw: RawTopic, *, fast: bool = True, errors: str = "raise") -> 
             continue
         dec.stamp[i] = stamp
         if pose is not None:
-            dec.pose[i] = pose
+            dec.set_pose(i, pose)
         if frame_id is not None:
             dec.frame_code[i] = dec.code(frame_id)
         if child is not None:
@@ -167,7 +167,7 @@ def decode_tf(raw: RawTopic, *, errors: str = "raise") -> tuple[Decoded, int]:
     dec = Decoded.empty(n)
     if n:
         dec.stamp[:] = stamps
-        dec.pose[:] = poses
+        dec.set_pose(slice(None), poses)
         dec.frame_code[:] = [dec.code(p) for p in parents]
         dec.child_code[:] = [dec.code(c) for c in children]
         dec.handled[:] = True

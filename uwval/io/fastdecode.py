@@ -19,6 +19,7 @@ end of that header; ROS 1: packed, little-endian, strings without NUL, header wi
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -49,13 +50,15 @@ BATCH = 1 << 16
 class Decoded:
     """Columns decoded from one topic's messages (row i = message i of the input).
 
-    ``stamp``: header stamps in ns (-1 where the type has no header); ``pose``: (N, 7)
-    position + quaternion (x, y, z, w), NaN where the type has no pose; ``frame_code`` /
+    ``stamp``: header stamps in ns (-1 where the type has no header); ``position`` (N, 3)
+    and ``orientation`` (N, 4: quaternion x, y, z, w), NaN where the type has no pose, each
+    contiguous (a PoseStream takes them without another copy); ``frame_code`` /
     ``child_code``: indices into ``names`` (-1 where absent); ``handled``: rows decoded here.
     """
 
     stamp: I64
-    pose: F64
+    position: F64
+    orientation: F64
     frame_code: I64
     child_code: I64
     names: list[str]
@@ -65,12 +68,24 @@ class Decoded:
     def empty(cls, n: int) -> Decoded:
         return cls(
             stamp=np.full(n, -1, dtype=np.int64),
-            pose=np.full((n, 7), np.nan),
+            position=np.full((n, 3), np.nan),
+            orientation=np.full((n, 4), np.nan),
             frame_code=np.full(n, -1, dtype=np.int64),
             child_code=np.full(n, -1, dtype=np.int64),
             names=[],
             handled=np.zeros(n, dtype=bool),
         )
+
+    @property
+    def pose(self) -> F64:
+        """(N, 7) position + quaternion: a new array (writes to it change nothing here)."""
+        return np.concatenate([self.position, self.orientation], axis=1)
+
+    def set_pose(self, rows: Any, pose: Any) -> None:
+        """Write (…, 7) position + quaternion values into ``rows``."""
+        p = np.asarray(pose, dtype=np.float64)
+        self.position[rows] = p[..., :3]
+        self.orientation[rows] = p[..., 3:]
 
     def code(self, name: str) -> int:
         """Index of ``name`` in ``names`` (appended when new)."""
@@ -322,7 +337,7 @@ def fast_decode(msgtype: str, encoding: str, buf: U8, offset: I64, length: I64) 
             pose = acc.at(lf.rows, lf.pose_at, 56)
             if pose.strides[1] == 1 and pose.strides[0] % 8 and not pose.flags.c_contiguous:
                 pose = pose.copy()  # rows not 8-byte spaced: one copy, then reinterpret
-            dec.pose[into] = pose.view("<f8")
+            dec.set_pose(into, pose.view("<f8"))
         ok = np.ones(lf.rows.shape[0], dtype=bool)
         if lf.frame_at >= 0:
             raw = acc.at(lf.rows, lf.frame_at, lf.frame_len)

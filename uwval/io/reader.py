@@ -255,6 +255,7 @@ def _to_stream(
     dropped = dict(raw.dropped)
     if raw.msgtype in TF_TYPES:
         stamps, pose, frame_id, bad = _tf_pose(p, raw, log, child, parent, tf_static)
+        position, orientation = pose[:, :3], pose[:, 3:]
         if bad:
             dropped["decode_error"] = dropped.get("decode_error", 0) + bad
         log_time = None
@@ -274,10 +275,11 @@ def _to_stream(
                 _no_pair(p, raw.name, dec, dec.frame_code, dec.child_code, parent, child)
             )
         if keep.all():  # the usual case: no copies (a pose topic's arrays are 80 B/msg)
-            stamps, log_time, pose, kept = dec.stamp, raw.log_time, dec.pose, dec.frame_code
+            stamps, log_time, kept = dec.stamp, raw.log_time, dec.frame_code
+            position, orientation = dec.position, dec.orientation
         else:
-            stamps, log_time = dec.stamp[keep], raw.log_time[keep]
-            pose, kept = dec.pose[keep], dec.frame_code[keep]
+            stamps, log_time, kept = dec.stamp[keep], raw.log_time[keep], dec.frame_code[keep]
+            position, orientation = dec.position[keep], dec.orientation[keep]
         if time_src == "log" or (stamps < 0).all():
             stamps = log_time
         # one frame_id on the whole topic is the usual case: skip the sort of np.unique
@@ -292,8 +294,8 @@ def _to_stream(
         applied, applied_warning = _applied(p, comp, log_time)
     s = PoseStream.from_arrays(
         stamps,
-        pose[:, :3],
-        pose[:, 3:],
+        position,
+        orientation,
         frame=frame,
         topic=raw.name,
         source=str(p),
