@@ -12,7 +12,7 @@ tests/test_sim_ckernel.py checks bit equality with the Python kernel for every s
 
 No compiler, a failed build or ``UWVAL_NO_ACCELERATOR=1``: :func:`compiled_kernel` returns None
 and the Python kernel runs (the same numbers, slower). Cache: ``$UWVAL_CACHE_DIR`` or
-``~/.cache/uwval``, ``kernels/<sha256 of the source and flags>.so``.
+``~/.cache/uwval``, ``kernels/<sha256 of the source, flags, compiler and machine>.so``.
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ import ast
 import ctypes
 import hashlib
 import os
+import platform
 import shutil
 import subprocess
 import tempfile
@@ -202,7 +203,10 @@ def _build(src: str) -> Path | None:
     cc = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
     if cc is None:
         return None
-    key = hashlib.sha256((src + "\0" + " ".join(CFLAGS)).encode()).hexdigest()[:32]
+    # the source, the flags, the compiler and the machine: a cache shared across hosts or
+    # compilers never hands one a library built for another
+    ident = "\0".join([src, " ".join(CFLAGS), os.path.realpath(cc), platform.machine()])
+    key = hashlib.sha256(ident.encode()).hexdigest()[:32]
     out = _cache_dir() / f"{key}.so"
     if out.exists():
         return out

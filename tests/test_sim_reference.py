@@ -76,7 +76,9 @@ def test_simulate_logs_the_poses_it_logged_before(tmp_path: Path, fmt: str) -> N
 
 def _strip_sources(obj: Any) -> Any:
     if isinstance(obj, dict):
-        return {k: _strip_sources(v) for k, v in obj.items() if k not in ("source", "sources", "log")}
+        return {
+            k: _strip_sources(v) for k, v in obj.items() if k not in ("source", "sources", "log")
+        }
     if isinstance(obj, list):
         return [_strip_sources(v) for v in obj]
     return obj
