@@ -418,7 +418,7 @@ class RawLog:
             warnings.warn(w, LogWarning, stacklevel=3)
 
 
-def release_pages(mm: Any, mark: int, upto: int, *, every: int = 8 << 20) -> int:
+def release_pages(mm: Any, mark: int, upto: int, *, every: int = 2 << 20) -> int:
     """Drop the pages of a read-only file map below ``upto`` from this process's resident
     set once ``every`` bytes have accumulated (read-ahead of unselected topics, e.g. images,
     must not count as the reader's memory); ``mark`` is where the last release stopped;
