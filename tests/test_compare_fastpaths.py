@@ -18,13 +18,14 @@ import pytest
 
 from uwval.comparison import compare
 from uwval.comparison.engine import _error_series
-from uwval.comparison.logs import _recorded_clock_offset, _summary_metadata
+from uwval.comparison.logs import _recorded_clock_offset
 from uwval.comparison.offset import latency_stats
 from uwval.comparison.stats import axis_stats, norm_stats, pearson
 from uwval.comparison.sync import interpolate_at, nominal_period_ns
 from uwval.comparison.synthetic import unity_view, vehicle_motion, write_pair_log
 from uwval.errors import PoseStreamError
 from uwval.frames import convert_stream
+from uwval.io.mcap_meta import summary_metadata
 from uwval.posestream import PoseStream, quat_norms
 from uwval.rotations import (
     geodesic_angle,
@@ -342,7 +343,7 @@ def test_recorded_clock_offset_reads_the_metadata_as_mcaps_reader(
         ("uwval.clock", clock),
     ]
     _write_mcap_with_metadata(log, records, use_summary_offsets=offsets)
-    assert _summary_metadata(log, "uwval.clock") == _mcap_reader_metadata(log, "uwval.clock")
+    assert summary_metadata(log, "uwval.clock") == _mcap_reader_metadata(log, "uwval.clock")
     assert _recorded_clock_offset(log) == (1700000000123456789 + 2500) * 1e-9
     plain = tmp_path / "plain.mcap"
     _write_mcap_with_metadata(
@@ -351,7 +352,7 @@ def test_recorded_clock_offset_reads_the_metadata_as_mcaps_reader(
     assert _recorded_clock_offset(plain) is None
     none = tmp_path / "none.mcap"
     _write_mcap_with_metadata(none, [], use_summary_offsets=offsets)
-    assert _summary_metadata(none, "uwval.clock") == [] and _recorded_clock_offset(none) is None
+    assert summary_metadata(none, "uwval.clock") == [] and _recorded_clock_offset(none) is None
 
 
 def test_recorded_clock_offset_of_a_log_without_summary_or_damaged(tmp_path: Path) -> None:
@@ -361,13 +362,13 @@ def test_recorded_clock_offset_of_a_log_without_summary_or_damaged(tmp_path: Pat
     data = log.read_bytes()
     cut = tmp_path / "cut.mcap"  # a recorder killed before the summary: mcap's reader scans
     cut.write_bytes(data[:-40])
-    assert _summary_metadata(cut, "uwval.clock") is None
+    assert summary_metadata(cut, "uwval.clock") is None
     assert _recorded_clock_offset(cut) == _recorded_clock_offset_by_scan(cut)
     bad = tmp_path / "bad.mcap"  # summary offsets pointing past the file: mcap's reader decides
     footer = data[-37:]
     bad.write_bytes(data[:-37] + footer[:17] + (10**12).to_bytes(8, "little") + footer[25:])
     with pytest.raises(ValueError, match="outside the file"):
-        _summary_metadata(bad, "uwval.clock")
+        summary_metadata(bad, "uwval.clock")
     assert _recorded_clock_offset(bad) == _recorded_clock_offset_by_scan(bad)
 
 

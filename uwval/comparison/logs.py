@@ -5,7 +5,6 @@ run :func:`uwval.comparison.compare` per topic pair (vehicle and camera), collec
 from __future__ import annotations
 
 import os
-import struct
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -294,13 +293,15 @@ def _recorded_clock_offset(path: str | Path) -> float | None:
     wrote, from its ``uwval.clock`` metadata (Unix time minus monotonic time, and any
     Unity clock offset); None for any other log, or one whose summary cannot be read.
 
-    The metadata records are found through the log's summary (:func:`_summary_metadata`,
+    The metadata records are found through the log's summary (:func:`summary_metadata`,
     a few small reads); a log without a summary, or whose summary does not parse, is left to
     mcap's reader (as before)."""
     if Path(path).suffix != ".mcap":
         return None
+    from uwval.io.mcap_meta import summary_metadata
+
     try:
-        records = _summary_metadata(path, "uwval.clock")
+        records = summary_metadata(path, "uwval.clock")
     except Exception:  # a damaged summary: mcap's reader decides, as before
         records = None
     try:
@@ -321,93 +322,6 @@ def _recorded_clock_offset(path: str | Path) -> float | None:
     except Exception:  # an unfinished or damaged summary: nothing recorded to use
         return None
     return None
-
-
-_MCAP_MAGIC = b"\x89MCAP0\r\n"
-_OP_FOOTER, _OP_METADATA, _OP_METADATA_INDEX, _OP_SUMMARY_OFFSET = 0x02, 0x0C, 0x0D, 0x0E
-
-
-def _mcap_string(buf: bytes, pos: int) -> tuple[str, int]:
-    """An MCAP string (uint32 length, UTF-8 bytes) at ``pos``: (text, position after it)."""
-    (n,) = struct.unpack_from("<I", buf, pos)
-    end = pos + 4 + n
-    if end > len(buf):
-        raise ValueError("string past the end of its record")
-    return buf[pos + 4 : end].decode(), end
-
-
-def _summary_metadata(path: str | Path, name: str) -> list[dict[str, str]] | None:
-    """The key/value maps of the MCAP metadata records called ``name``, in the order of the
-    log's summary (as mcap's ``iter_metadata`` yields them), read through the footer, the
-    summary offsets and the metadata index (MCAP spec: records are opcode u8, length u64,
-    body): a few small reads instead of importing and running mcap's reader. None when the
-    log has no summary (the caller then scans it); a damaged one raises."""
-    with open(path, "rb") as fh:
-        fh.seek(0, 2)
-        size = fh.tell()
-        tail_len = 1 + 8 + 20 + len(_MCAP_MAGIC)
-        if size < len(_MCAP_MAGIC) + tail_len:
-            return None
-        fh.seek(size - tail_len)
-        tail = fh.read(tail_len)
-        if tail[-8:] != _MCAP_MAGIC or tail[0] != _OP_FOOTER:
-            return None
-        length, summary_start, offsets_start, _crc = struct.unpack_from("<QQQI", tail, 1)
-        if length != 20 or summary_start == 0:
-            return None
-        footer_at = size - tail_len
-
-        def read(start: int, end: int) -> bytes:
-            if not 0 < start <= end <= footer_at:
-                raise ValueError("summary section outside the file")
-            fh.seek(start)
-            return fh.read(end - start)
-
-        def records(buf: bytes) -> list[tuple[int, bytes]]:
-            out, pos = [], 0
-            while pos < len(buf):
-                op, n = struct.unpack_from("<BQ", buf, pos)
-                end = pos + 9 + n
-                if end > len(buf):
-                    raise ValueError("record past the end of its section")
-                out.append((op, buf[pos + 9 : end]))
-                pos = end
-            return out
-
-        # the metadata index group, through the summary offsets when there are some
-        section = (summary_start, offsets_start or footer_at)
-        if offsets_start:
-            for op, body in records(read(offsets_start, footer_at)):
-                if op == _OP_SUMMARY_OFFSET and body[0] == _OP_METADATA_INDEX:
-                    start, n = struct.unpack_from("<QQ", body, 1)
-                    section = (start, start + n)
-                    break
-            else:
-                return []  # no metadata index group: the log has no metadata
-        found = []
-        for op, body in records(read(*section)):
-            if op != _OP_METADATA_INDEX:
-                continue
-            offset, n = struct.unpack_from("<QQ", body, 0)
-            if _mcap_string(body, 16)[0] != name:
-                continue
-            rec = read(offset, offset + n)
-            op_rec, n_rec = struct.unpack_from("<BQ", rec, 0)
-            if op_rec != _OP_METADATA or 9 + n_rec > len(rec):
-                raise ValueError("metadata index points at no metadata record")
-            body_rec = rec[9 : 9 + n_rec]
-            rec_name, pos = _mcap_string(body_rec, 0)
-            (map_len,) = struct.unpack_from("<I", body_rec, pos)
-            pos += 4
-            end = pos + map_len
-            if rec_name != name or end > len(body_rec):
-                raise ValueError("damaged metadata record")
-            values: dict[str, str] = {}
-            while pos < end:
-                key, pos = _mcap_string(body_rec, pos)
-                values[key], pos = _mcap_string(body_rec, pos)
-            found.append(values)
-        return found
 
 
 def _read_pair(

@@ -20,6 +20,7 @@ from uwval.io.ros import normalize_type_name
 MAGIC = b"\x89MCAP0\r\n"
 OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 1, 2, 3, 4, 5, 6
 OP_MESSAGE_INDEX, OP_CHUNK_INDEX, OP_STATISTICS, OP_DATA_END = 7, 8, 11, 15
+OP_METADATA, OP_METADATA_INDEX, OP_SUMMARY_OFFSET = 0x0C, 0x0D, 0x0E
 
 REC = struct.Struct("<BQ")
 U16 = struct.Struct("<H")
