@@ -10,19 +10,17 @@
 from __future__ import annotations
 
 import shutil
-import sqlite3
 import struct
 import tempfile
 import threading
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from uwval.errors import LogReadError
 from uwval.io.formats import log_kind
-from uwval.io.mcap_raw import scan_mcap
 from uwval.io.raw import (
     RawLog,
     TopicBuilder,
@@ -34,6 +32,9 @@ from uwval.io.raw import (
     one_line,
 )
 from uwval.io.ros import normalize_type_name
+
+if TYPE_CHECKING:
+    import sqlite3
 
 
 def scan_log(path: Path, topics: Iterable[str] | None, *, times_only: bool = False) -> RawLog:
@@ -59,6 +60,8 @@ def scan_log(path: Path, topics: Iterable[str] | None, *, times_only: bool = Fal
 
 def _scan_kind(path: Path, kind: str, topics: Iterable[str] | None, times_only: bool) -> RawLog:
     if kind == "mcap":
+        from uwval.io.mcap_raw import scan_mcap
+
         return scan_mcap(path, topics, times_only=times_only)
     if kind == "bag":
         return _scan_bag1(path, topics, times_only)
@@ -197,6 +200,8 @@ def _scan_rosbag2(bagdir: Path, topics: Iterable[str] | None, times_only: bool) 
                 raise LogReadError(f"{f}: storage file is empty (0 bytes)")
             is_mcap = storage == "mcap" or src.suffix == ".mcap"
             if is_mcap:
+                from uwval.io.mcap_raw import scan_mcap
+
                 log = scan_mcap(src, topic_list, times_only=times_only)
             else:
                 log = _scan_db3(
@@ -243,6 +248,8 @@ def _scan_db3(name: Path, path: Path, topics: Iterable[str] | None, compression:
 
 
 def _query_db3(name: Path, uri: str, want: set[str] | None, compression: str) -> RawLog:
+    import sqlite3  # only rosbag2 sqlite3 logs need it
+
     try:
         con = sqlite3.connect(uri, uri=True)
     except sqlite3.Error as exc:
@@ -295,6 +302,8 @@ class _StatsJob(threading.Thread):
         self.result: dict[int, tuple[int, int, int]] | BaseException = {}
 
     def run(self) -> None:
+        import sqlite3
+
         try:
             con = sqlite3.connect(self.uri, uri=True)
             try:

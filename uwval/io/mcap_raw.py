@@ -22,9 +22,9 @@ import contextlib
 import mmap
 import struct
 from collections.abc import Iterable
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -65,6 +65,9 @@ from uwval.io.raw import (
     one_line,
     release_pages,
 )
+
+if TYPE_CHECKING:
+    from concurrent.futures import Future, ThreadPoolExecutor
 
 _MSG = struct.Struct("<HIQQ")
 #: decompressed bytes of chunks read together (see ``_Scanner.queue``): a few MB keeps the
@@ -366,6 +369,8 @@ class _Scanner:
         lo, hi = self.fill, self.fill + u
         self.fill = hi
         if self.pool is None:
+            from concurrent.futures import ThreadPoolExecutor
+
             self.pool = ThreadPoolExecutor(1, thread_name_prefix="uwval-mcap-inflate")
         job = self.pool.submit(self._inflate_into, hdr, self.mem[lo:hi])
         self.batch.append((rec, c, ln, indexes, ents, lo, hi, job))
