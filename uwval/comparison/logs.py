@@ -4,13 +4,13 @@ run :func:`uwval.comparison.compare` per topic pair (vehicle and camera), collec
 
 from __future__ import annotations
 
-import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from uwval.comparison.engine import ComparisonResult, compare
+from uwval.cpus import second_cpu_free
 from uwval.errors import LogReadError
 from uwval.io.formats import INPUT_FORMATS, is_tum  # noqa: F401 - INPUT_FORMATS re-exported
 from uwval.posestream import PoseStream
@@ -247,22 +247,6 @@ def compare_logs(
 PARALLEL_MIN_SAMPLES = 20_000
 
 
-def _second_cpu_free() -> bool:
-    """Whether this process may run on two CPUs and the last minute's load (which counts
-    this process) leaves one of them free on average: a second thread gains only on a CPU
-    that is not busy (on a busy one, the threads' switching costs ~15 % more than comparing
-    the pairs one after the other)."""
-    try:
-        cpus = len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):  # not Linux
-        cpus = os.cpu_count() or 1
-    try:
-        load = os.getloadavg()[0]
-    except (AttributeError, OSError):  # no load average (Windows)
-        load = 0.0
-    return cpus >= 2 and load < cpus - 0.5
-
-
 def _compare_pairs(
     jobs: Sequence[tuple[str, PoseStream, PoseStream, str | None, dict[str, Any], str | None]],
 ) -> list[ComparisonResult]:
@@ -273,7 +257,7 @@ def _compare_pairs(
     first pair's error, in order, as when the pairs are compared one after the other.
     """
     big = [j for j in jobs if min(len(j[1]), len(j[2])) >= PARALLEL_MIN_SAMPLES]
-    if len(big) < 2 or not _second_cpu_free():
+    if len(big) < 2 or not second_cpu_free():
         return [compare(ref, oth, frame=fr, **opts) for _, ref, oth, fr, opts, _ in jobs]
     from concurrent.futures import ThreadPoolExecutor
 

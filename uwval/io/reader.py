@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from uwval.cpus import second_cpu_free
 from uwval.errors import LogReadError, PoseStreamError
 from uwval.frames import CONVENTIONS
 from uwval.io.containers import scan_log
@@ -176,9 +177,11 @@ def read_streams(
         # the stream is named as asked: /tf#turtle1
         return s.with_(topic=f"{raw.name}#{topic_child}") if topic_child else s
 
-    if len(jobs) > 1 and sum(len(raw) for _, raw, _ in jobs) >= PARALLEL_DECODE_MIN:
+    big = sum(len(raw) for _, raw, _ in jobs) >= PARALLEL_DECODE_MIN
+    if len(jobs) > 1 and big and second_cpu_free():
         # Topics decode independently and numpy releases the GIL in their array work: two
-        # threads on two cores. Results and the first error are taken in the order asked.
+        # threads on two cores (on a busy second core they only cost switching). Results
+        # and the first error are taken in the order asked.
         from concurrent.futures import ThreadPoolExecutor
 
         with ThreadPoolExecutor(2, thread_name_prefix="uwval-decode") as pool:
