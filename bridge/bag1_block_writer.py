@@ -13,21 +13,18 @@ from numpy.typing import NDArray
 from uwval.bridge.blocks import (
     _NS,
     _UINT32_MAX,
+    OneMessageWrites,
     RawBlock,
-    encode_header_block,
-    encode_pose_block,
 )
 from uwval.errors import LogWriteError
-from uwval.io.ros import HEADER, POSE_STAMPED
 
-F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 
 _BAG1_CHUNK_THRESHOLD = 1 << 20  # rosbags' Writer.chunk_threshold
 _BAG1_MSG_HEAD = 4 + 38 + 4  # header length, op/conn/time fields, data length
 
 
-class Bag1BlockWriter:
+class Bag1BlockWriter(OneMessageWrites):
     """A ROS 1 bag (v2.0, uncompressed chunks) writer that takes whole blocks of serialized
     messages (:class:`RawBlock`).
 
@@ -186,38 +183,6 @@ class Bag1BlockWriter:
             done = last + 1
             if bool(over.any()):
                 self._write_chunk()
-
-    def write_raw(
-        self, topic: str, msgtype: str, data: bytes, log_time: int, publish_time: int | None = None
-    ) -> None:
-        """Write one already ROS 1-serialized message."""
-        rows = np.frombuffer(bytes(data), dtype=np.uint8).reshape(1, -1)
-        self.write_blocks(
-            [RawBlock(topic, msgtype, rows, np.array([int(log_time)]), np.zeros(1, np.int64))]
-        )
-
-    def write_pose(
-        self,
-        topic: str,
-        t_ns: int,
-        position: F64,
-        quat: F64,
-        frame_id: str,
-        log_time: int | None = None,
-    ) -> None:
-        """Write one PoseStamped stamped ``t_ns`` (header) and logged at ``log_time``."""
-        rows = encode_pose_block(np.array([int(t_ns)]), position, quat, frame_id, "ros1")
-        log = int(t_ns) if log_time is None else int(log_time)
-        self.write_blocks(
-            [RawBlock(topic, POSE_STAMPED, rows, np.array([log]), np.zeros(1, np.int64))]
-        )
-
-    def write_header(self, topic: str, stamp_ns: int, log_time: int, frame_id: str = "") -> None:
-        """Write one std_msgs/Header stamped ``stamp_ns`` and logged at ``log_time``."""
-        rows = encode_header_block(np.array([int(stamp_ns)]), frame_id, "ros1")
-        self.write_blocks(
-            [RawBlock(topic, HEADER, rows, np.array([int(log_time)]), np.zeros(1, np.int64))]
-        )
 
     def _write_chunk(self) -> None:
         """Write the open chunk record and its index-data records (one per connection)."""

@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from uwval.errors import LogWriteError
+from uwval.io.ros import HEADER, POSE_STAMPED
 
 F64 = NDArray[np.float64]
 U8 = NDArray[np.uint8]
@@ -134,3 +135,45 @@ def write_raw_blocks(writer: Any, blocks: list[RawBlock]) -> None:
     for i, k in zip(which.tolist(), index.tolist(), strict=True):
         b = blocks[i]
         raw(b.topic, b.msgtype, b.rows[k].tobytes(), int(b.log_times[k]))
+
+
+class OneMessageWrites:
+    """The per-message writes of a block writer (the recorder's writer interface), each a
+    block of one message: the writer implements only ``write_blocks`` and names its
+    ``encoding`` ("cdr" for MCAP, "ros1" for ROS 1 bags)."""
+
+    encoding = "cdr"
+
+    def write_blocks(self, blocks: list[RawBlock]) -> None:
+        raise NotImplementedError
+
+    def _one(self, topic: str, msgtype: str, rows: U8, log_time: int) -> None:
+        self.write_blocks(
+            [RawBlock(topic, msgtype, rows, np.array([int(log_time)]), np.zeros(1, np.int64))]
+        )
+
+    def write_raw(
+        self, topic: str, msgtype: str, data: bytes, log_time: int, publish_time: int | None = None
+    ) -> None:
+        """Write one message already serialized in the writer's encoding (``publish_time``
+        is the log time)."""
+        rows = np.frombuffer(bytes(data), dtype=np.uint8).reshape(1, -1)
+        self._one(topic, msgtype, rows, log_time)
+
+    def write_pose(
+        self,
+        topic: str,
+        t_ns: int,
+        position: F64,
+        quat: F64,
+        frame_id: str,
+        log_time: int | None = None,
+    ) -> None:
+        """Write one PoseStamped stamped ``t_ns`` (header) and logged at ``log_time``."""
+        rows = encode_pose_block(np.array([int(t_ns)]), position, quat, frame_id, self.encoding)
+        self._one(topic, POSE_STAMPED, rows, int(t_ns) if log_time is None else int(log_time))
+
+    def write_header(self, topic: str, stamp_ns: int, log_time: int, frame_id: str = "") -> None:
+        """Write one std_msgs/Header stamped ``stamp_ns`` and logged at ``log_time``."""
+        rows = encode_header_block(np.array([int(stamp_ns)]), frame_id, self.encoding)
+        self._one(topic, HEADER, rows, log_time)

@@ -11,18 +11,16 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from uwval.bridge.blocks import RawBlock, encode_header_block, encode_pose_block
+from uwval.bridge.blocks import OneMessageWrites, RawBlock
 from uwval.errors import LogWriteError
-from uwval.io.ros import HEADER, POSE_STAMPED
 
-F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 U8 = NDArray[np.uint8]
 
 _MSG_HEAD = 1 + 8 + 2 + 4 + 8 + 8  # opcode, record length, channel, sequence, log, publish
 
 
-class McapBlockWriter:
+class McapBlockWriter(OneMessageWrites):
     """An MCAP log writer that takes whole blocks of serialized messages (:class:`RawBlock`).
 
     The file is what :class:`uwval.io.mcap_io.McapPoseWriter` writes (profile ``ros2``,
@@ -169,38 +167,6 @@ class McapBlockWriter:
         self._pending_n = base + sum(b.rows.shape[0] for b in blocks)
         if self._pending_bytes > self.chunk_size:
             self._finish_chunk()
-
-    def write_raw(
-        self, topic: str, msgtype: str, data: bytes, log_time: int, publish_time: int | None = None
-    ) -> None:
-        """Write one already CDR-encoded message (``publish_time`` is the log time)."""
-        rows = np.frombuffer(bytes(data), dtype=np.uint8).reshape(1, -1)
-        self.write_blocks(
-            [RawBlock(topic, msgtype, rows, np.array([int(log_time)]), np.zeros(1, np.int64))]
-        )
-
-    def write_pose(
-        self,
-        topic: str,
-        t_ns: int,
-        position: F64,
-        quat: F64,
-        frame_id: str,
-        log_time: int | None = None,
-    ) -> None:
-        """Write one PoseStamped stamped ``t_ns`` (header) and logged at ``log_time``."""
-        rows = encode_pose_block(np.array([int(t_ns)]), position, quat, frame_id)
-        log = int(t_ns) if log_time is None else int(log_time)
-        self.write_blocks(
-            [RawBlock(topic, POSE_STAMPED, rows, np.array([log]), np.zeros(1, np.int64))]
-        )
-
-    def write_header(self, topic: str, stamp_ns: int, log_time: int, frame_id: str = "") -> None:
-        """Write one std_msgs/Header stamped ``stamp_ns`` and logged at ``log_time``."""
-        rows = encode_header_block(np.array([int(stamp_ns)]), frame_id)
-        self.write_blocks(
-            [RawBlock(topic, HEADER, rows, np.array([int(log_time)]), np.zeros(1, np.int64))]
-        )
 
     def _finish_chunk(self) -> None:
         """Write the open chunk (the messages in rank order, a new channel's schema and
