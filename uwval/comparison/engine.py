@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 from uwval.comparison.align import Alignment, AlignMode, estimate_alignment
 from uwval.comparison.doctor import FrameDiagnosis, diagnose
 from uwval.comparison.offset import OffsetEstimate, estimate_offset, latency_stats
+from uwval.comparison.rpe import RELATION_UNITS
 from uwval.comparison.stats import axis_stats, norm_stats
 from uwval.comparison.sync import (
     associate_nearest,
@@ -135,15 +136,9 @@ class ComparisonResult:
         return pd.DataFrame(data)
 
 
-#: evo's APE pose relations (``evo_ape -r``) and the unit of each error.
-APE_RELATIONS = {
-    "trans_part": "m",
-    "rot_part": "none",
-    "full": "none",
-    "angle_deg": "deg",
-    "angle_rad": "rad",
-    "point_distance": "m",
-}
+#: evo's APE pose relations (``evo_ape -r``) and the unit of each error: RPE's, without the
+#: one that needs a travelled distance.
+APE_RELATIONS = {r: u for r, u in RELATION_UNITS.items() if r != "point_distance_error_ratio"}
 
 
 def ape_errors(reference: PoseStream, other: PoseStream, relation: str) -> F64:
