@@ -414,17 +414,11 @@ class _Scanner:
                             got += n
                         if got != len(out) or reader.read(1):
                             return False  # shorter or longer than its header says
-                elif hdr.compression == "lz4":
-                    import lz4.frame
-
-                    data = lz4.frame.decompress(src)
+                else:  # lz4 or none: the lone path's decompression, copied into place
+                    data = decompress(hdr.compression, src, 0, len(src), hdr.usize)
                     if len(data) != dest.shape[0]:
                         return False
                     dest[:] = np.frombuffer(data, dtype=np.uint8)
-                else:
-                    if len(src) != dest.shape[0]:
-                        return False
-                    dest[:] = np.frombuffer(src, dtype=np.uint8)
             return not hdr.crc or crc32(dest) == hdr.crc
         except Exception:  # damaged input in any form: the lone read reports it
             return False
