@@ -1,9 +1,12 @@
 """Chunks read in batches (one index check and one row gather for several chunks) give
 exactly what reading them one by one gives: the same messages, drops and warnings, also when
-a chunk in the middle of a batch is damaged or a channel first appears in a later chunk."""
+a chunk in the middle of a batch is damaged or a channel first appears in a later chunk.
+Every test runs twice: with the C walk checking each chunk on the inflate thread
+(``uwval.io._mcapwalk``) and with the numpy check alone."""
 
 from __future__ import annotations
 
+import os
 import struct
 import sys
 from pathlib import Path
@@ -19,6 +22,17 @@ from uwval.io import mcap_raw
 from uwval.io.raw import RawLog
 
 TOPICS = ["/gazebo/model_rov_pose", "/unity/model_rov_pose", "/tf", "/camera/image_raw/compressed"]
+
+
+@pytest.fixture(autouse=True, params=[True, False], ids=["c-walk", "numpy"])
+def match(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> bool:
+    """Whether batched chunks are checked by the C walk (built: CI requires it)."""
+    if request.param and mcap_raw._mcapwalk is None:
+        if os.environ.get("UWVAL_REQUIRE_ACCELERATOR"):
+            pytest.fail("uwval.io._mcapwalk was not built (UWVAL_REQUIRE_ACCELERATOR is set)")
+        pytest.skip("the C accelerator uwval.io._mcapwalk is not built here")
+    monkeypatch.setattr(mcap_raw, "USE_MATCH", request.param)
+    return bool(request.param)
 
 
 def _scan(path: Path, batch: int, monkeypatch: pytest.MonkeyPatch) -> RawLog:
@@ -62,18 +76,29 @@ def log(tmp_path: Path, request: pytest.FixtureRequest) -> Path:
     )
 
 
-def test_batches_read_what_single_chunks_read(log: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_batches_read_what_single_chunks_read(
+    log: Path, monkeypatch: pytest.MonkeyPatch, match: bool
+) -> None:
     assert len(_chunks(log)) > 20
     calls: list[int] = []
     check = mcap_raw.check_index
+    from_matched = mcap_raw._Scanner._from_matched
 
     def counting(buf: np.ndarray, ents: dict, **kw: object) -> object:
         calls.append(0 if kw.get("cuts") is None else len(kw["cuts"]) + 1)  # type: ignore[arg-type]
         return check(buf, ents, **kw)  # type: ignore[arg-type]
 
+    def counting_matched(self: object, run: list, matched: list, mem: np.ndarray) -> None:
+        walked.append(len(run))
+        from_matched(self, run, matched, mem)  # type: ignore[arg-type]
+
+    walked: list[int] = []
     monkeypatch.setattr(mcap_raw, "check_index", counting)
+    monkeypatch.setattr(mcap_raw._Scanner, "_from_matched", counting_matched)
     batched = _scan(log, mcap_raw.BATCH_BYTES, monkeypatch)
-    assert max(calls) > 20  # the chunks were checked together, in one call
+    # the chunks were checked together in one numpy call, or walked in C and read together
+    assert max(walked if match else calls) > 20
+    assert not (calls if match else walked)  # and only that way
     assert not batched.warnings
     _same(batched, _scan(log, 0, monkeypatch))
     assert len(batched.raw["/gazebo/model_rov_pose"]) == 600

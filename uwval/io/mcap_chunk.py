@@ -82,6 +82,13 @@ class Tables:
         enc = {"cdr": "cdr", "ros1": "ros1"}.get(ch.encoding, ch.encoding)
         return normalize_type_name(name) if name else "", enc, text
 
+    def seen_span(self, cid: int, count: int, lo: int, hi: int) -> None:
+        """Count ``count`` (> 0) messages of channel ``cid`` logged between ``lo`` and ``hi``
+        (ns) inclusive."""
+        self.counts[cid] = self.counts.get(cid, 0) + count
+        cur = self.times.setdefault(cid, [lo, hi])
+        cur[0], cur[1] = min(cur[0], lo), max(cur[1], hi)
+
     def seen(self, cid: int, times: NDArray[np.int64]) -> None:
         """Count messages of channel ``cid`` logged at ``times`` (ns)."""
         if times.size == 0:

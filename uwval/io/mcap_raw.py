@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import contextlib
 import mmap
+import os
 import struct
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -69,6 +70,18 @@ from uwval.io.raw import (
 if TYPE_CHECKING:
     from concurrent.futures import Future, ThreadPoolExecutor
 
+try:  # the optional C check of a chunk against its index (uwval/io/_mcapwalk.c)
+    from uwval.io import _mcapwalk
+except ImportError:  # pragma: no cover - installs without a C compiler: the numpy check
+    _mcapwalk = None  # type: ignore[assignment]
+
+#: Whether batched chunks are checked by the C walk on the inflate thread: it is built and
+#: ``UWVAL_NO_ACCELERATOR`` is not set (tests and benchmarks check both paths; without it the
+#: numpy :func:`check_index` checks every batch on the reading thread, with the same result).
+USE_MATCH = _mcapwalk is not None and not os.environ.get("UWVAL_NO_ACCELERATOR")
+#: Schema/Channel records a chunk may hold for the C walk (more: the numpy check reads it)
+MATCH_TABLES = 256
+
 _MSG = struct.Struct("<HIQQ")
 #: decompressed bytes of chunks read together (see ``_Scanner.queue``): a few MB keeps the
 #: per-chunk numpy calls off small chunks while the batch buffers stay small (cache-sized)
@@ -79,8 +92,32 @@ BATCH_MAX = 64 << 20
 #: a queued chunk: (record start, content start, length, index locations, entries, where
 #: its records go in the batch buffer (lo, hi), the job decompressing them there)
 _Queued = tuple[
-    int, int, int, dict[int, tuple[int, int]], "dict[int, np.ndarray]", int, int, "Future[bool]"
+    int,
+    int,
+    int,
+    dict[int, tuple[int, int]],
+    "dict[int, np.ndarray]",
+    int,
+    int,
+    "Future[bool | _Matched]",
 ]
+
+
+@dataclass
+class _Matched:
+    """A chunk at ``base`` in the batch buffer, checked against its index by the C walk
+    (``_mcapwalk.match_chunk``) on the inflate thread: per indexed channel (``groups``: id,
+    entries, first row in ``out`` or -1 when not wanted), the wanted records (``out`` rows:
+    record start in the batch buffer, log time, record length) and each channel's log-time
+    span (``spans`` rows: min, max); the Schema/Channel records (``tables``: opcode, content
+    start, content end in the buffer)."""
+
+    base: int
+    groups: list[tuple[int, np.ndarray, int]]
+    out: np.ndarray
+    spans: np.ndarray
+    tabs: np.ndarray
+    tables: list[tuple[int, int, int]] = field(default_factory=list)
 
 
 @dataclass
@@ -371,8 +408,14 @@ class _Scanner:
         if self.pool is None:
             from concurrent.futures import ThreadPoolExecutor
 
-            self.pool = ThreadPoolExecutor(1, thread_name_prefix="uwval-mcap-inflate")
-        job = self.pool.submit(self._inflate_into, hdr, self.mem[lo:hi])
+            from uwval.cpus import second_cpu_free
+
+            # with a free second CPU, two threads decompress (and walk) while this one
+            # reads: chunks holding images make decompression most of the work
+            n = 2 if second_cpu_free() else 1
+            self.pool = ThreadPoolExecutor(n, thread_name_prefix="uwval-mcap-inflate")
+        plan = self._plan(ents, lo) if USE_MATCH else None
+        job = self.pool.submit(self._inflate_into, hdr, self.mem[lo:hi], plan)
         self.batch.append((rec, c, ln, indexes, ents, lo, hi, job))
         if self.fill >= BATCH_BYTES:
             self._seal()
@@ -395,10 +438,49 @@ class _Scanner:
         self._read_items(sealed, mem)
         self.spare = mem
 
-    def _inflate_into(self, hdr: ChunkHeader, dest: np.ndarray) -> bool:
+    def _plan(self, ents: dict[int, np.ndarray], lo: int) -> _Matched:
+        """What the C walk of a chunk placed at ``lo`` in the batch buffer fills in: rows for
+        the channels wanted (or not known yet: their Channel record may be in this chunk)."""
+        groups: list[tuple[int, np.ndarray, int]] = []
+        rows = 0
+        for cid, e in ents.items():
+            want = cid not in self.tables.channels or self.builder(cid) is not None
+            groups.append((cid, e, rows if want else -1))
+            rows += len(e) if want else 0
+        return _Matched(
+            lo,
+            groups,
+            np.empty((rows, 3), dtype=np.int64),
+            np.empty((len(groups), 2), dtype=np.int64),
+            np.empty((MATCH_TABLES, 3), dtype=np.int64),
+        )
+
+    def _inflate_into(
+        self, hdr: ChunkHeader, dest: np.ndarray, plan: _Matched | None = None
+    ) -> bool | _Matched:
         """Decompress a chunk's records into ``dest`` (exactly its declared size) and check
-        its CRC (runs on the inflate thread). False when anything is off: the chunk is then
-        read alone by :meth:`chunk`, which says what is wrong."""
+        its CRC, then (with ``plan``) its index by the C walk, while the chunk is in this
+        core's cache (runs on the inflate thread). False when anything is off: the chunk is
+        then read alone by :meth:`chunk`, which says what is wrong. The filled ``plan`` when
+        the walk found the index right; True when it did not (the numpy check then decides
+        and reports)."""
+        if not self._inflate_checked(hdr, dest):
+            return False
+        if plan is None or _mcapwalk is None:
+            return True
+        try:
+            code, n_tab = _mcapwalk.match_chunk(
+                dest, plan.base, plan.groups, plan.out, plan.spans, plan.tabs
+            )
+        except (ValueError, TypeError):
+            return True
+        if code:
+            return True
+        plan.tables = [(int(op), int(a), int(b)) for op, a, b in plan.tabs[:n_tab].tolist()]
+        return plan
+
+    def _inflate_checked(self, hdr: ChunkHeader, dest: np.ndarray) -> bool:
+        """Decompress a chunk's records into ``dest`` and check its CRC (inflate thread)."""
         try:
             with memoryview(self.mm)[hdr.data_at : hdr.data_at + hdr.data_len] as src:
                 if hdr.compression == "zstd":
@@ -544,6 +626,10 @@ class _Scanner:
         on its own instead."""
         if not run:
             return
+        matched = [item[-1].result() for item in run]
+        if all(isinstance(m, _Matched) for m in matched):
+            self._from_matched(run, [m for m in matched if isinstance(m, _Matched)], mem)
+            return
         base = run[0][5]
         buf = mem[base : run[-1][6]]
         if len(run) == 1:
@@ -580,6 +666,54 @@ class _Scanner:
             k = int(np.searchsorted(ends, a, side="right"))
             self.record_table(op, buf, a, b, run[k][0])
         self._from_index(buf, joined, gaps.record_lengths)
+
+    def _from_matched(self, run: list[_Queued], matched: list[_Matched], mem: np.ndarray) -> None:
+        """Add the wanted messages of chunks whose index the C walk found right (the same
+        result as :meth:`_read_run`'s numpy check and :meth:`_from_index`)."""
+        tables = [t for m in matched for t in m.tables]
+        if tables:
+            first_end = run[0][6]
+            known = set(self.tables.channels), set(self.tables.schemas)
+            # as in _read_run: a new Schema/Channel past the first chunk -> chunk by chunk
+            if any(a >= first_end and not _known(op, mem, a, *known) for op, a, _ in tables):
+                for rec, _c, _ln, indexes, ents, lo, hi, _job in run:
+                    self._records(rec, mem[lo:hi], ents, indexes)
+                return
+            ends = [hi for *_, hi, _job in run]
+            for op, a, end in tables:
+                k = int(np.searchsorted(ends, a, side="right"))
+                self.record_table(op, mem, a, end, run[k][0])
+        per: dict[int, list[tuple[_Matched, int]]] = {}
+        for m in matched:
+            for g, (cid, e, _row) in enumerate(m.groups):
+                if len(e):
+                    per.setdefault(cid, []).append((m, g))
+        for cid, parts in per.items():
+            count = sum(len(m.groups[g][1]) for m, g in parts)
+            self.tables.seen_span(
+                cid,
+                count,
+                min(int(m.spans[g, 0]) for m, g in parts),
+                max(int(m.spans[g, 1]) for m, g in parts),
+            )
+            b = self.builder(cid)
+            if b is None:
+                continue
+            pieces = [
+                m.out[m.groups[g][2] : m.groups[g][2] + len(m.groups[g][1])] for m, g in parts
+            ]
+            recs = pieces[0] if len(pieces) == 1 else np.concatenate(pieces)
+            log_time = recs[:, 1]
+            if self.times_only:
+                z = np.zeros(len(recs), np.int64)
+                b.add(mem[:0], z, z, log_time, copy=False)
+                continue
+            rl = recs[:, 2]
+            width = int(rl[0]) - 22
+            if width > 0 and int(rl.min()) == int(rl.max()):
+                b.take_rows(mem, recs[:, 0] + 31, width, log_time)
+            else:
+                b.add(mem, recs[:, 0] + 31, rl - 22, log_time)
 
     def _from_index(
         self, buf: np.ndarray, ents: dict[int, np.ndarray], rlens: dict[int, np.ndarray]
