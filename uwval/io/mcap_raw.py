@@ -496,7 +496,11 @@ class _Scanner:
                             got += n
                         if got != len(out) or reader.read(1):
                             return False  # shorter or longer than its header says
-                else:  # lz4 or none: the lone path's decompression, copied into place
+                elif hdr.compression == "":  # stored: copied into place once
+                    if len(src) != dest.shape[0]:
+                        return False
+                    dest[:] = np.frombuffer(src, dtype=np.uint8)
+                else:  # lz4: the lone path's decompression, copied into place
                     data = decompress(hdr.compression, src, 0, len(src), hdr.usize)
                     if len(data) != dest.shape[0]:
                         return False
