@@ -252,3 +252,63 @@ def test_a_cut_log_without_summary_reads_the_same(
     walked = _read(path, True, monkeypatch)
     assert walked.unclean and len(walked.raw["/gazebo/model_rov_pose"]) > 100
     _same(walked, _read(path, False, monkeypatch))
+
+
+def test_wanted_payloads_are_copied_channel_after_channel() -> None:
+    """With a payload buffer, each wanted channel's payloads lie end to end there (its rows
+    then copy on as one block), channels in group order; rows give where each starts."""
+    rng = np.random.default_rng(2)
+    records: list[Record] = [
+        ("msg", int(c), 50 + i, int(n))
+        for i, (c, n) in enumerate(
+            zip(rng.integers(1, 4, 90), rng.integers(0, 30, 90), strict=True)
+        )
+    ]
+    buf, index = _chunk(records)
+    ents = _entries(index)
+    groups, rows = [], 0
+    for cid, e in ents.items():
+        groups.append((cid, e, rows if cid != 2 else -1))
+        rows += len(e) if cid != 2 else 0
+    out = np.zeros((rows, 3), np.int64)
+    pay = np.zeros(len(buf), np.uint8)
+    code, _ = match_chunk(
+        buf, BASE, groups, out, np.zeros((3, 2), np.int64), np.zeros((4, 3), np.int64), pay, 77
+    )
+    assert code == 0
+    data = np.frombuffer(buf, np.uint8)
+    at = 77
+    for _cid, e, row in groups:
+        if row < 0:
+            continue
+        for j, (_lt, off) in enumerate(e.tolist()):
+            start, _t, rl = out[row + j].tolist()
+            assert start == at  # end to end, channel after channel
+            assert (
+                pay[start - 77 : start - 77 + rl - 22].tobytes()
+                == data[off + 31 : off + 9 + rl].tobytes()
+            )
+            at += rl - 22
+    # a payload buffer too small for them is "not confirmed", never an overrun
+    small = np.zeros(5, np.uint8)
+    code, _ = match_chunk(
+        buf, BASE, groups, out, np.zeros((3, 2), np.int64), np.zeros((4, 3), np.int64), small, 0
+    )
+    assert code == 8 and not small.any()
+
+
+def test_take_rows_copies_blocks_and_scattered_rows_alike() -> None:
+    from uwval.io.raw import TopicBuilder
+
+    rng = np.random.default_rng(4)
+    buf = rng.integers(0, 256, 4000, dtype=np.uint8)
+    blocks = np.concatenate([np.arange(10) * 8, 200 + np.arange(30) * 8, [900, 1000]])
+    scattered = np.sort(rng.choice(3900, 60, replace=False))
+    for starts in (blocks, scattered):
+        a = TopicBuilder("/t", "x/msg/Y", "cdr")
+        a.reserve(len(starts), 1 << 20)
+        a.take_rows(buf, starts.astype(np.int64), 8, np.arange(len(starts), dtype=np.int64))
+        got = a.build()
+        assert [got.payload(i) for i in range(len(starts))] == [
+            buf[s : s + 8].tobytes() for s in starts
+        ]

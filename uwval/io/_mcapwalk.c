@@ -34,6 +34,7 @@ enum {
     MATCH_DIFFERS = 5,   /* an entry's offset or log time differs from its record's */
     MATCH_MISSING = 6,   /* an index entry with no record (fewer records than entries) */
     MATCH_TABLES = 7,    /* more Schema/Channel records than the table buffer holds */
+    MATCH_PAYLOAD = 8,   /* the wanted payloads do not fit the payload buffer */
 };
 
 static uint64_t le64(const unsigned char *p) {
@@ -50,7 +51,7 @@ static uint16_t le16(const unsigned char *p) { return (uint16_t)(p[0] | (p[1] <<
 typedef struct {
     long cid;
     const uint64_t *ent; /* (log time, offset) pairs, little-endian uint64 */
-    Py_ssize_t n, cursor, out_row;
+    Py_ssize_t n, cursor, out_row, bytes;
     int64_t lo, hi;
 } group_t;
 
@@ -67,9 +68,10 @@ static Py_ssize_t find_group(const group_t *g, Py_ssize_t ng, const int32_t *tab
 /* Walk the chunk's records and match each Message record with the next entry of its
  * channel's index. Returns a MATCH_* code; ``*n_tab`` Schema/Channel records found. */
 static int match_records(const unsigned char *b, Py_ssize_t size, int64_t base, group_t *g,
-                         Py_ssize_t ng, const int32_t *table, int64_t *out, int64_t *tab,
-                         Py_ssize_t tab_cap, Py_ssize_t *n_tab) {
-    Py_ssize_t q = 0, nt = 0;
+                         Py_ssize_t ng, const int32_t *table, int64_t *out, unsigned char *pay,
+                         Py_ssize_t pay_cap, int64_t pay_base, int64_t *tab, Py_ssize_t tab_cap,
+                         Py_ssize_t *n_tab) {
+    Py_ssize_t q = 0, nt = 0, pfill = 0;
     int code = MATCH_OK;
     while (q < size) {
         if (size - q < 9) {
@@ -111,9 +113,10 @@ static int match_records(const unsigned char *b, Py_ssize_t size, int64_t base, 
                 gr->hi = t;
             if (gr->out_row >= 0) {
                 int64_t *o = out + 3 * (gr->out_row + gr->cursor);
-                o[0] = base + (int64_t)q;
+                o[0] = (int64_t)q;
                 o[1] = t;
                 o[2] = (int64_t)rl;
+                gr->bytes += (Py_ssize_t)rl - 22;
             }
             gr->cursor++;
         } else if (op == OP_SCHEMA || op == OP_CHANNEL) {
@@ -133,6 +136,28 @@ static int match_records(const unsigned char *b, Py_ssize_t size, int64_t base, 
         if (g[i].cursor != g[i].n)
             code = MATCH_MISSING;
     *n_tab = nt;
+    if (code != MATCH_OK)
+        return code;
+    /* The wanted payloads, copied out while the chunk is in this core's cache: each
+     * channel's one after the other (a topic's rows then copy on as one block), channels
+     * in group order. Without a payload buffer, rows give the record start. */
+    for (Py_ssize_t i = 0; i < ng; i++) {
+        if (g[i].out_row < 0)
+            continue;
+        if (pay != NULL && g[i].bytes > pay_cap - pfill)
+            return MATCH_PAYLOAD;
+        for (Py_ssize_t j = 0; j < g[i].n; j++) {
+            int64_t *o = out + 3 * (g[i].out_row + j);
+            if (pay != NULL) {
+                Py_ssize_t n = (Py_ssize_t)o[2] - 22;
+                memcpy(pay + pfill, b + o[0] + 31, (size_t)n);
+                o[0] = pay_base + (int64_t)pfill;
+                pfill += n;
+            } else {
+                o[0] += base;
+            }
+        }
+    }
     return code;
 }
 
@@ -150,7 +175,8 @@ static int get_int64(PyObject *obj, Py_buffer *view, const char *what) {
 }
 
 PyDoc_STRVAR(match_chunk_doc,
-"match_chunk(records, base, groups, out, spans, tables) -> (code, n_tables)\n\n"
+"match_chunk(records, base, groups, out, spans, tables[, payload, payload_base])\n"
+"    -> (code, n_tables)\n\n"
 "Check a chunk's MessageIndex against its decompressed ``records`` (bytes-like) in one\n"
 "walk: ``groups`` lists, per indexed channel, (channel id, its entries: a C-contiguous\n"
 "buffer of little-endian uint64 (log time, offset) pairs, the row of ``out`` where its\n"
@@ -162,21 +188,25 @@ PyDoc_STRVAR(match_chunk_doc,
 "``tables``, three a record (opcode, ``base`` + content start, ``base`` + content end).\n"
 "``code`` 0: the index is right; else what stopped the match (1 a record does not fit,\n"
 "2 a short Message record, 3 a channel not in the index, 4 more records than entries,\n"
-"5 an entry differs from its record, 6 an entry without record, 7 ``tables`` full).\n"
+"5 an entry differs from its record, 6 an entry without record, 7 ``tables`` full,\n"
+"8 ``payload`` full). With the writable bytes-like ``payload``, the wanted records'\n"
+"payloads (the bytes after the 31-byte Message header) are copied into it, channel after\n"
+"channel (in group order), each channel's one after the other; the first value of their\n"
+"``out`` row is then ``payload_base`` + where the payload starts there, not the record's.\n"
 "Raises ValueError when the buffers are too small for the groups.");
 
 static PyObject *match_chunk(PyObject *self, PyObject *args) {
     (void)self;
-    PyObject *rec_obj, *groups_obj, *out_obj, *spans_obj, *tab_obj;
-    long long base;
-    if (!PyArg_ParseTuple(args, "OLO!OOO:match_chunk", &rec_obj, &base, &PyList_Type,
-                          &groups_obj, &out_obj, &spans_obj, &tab_obj))
+    PyObject *rec_obj, *groups_obj, *out_obj, *spans_obj, *tab_obj, *pay_obj = Py_None;
+    long long base, pay_base = 0;
+    if (!PyArg_ParseTuple(args, "OLO!OOO|OL:match_chunk", &rec_obj, &base, &PyList_Type,
+                          &groups_obj, &out_obj, &spans_obj, &tab_obj, &pay_obj, &pay_base))
         return NULL;
     Py_ssize_t ng = PyList_GET_SIZE(groups_obj);
     group_t *g = PyMem_Calloc(ng > 0 ? (size_t)ng : 1, sizeof(group_t));
     Py_buffer *ents = PyMem_Calloc(ng > 0 ? (size_t)ng : 1, sizeof(Py_buffer));
     int32_t *table = NULL;
-    Py_buffer rec = {0}, out = {0}, spans = {0}, tab = {0};
+    Py_buffer rec = {0}, out = {0}, spans = {0}, tab = {0}, pay = {0};
     Py_ssize_t held = 0, n_tab = 0;
     int code = -1;
     PyObject *result = NULL;
@@ -211,6 +241,9 @@ static PyObject *match_chunk(PyObject *self, PyObject *args) {
         get_int64(out_obj, &out, "out") != 0 || get_int64(spans_obj, &spans, "spans") != 0 ||
         get_int64(tab_obj, &tab, "tables") != 0)
         goto done;
+    if (pay_obj != Py_None &&
+        PyObject_GetBuffer(pay_obj, &pay, PyBUF_WRITABLE | PyBUF_C_CONTIGUOUS) != 0)
+        goto done;
     if (spans.len < 16 * ng) {
         PyErr_SetString(PyExc_ValueError, "spans holds fewer than two values a group");
         goto done;
@@ -233,7 +266,9 @@ static PyObject *match_chunk(PyObject *self, PyObject *args) {
     }
     Py_BEGIN_ALLOW_THREADS
     code = match_records((const unsigned char *)rec.buf, rec.len, (int64_t)base, g, ng, table,
-                         (int64_t *)out.buf, (int64_t *)tab.buf, tab.len / 24, &n_tab);
+                         (int64_t *)out.buf, pay.obj ? (unsigned char *)pay.buf : NULL,
+                         pay.obj ? pay.len : 0, (int64_t)pay_base, (int64_t *)tab.buf,
+                         tab.len / 24, &n_tab);
     Py_END_ALLOW_THREADS
     if (code == MATCH_OK) {
         int64_t *sp = (int64_t *)spans.buf;
@@ -254,6 +289,8 @@ done:
         PyBuffer_Release(&spans);
     if (tab.obj)
         PyBuffer_Release(&tab);
+    if (pay.obj)
+        PyBuffer_Release(&pay);
     PyMem_Free(table);
     PyMem_Free(ents);
     PyMem_Free(g);

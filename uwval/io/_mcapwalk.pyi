@@ -12,10 +12,13 @@ def match_chunk(
     out: NDArray[np.int64],
     spans: NDArray[np.int64],
     tables: NDArray[np.int64],
+    payload: NDArray[np.uint8] | None = None,
+    payload_base: int = 0,
     /,
 ) -> tuple[int, int]:
     """Check a decompressed chunk against its index in one walk of its records.
 
     ``groups``: per indexed channel (id, (log time, offset) entries, first row in ``out`` or
-    -1). Returns (code, Schema/Channel records found): code 0 = the index is right.
+    -1). Returns (code, Schema/Channel records found): code 0 = the index is right. With
+    ``payload``, the wanted payloads are copied there (``out`` rows then give their place).
     """

@@ -108,15 +108,19 @@ class _Matched:
     """A chunk at ``base`` in the batch buffer, checked against its index by the C walk
     (``_mcapwalk.match_chunk``) on the inflate thread: per indexed channel (``groups``: id,
     entries, first row in ``out`` or -1 when not wanted), the wanted records (``out`` rows:
-    record start in the batch buffer, log time, record length) and each channel's log-time
-    span (``spans`` rows: min, max); the Schema/Channel records (``tables``: opcode, content
-    start, content end in the buffer)."""
+    payload (or record) start in the batch buffer, log time, record length), each log-time
+    span (``spans`` rows: min, max) and the Schema/Channel records (``tables``: opcode,
+    content start, content end in the buffer)."""
 
     base: int
     groups: list[tuple[int, np.ndarray, int]]
     out: np.ndarray
     spans: np.ndarray
     tabs: np.ndarray
+    #: where the wanted payloads go (``out`` rows then start with their place in the batch
+    #: buffer, ``payload_at`` on), or None: ``out`` rows start with the record's place
+    payload: np.ndarray | None
+    payload_at: int
     tables: list[tuple[int, int, int]] = field(default_factory=list)
 
 
@@ -399,7 +403,7 @@ class _Scanner:
             return
         assert ents is not None
         u = hdr.usize
-        if self.batch and self.fill + u > self.mem.shape[0]:
+        if self.batch and self.fill + u > self.mem.shape[0] // 2:
             self._seal()
         if not self.batch:
             self.mem, self.fill = self._buffer(u), 0
@@ -414,20 +418,22 @@ class _Scanner:
             # reads: chunks holding images make decompression most of the work
             n = 2 if second_cpu_free() else 1
             self.pool = ThreadPoolExecutor(n, thread_name_prefix="uwval-mcap-inflate")
-        plan = self._plan(ents, lo) if USE_MATCH else None
+        plan = self._plan(ents, lo, hi) if USE_MATCH else None
         job = self.pool.submit(self._inflate_into, hdr, self.mem[lo:hi], plan)
         self.batch.append((rec, c, ln, indexes, ents, lo, hi, job))
         if self.fill >= BATCH_BYTES:
             self._seal()
 
     def _buffer(self, need: int) -> np.ndarray:
-        """A batch buffer of at least ``need`` bytes: the one of the batch read last (free
-        again: whatever is kept of a batch is copied out of it) or a new one (fresh pages
-        fault in on first touch, a cost per byte as large as decompressing)."""
+        """A batch buffer for at least ``need`` bytes of records: the one of the batch read
+        last (free again: whatever is kept of a batch is copied out of it) or a new one
+        (fresh pages fault in on first touch, a cost per byte as large as decompressing).
+        Its first half takes the chunks' records, its second half the wanted payloads the C
+        walk copies out of them (pages never written are never made resident)."""
         spare, self.spare = self.spare, None
-        if spare is not None and spare.shape[0] >= need:
+        if spare is not None and spare.shape[0] // 2 >= need:
             return spare
-        return np.empty(max(2 * BATCH_BYTES, need), dtype=np.uint8)
+        return np.empty(2 * max(2 * BATCH_BYTES, need), dtype=np.uint8)
 
     def _seal(self) -> None:
         """The batch being filled is complete: read the one before it (its chunks are
@@ -438,21 +444,26 @@ class _Scanner:
         self._read_items(sealed, mem)
         self.spare = mem
 
-    def _plan(self, ents: dict[int, np.ndarray], lo: int) -> _Matched:
-        """What the C walk of a chunk placed at ``lo`` in the batch buffer fills in: rows for
-        the channels wanted (or not known yet: their Channel record may be in this chunk)."""
+    def _plan(self, ents: dict[int, np.ndarray], lo: int, hi: int) -> _Matched:
+        """What the C walk of a chunk placed at ``lo:hi`` in the batch buffer fills in: rows
+        for the channels wanted (or not known yet: their Channel record may be in this chunk)
+        and, unless only times are read, their payloads (at the same place in the buffer's
+        second half: a chunk's payloads are never larger than its records)."""
         groups: list[tuple[int, np.ndarray, int]] = []
         rows = 0
         for cid, e in ents.items():
             want = cid not in self.tables.channels or self.builder(cid) is not None
             groups.append((cid, e, rows if want else -1))
             rows += len(e) if want else 0
+        half = self.mem.shape[0] // 2
         return _Matched(
             lo,
             groups,
             np.empty((rows, 3), dtype=np.int64),
             np.empty((len(groups), 2), dtype=np.int64),
             np.empty((MATCH_TABLES, 3), dtype=np.int64),
+            None if self.times_only else self.mem[half + lo : half + hi],
+            half + lo,
         )
 
     def _inflate_into(
@@ -469,8 +480,9 @@ class _Scanner:
         if plan is None or _mcapwalk is None:
             return True
         try:
+            args = () if plan.payload is None else (plan.payload, plan.payload_at)
             code, n_tab = _mcapwalk.match_chunk(
-                dest, plan.base, plan.groups, plan.out, plan.spans, plan.tabs
+                dest, plan.base, plan.groups, plan.out, plan.spans, plan.tabs, *args
             )
         except (ValueError, TypeError):
             return True
@@ -712,12 +724,13 @@ class _Scanner:
                 z = np.zeros(len(recs), np.int64)
                 b.add(mem[:0], z, z, log_time, copy=False)
                 continue
-            rl = recs[:, 2]
+            # the payloads, copied together by the walk (rows of one topic lie close)
+            at, rl = recs[:, 0], recs[:, 2]
             width = int(rl[0]) - 22
             if width > 0 and int(rl.min()) == int(rl.max()):
-                b.take_rows(mem, recs[:, 0] + 31, width, log_time)
+                b.take_rows(mem, at, width, log_time)
             else:
-                b.add(mem, recs[:, 0] + 31, rl - 22, log_time)
+                b.add(mem, at, rl - 22, log_time)
 
     def _from_index(
         self, buf: np.ndarray, ents: dict[int, np.ndarray], rlens: dict[int, np.ndarray]

@@ -7,6 +7,7 @@ decoders in :mod:`uwval.io.fastdecode` / :mod:`uwval.io.decode` then work on who
 from __future__ import annotations
 
 import contextlib
+import itertools
 import warnings
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -192,7 +193,17 @@ class TopicBuilder:
             return
         if buf.shape[0] < width:
             raise ValueError(f"topic {self.name}: a message reaches outside its chunk")
-        st[self._fill : self._fill + n] = window(buf, width)[starts]  # chunk-sized temporary
+        dst = st[self._fill : self._fill + n]
+        # rows lying end to end in ``buf`` (the MCAP walk copies a topic's payloads so) are
+        # copied as blocks; scattered rows are gathered (through a chunk-sized temporary)
+        breaks = np.flatnonzero(np.diff(starts) != width)
+        if breaks.size < n // 16:
+            edges = [0, *(breaks + 1).tolist(), n]
+            for a, b in itertools.pairwise(edges):
+                at = int(starts[a])
+                dst[a:b] = buf[at : at + (b - a) * width].reshape(b - a, width)
+        else:
+            dst[:] = window(buf, width)[starts]
         self._fill += n
         self._open_times.append(log_time.astype(np.int64, copy=False))
 
