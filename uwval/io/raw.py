@@ -197,7 +197,7 @@ class TopicBuilder:
         # rows lying end to end in ``buf`` (the MCAP walk copies a topic's payloads so) are
         # copied as blocks; scattered rows are gathered (through a chunk-sized temporary)
         breaks = np.flatnonzero(np.diff(starts) != width)
-        if breaks.size < n // 16:
+        if breaks.size < n // 64:
             edges = [0, *(breaks + 1).tolist(), n]
             for a, b in itertools.pairwise(edges):
                 at = int(starts[a])
