@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import bz2
 import mmap
+import os
 import struct
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
@@ -35,6 +36,15 @@ from uwval.io.raw import (
     release_pages,
 )
 from uwval.io.ros import normalize_type_name
+
+try:  # the optional C check of IndexData entries (uwval/io/_bag1index.c)
+    from uwval.io import _bag1index
+except ImportError:  # pragma: no cover - installs without a C compiler: the numpy check
+    _bag1index = None  # type: ignore[assignment]
+
+#: Whether the wanted connections' entries are checked (and located) by the C accelerator:
+#: built and ``UWVAL_NO_ACCELERATOR`` not set; else :func:`_index_ok` alone (same result).
+USE_LOCATE = _bag1index is not None and not os.environ.get("UWVAL_NO_ACCELERATOR")
 
 MAGIC = b"#ROSBAG V2.0\n"
 OP_MSG_DATA, OP_BAG_HEADER, OP_INDEX_DATA, OP_CHUNK, OP_CHUNK_INFO, OP_CONNECTION = (
@@ -309,8 +319,14 @@ def _chunk(
     if entries is not None:
         # The wanted connections' entries are checked against their records; the others
         # are only counted (from the index, as chunks holding no wanted connection are).
+        located = {c: _locate(buf, c, e) for c, e in entries.items() if c in builders}
         bad = next(
-            (c for c, e in entries.items() if c in builders and not _index_ok(buf, c, e)), None
+            (
+                c
+                for c, e in entries.items()
+                if c in builders and located[c] is None and not _index_ok(buf, c, e)
+            ),
+            None,
         )
         if bad is None:
             u32 = unaligned(buf, "<u4")
@@ -318,15 +334,20 @@ def _chunk(
                 t = e[:, 0].astype(np.int64) * 1_000_000_000 + e[:, 1]
                 times.setdefault(cid, []).append(t)
                 if cid in builders:
-                    rec = e[:, 2].astype(np.int64)
-                    hl = u32[rec].astype(np.int64)
-                    dlen = u32[rec + 4 + hl].astype(np.int64)
+                    loc = located[cid]
+                    if loc is not None:  # the C check gave each record's data place
+                        data_at, dlen = loc[:, 0], loc[:, 1]
+                    else:
+                        rec = e[:, 2].astype(np.int64)
+                        hl = u32[rec].astype(np.int64)
+                        data_at = rec + 8 + hl
+                        dlen = u32[rec + 4 + hl].astype(np.int64)
                     width = int(dlen[0])
                     if width > 0 and int(dlen.min()) == int(dlen.max()):
-                        # one payload length (a pose topic), bounds checked by _index_ok
-                        builders[cid].take_rows(buf, rec + 8 + hl, width, t)
+                        # one payload length (a pose topic), bounds checked by the check
+                        builders[cid].take_rows(buf, data_at, width, t)
                     else:
-                        builders[cid].add(buf, rec + 8 + hl, dlen, t)
+                        builders[cid].add(buf, data_at, dlen, t)
             return
         warns.append(
             f"{path}: the index of the ROS 1 chunk at byte {cp} disagrees with its records "
@@ -371,6 +392,16 @@ def _chunk(
                 else ""
             )
         )
+
+
+def _locate(buf: NDArray[np.uint8], cid: int, e: NDArray[np.uint32]) -> NDArray[np.int64] | None:
+    """(data start, data length) of each indexed record of ``cid``, checked by the C
+    accelerator as :func:`_index_ok` checks them (narrower: a header it does not take is
+    left to :func:`_index_ok`); None without it, or when it does not confirm the entries."""
+    if not USE_LOCATE or not len(e):
+        return None
+    out = np.empty((len(e), 2), dtype=np.int64)
+    return out if _bag1index.locate(buf, cid, np.ascontiguousarray(e), out) else None
 
 
 def _index_ok(buf: NDArray[np.uint8], cid: int, e: NDArray[np.uint32]) -> bool:
