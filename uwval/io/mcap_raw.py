@@ -22,6 +22,7 @@ import contextlib
 import mmap
 import os
 import struct
+import threading
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -99,8 +100,23 @@ _Queued = tuple[
     "dict[int, np.ndarray]",
     int,
     int,
-    "Future[bool | _Matched]",
+    "_Part",
 ]
+
+
+class _Part:
+    """A queued chunk's share of its batch's inflate job: its result, once the batch is
+    handed to the inflate thread(s) (:meth:`_Scanner._submit`)."""
+
+    __slots__ = ("job", "k")
+
+    def __init__(self, k: int) -> None:
+        self.job: Future[list[bool | _Matched]] | None = None
+        self.k = k
+
+    def result(self) -> bool | _Matched:
+        assert self.job is not None, "a chunk read before its batch was handed over"
+        return self.job.result()[self.k]
 
 
 @dataclass
@@ -109,8 +125,7 @@ class _Matched:
     (``_mcapwalk.match_chunk``) on the inflate thread: per indexed channel (``groups``: id,
     entries, first row in ``out`` or -1 when not wanted), the wanted records (``out`` rows:
     payload (or record) start in the batch buffer, log time, record length), each log-time
-    span (``spans`` rows: min, max) and the Schema/Channel records (``tables``: opcode,
-    content start, content end in the buffer)."""
+    span (``spans`` rows: min, max) and the Schema/Channel records (``tables``)."""
 
     base: int
     groups: list[tuple[int, np.ndarray, int]]
@@ -121,7 +136,8 @@ class _Matched:
     #: buffer, ``payload_at`` on), or None: ``out`` rows start with the record's place
     payload: np.ndarray | None
     payload_at: int
-    tables: list[tuple[int, int, int]] = field(default_factory=list)
+    #: the chunk's Schema/Channel records (opcode, content), in file order
+    tables: list[tuple[int, bytes]] = field(default_factory=list)
 
 
 @dataclass
@@ -244,6 +260,10 @@ class _Scanner:
         self.spare: np.ndarray | None = None
         self.fill = 0
         self.pool: ThreadPoolExecutor | None = None
+        self.inflaters = 1
+        #: the batch being filled: each chunk's (header, records slot, walk plan)
+        self.work: list[tuple[ChunkHeader, np.ndarray, _Matched | None]] = []
+        self.local = threading.local()  # each inflate thread's chunk buffer (_scratch)
 
     def builder(self, cid: int) -> TopicBuilder | None:
         """The builder of channel ``cid`` when its topic is wanted (``None`` otherwise)."""
@@ -409,20 +429,43 @@ class _Scanner:
             self.mem, self.fill = self._buffer(u), 0
         lo, hi = self.fill, self.fill + u
         self.fill = hi
+        plan = self._plan(ents, lo, hi) if USE_MATCH else None
+        job = _Part(len(self.work))
+        self.work.append((hdr, self.mem[lo:hi], plan))
+        self.batch.append((rec, c, ln, indexes, ents, lo, hi, job))
+        if self.fill >= BATCH_BYTES:
+            self._seal()
+
+    def _submit(self) -> None:
+        """Hand the chunks of the batch being filled to the inflate thread(s): one job per
+        thread for the whole batch (a job per chunk costs more in hand-overs than a small
+        chunk takes to decompress)."""
+        work, self.work = self.work, []
+        if not work:
+            return
         if self.pool is None:
             from concurrent.futures import ThreadPoolExecutor
 
             from uwval.cpus import second_cpu_free
 
             # with a free second CPU, two threads decompress (and walk) while this one
-            # reads: chunks holding images make decompression most of the work
-            n = 2 if second_cpu_free() else 1
-            self.pool = ThreadPoolExecutor(n, thread_name_prefix="uwval-mcap-inflate")
-        plan = self._plan(ents, lo, hi) if USE_MATCH else None
-        job = self.pool.submit(self._inflate_into, hdr, self.mem[lo:hi], plan)
-        self.batch.append((rec, c, ln, indexes, ents, lo, hi, job))
-        if self.fill >= BATCH_BYTES:
-            self._seal()
+            # reads: chunks of compressible poses make decompression most of the work
+            self.inflaters = 2 if second_cpu_free() else 1
+            self.pool = ThreadPoolExecutor(self.inflaters, thread_name_prefix="uwval-mcap-inflate")
+        step = -(-len(work) // self.inflaters)
+        jobs = [
+            self.pool.submit(self._inflate_all, work[i : i + step])
+            for i in range(0, len(work), step)
+        ]
+        for item in self.batch:
+            part = item[-1]
+            part.job, part.k = jobs[part.k // step], part.k % step
+
+    def _inflate_all(
+        self, work: list[tuple[ChunkHeader, np.ndarray, _Matched | None]]
+    ) -> list[bool | _Matched]:
+        """:meth:`_inflate_into` for chunks one after the other (an inflate thread's job)."""
+        return [self._inflate_into(hdr, dest, plan) for hdr, dest, plan in work]
 
     def _buffer(self, need: int) -> np.ndarray:
         """A batch buffer for at least ``need`` bytes of records: the one of the batch read
@@ -436,8 +479,9 @@ class _Scanner:
         return np.empty(2 * max(2 * BATCH_BYTES, need), dtype=np.uint8)
 
     def _seal(self) -> None:
-        """The batch being filled is complete: read the one before it (its chunks are
-        decompressed by now), and keep this one decompressing meanwhile."""
+        """The batch being filled is complete: start decompressing it, and read the one
+        before it meanwhile (its chunks are decompressed by now)."""
+        self._submit()
         sealed, mem = self.sealed, self.sealed_mem
         self.sealed, self.sealed_mem = self.batch, self.mem
         self.batch, self.fill = [], 0
@@ -469,27 +513,47 @@ class _Scanner:
     def _inflate_into(
         self, hdr: ChunkHeader, dest: np.ndarray, plan: _Matched | None = None
     ) -> bool | _Matched:
-        """Decompress a chunk's records into ``dest`` (exactly its declared size) and check
-        its CRC, then (with ``plan``) its index by the C walk, while the chunk is in this
-        core's cache (runs on the inflate thread). False when anything is off: the chunk is
-        then read alone by :meth:`chunk`, which says what is wrong. The filled ``plan`` when
-        the walk found the index right; True when it did not (the numpy check then decides
-        and reports)."""
-        if not self._inflate_checked(hdr, dest):
-            return False
+        """Decompress a chunk's records and check its CRC (runs on the inflate thread).
+
+        Without ``plan`` (no C walk) the records go to ``dest`` (exactly their declared
+        size) for the numpy check: True. With it, they go to a small buffer of this thread,
+        reused chunk after chunk (written while it stays in this core's cache; a stored
+        chunk is walked in place in the file map), and the C walk checks the index there
+        and copies the wanted payloads out: the filled ``plan``. False when anything is off
+        (or the walk does not confirm the index): the chunk is then read alone by
+        :meth:`chunk`, which checks it the numpy way and says what is wrong."""
         if plan is None or _mcapwalk is None:
-            return True
+            return self._inflate_checked(hdr, dest)
         try:
+            if hdr.compression == "":
+                records: np.ndarray = np.frombuffer(
+                    self.mm, dtype=np.uint8, count=hdr.data_len, offset=hdr.data_at
+                )
+                if hdr.data_len != hdr.usize or (hdr.crc and crc32(records) != hdr.crc):
+                    return False
+            else:
+                records = self._scratch(hdr.usize)
+                if not self._inflate_checked(hdr, records):
+                    return False
             args = () if plan.payload is None else (plan.payload, plan.payload_at)
             code, n_tab = _mcapwalk.match_chunk(
-                dest, plan.base, plan.groups, plan.out, plan.spans, plan.tabs, *args
+                records, 0, plan.groups, plan.out, plan.spans, plan.tabs, *args
             )
-        except (ValueError, TypeError):
-            return True
-        if code:
-            return True
-        plan.tables = [(int(op), int(a), int(b)) for op, a, b in plan.tabs[:n_tab].tolist()]
+            if code:
+                return False
+            plan.tables = [
+                (int(op), bytes(records[a:b])) for op, a, b in plan.tabs[:n_tab].tolist()
+            ]
+        except Exception:  # damaged input in any form: the lone read reports it
+            return False
         return plan
+
+    def _scratch(self, size: int) -> np.ndarray:
+        """This inflate thread's buffer for one chunk's records (``size`` bytes of it)."""
+        buf: np.ndarray | None = getattr(self.local, "buf", None)
+        if buf is None or buf.shape[0] < size:
+            buf = self.local.buf = np.empty(max(size, 1 << 20), dtype=np.uint8)
+        return buf[:size]
 
     def _inflate_checked(self, hdr: ChunkHeader, dest: np.ndarray) -> bool:
         """Decompress a chunk's records into ``dest`` and check its CRC (inflate thread)."""
@@ -610,6 +674,7 @@ class _Scanner:
     def flush(self) -> None:
         """Read every queued chunk now, in file order (a record that follows them, or the
         end of the file, must see them read)."""
+        self._submit()
         sealed, smem, batch, bmem = self.sealed, self.sealed_mem, self.batch, self.mem
         self.sealed, self.batch, self.fill = [], [], 0
         self._read_items(sealed, smem)
@@ -686,19 +751,19 @@ class _Scanner:
     def _from_matched(self, run: list[_Queued], matched: list[_Matched], mem: np.ndarray) -> None:
         """Add the wanted messages of chunks whose index the C walk found right (the same
         result as :meth:`_read_run`'s numpy check and :meth:`_from_index`)."""
-        tables = [t for m in matched for t in m.tables]
-        if tables:
-            first_end = run[0][6]
+        if any(m.tables for m in matched):
             known = set(self.tables.channels), set(self.tables.schemas)
             # as in _read_run: a new Schema/Channel past the first chunk -> chunk by chunk
-            if any(a >= first_end and not _known(op, mem, a, *known) for op, a, _ in tables):
-                for rec, _c, _ln, indexes, ents, lo, hi, _job in run:
-                    self._records(rec, mem[lo:hi], ents, indexes)
+            # (read again from the file: the walk kept only the wanted payloads)
+            if any(
+                not _known(op, content, 0, *known) for m in matched[1:] for op, content in m.tables
+            ):
+                for rec, c, ln, indexes, *_ in run:
+                    self.chunk(rec, c, ln, indexes)
                 return
-            ends = [hi for *_, hi, _job in run]
-            for op, a, end in tables:
-                k = int(np.searchsorted(ends, a, side="right"))
-                self.record_table(op, mem, a, end, run[k][0])
+            for item, m in zip(run, matched, strict=True):
+                for op, content in m.tables:
+                    self.record_table(op, content, 0, len(content), item[0])
         per: dict[int, list[tuple[_Matched, int]]] = {}
         for m in matched:
             for g, (cid, e, _row) in enumerate(m.groups):
