@@ -38,6 +38,12 @@ typedef struct {
     int64_t lo, hi;
 } Leaf;
 
+/* A growable buffer: one output group's payloads, copied while their pages are in cache. */
+typedef struct {
+    uint8_t *buf;
+    size_t len, cap;
+} Stage;
+
 typedef struct {
     const uint8_t *file;
     uint64_t size;
@@ -62,12 +68,15 @@ typedef struct {
     int64_t *rowid, *ts;
     int32_t *slot;
     size_t n;
-    /* rows of selected topics: where the blob starts in the file, its length, its bytes on
-     * the leaf, its first overflow page (0: none), its output group, its timestamp */
-    int64_t *sel_off, *sel_len, *sel_ts;
-    uint32_t *sel_local, *sel_ovfl;
+    /* rows of selected topics, in rowid order: payload length, timestamp, output group,
+     * where the payload is in its group's stage */
+    int64_t *sel_len, *sel_ts, *sel_soff;
     int32_t *sel_grp;
     size_t nsel;
+    Py_ssize_t ngroups;
+    Stage *stage;     /* per group, its payloads in rowid order */
+    int64_t *glast;   /* per group, the last slot the index walk gave it */
+    uint8_t *gsorted; /* per group, whether the index gives its rows in rowid order */
     int has_last;
     int64_t last_rowid;
     /* index walk */
@@ -106,6 +115,19 @@ static inline int get_varint(const uint8_t *p, const uint8_t *end, uint64_t *out
     return 9;
 }
 
+/* get_varint, the 1- and 2-byte cases inline (serial types and sizes of rosbag2 rows). */
+static inline int varint(const uint8_t *p, const uint8_t *end, uint64_t *out) {
+    if (p < end && p[0] < 0x80) {
+        *out = p[0];
+        return 1;
+    }
+    if (p + 1 < end && p[1] < 0x80) {
+        *out = ((uint64_t)(p[0] & 0x7f) << 7) | p[1];
+        return 2;
+    }
+    return get_varint(p, end, out);
+}
+
 /* Bytes of an integer serial type (1-6, 8, 9), -1 for any other type. */
 static inline int int_size(uint64_t t) {
     static const int8_t sizes[10] = {-1, 1, 2, 3, 4, 6, 8, -1, 0, 0};
@@ -114,15 +136,25 @@ static inline int int_size(uint64_t t) {
 
 /* The big-endian two's complement integer of serial type t (int_size(t) >= 0) at p. */
 static inline int64_t get_int(uint64_t t, const uint8_t *p) {
-    if (t == 8)
-        return 0;
-    if (t == 9)
+    switch (t) {
+    case 1:
+        return (int8_t)p[0];
+    case 2:
+        return (int16_t)(((uint32_t)p[0] << 8) | p[1]);
+    case 3:
+        return ((int32_t)(((uint32_t)p[0] << 24) | ((uint32_t)p[1] << 16) |
+                          ((uint32_t)p[2] << 8))) >> 8;
+    case 4:
+        return (int32_t)get4(p);
+    case 5:
+        return ((int64_t)(int16_t)(((uint32_t)p[0] << 8) | p[1]) << 32) | get4(p + 2);
+    case 6:
+        return (int64_t)(((uint64_t)get4(p) << 32) | get4(p + 4));
+    case 9:
         return 1;
-    int n = int_size(t);
-    uint64_t v = (p[0] & 0x80) ? ~(uint64_t)0 : 0;
-    for (int i = 0; i < n; i++)
-        v = (v << 8) | p[i];
-    return (int64_t)v;
+    default: /* 8 */
+        return 0;
+    }
 }
 
 /* Start of page pg (1-based) after checking it is in the file and not read before. */
@@ -207,15 +239,59 @@ static inline Py_ssize_t find_id(const Ctx *c, int64_t t) {
     return lo < c->nids && c->ids[lo] == t ? lo : -1;
 }
 
+/* Append a payload of blen bytes to the stage st: have bytes at local on the leaf, the rest
+ * on the overflow chain from page ovfl (4-byte next page, then usable - 4 bytes each). The
+ * chain is checked (pages in the file, none read before, ending with 0 exactly when the
+ * payload does) before the stage grows, so a damaged size cannot ask for memory. */
+static int stage_blob(Ctx *c, Stage *st, const uint8_t *local, uint64_t have, uint64_t blen,
+                      uint64_t ovfl) {
+    uint64_t per = c->usable - 4;
+    uint64_t left = blen - have;
+    uint64_t pg = ovfl;
+    for (uint64_t rest = left; rest > 0;) {
+        const uint8_t *page = take_page(c, pg, "an overflow page number is outside the file");
+        if (page == NULL)
+            return -1;
+        rest -= rest < per ? rest : per;
+        pg = get4(page);
+    }
+    if (pg != 0)
+        return (c->why = "an overflow chain goes on past its payload"), -1;
+    if (st->len + blen > st->cap) {
+        size_t cap = st->cap ? 2 * st->cap : 1 << 16;
+        while (cap < st->len + blen)
+            cap *= 2;
+        uint8_t *buf = realloc(st->buf, cap);
+        if (buf == NULL)
+            return (c->why = "out of memory"), -1;
+        st->buf = buf;
+        st->cap = cap;
+    }
+    uint8_t *out = st->buf + st->len;
+    memcpy(out, local, have);
+    out += have;
+    pg = ovfl;
+    while (left > 0) {
+        const uint8_t *page = c->file + (pg - 1) * (uint64_t)c->psize;
+        uint64_t take = left < per ? left : per;
+        memcpy(out, page + 4, take);
+        out += take;
+        left -= take;
+        pg = get4(page);
+    }
+    st->len += blen;
+    return 0;
+}
+
 /* One cell of a table leaf: a row (id NULL, topic_id, timestamp, data). */
 static int table_row(Ctx *c, const PageHdr *h, const uint8_t *cell, int has_lo, int64_t lo,
                      int has_hi, int64_t hi) {
     uint64_t P, r;
-    int n = get_varint(cell, h->end, &P);
+    int n = varint(cell, h->end, &P);
     if (n == 0)
         return (c->why = "a cell runs past its page"), -1;
     const uint8_t *p = cell + n;
-    n = get_varint(p, h->end, &r);
+    n = varint(p, h->end, &r);
     if (n == 0)
         return (c->why = "a cell runs past its page"), -1;
     p += n;
@@ -233,7 +309,7 @@ static int table_row(Ctx *c, const PageHdr *h, const uint8_t *cell, int has_lo, 
         return (c->why = "a payload runs past its page"), -1;
     const uint8_t *rec = p, *rend = p + local;
     uint64_t hs, t[4];
-    n = get_varint(rec, rend, &hs);
+    n = varint(rec, rend, &hs);
     if (n == 0 || hs > local || hs < (uint64_t)n)
         return (c->why = "a record header runs past the payload kept on the page"), -1;
     const uint8_t *q = rec + n, *hend = rec + hs;
@@ -241,7 +317,7 @@ static int table_row(Ctx *c, const PageHdr *h, const uint8_t *cell, int has_lo, 
     while (q < hend) {
         if (k == 4)
             return (c->why = "a row has more than 4 columns"), -1;
-        n = get_varint(q, hend, &t[k]);
+        n = varint(q, hend, &t[k]);
         if (n == 0)
             return (c->why = "a serial type runs past its record header"), -1;
         q += n;
@@ -287,12 +363,11 @@ static int table_row(Ctx *c, const PageHdr *h, const uint8_t *cell, int has_lo, 
     size_t m = c->nsel++;
     c->slot[j] = (int32_t)m;
     c->sel_grp[m] = g;
-    c->sel_off[m] = (int64_t)((rec + fixed) - c->file);
     c->sel_ts[m] = stamp;
-    c->sel_local[m] = (uint32_t)(local - fixed);
     c->sel_len[m] = (int64_t)blen;
-    c->sel_ovfl[m] = local < P ? get4(rend) : 0;
-    return 0;
+    Stage *st = &c->stage[g];
+    c->sel_soff[m] = (int64_t)st->len;
+    return stage_blob(c, st, rec + fixed, local - fixed, blen, local < P ? get4(rend) : 0);
 }
 
 /* In-order walk of the interior pages of the table B-tree below page pg: its leaves, in key
@@ -397,7 +472,7 @@ static inline ptrdiff_t find_row(const Ctx *c, int64_t r) {
 /* One index entry (timestamp, rowid) in the cell payload at p (P bytes, all on the page). */
 static int index_entry(Ctx *c, const PageHdr *h, const uint8_t *p) {
     uint64_t P;
-    int n = get_varint(p, h->end, &P);
+    int n = varint(p, h->end, &P);
     if (n == 0)
         return (c->why = "a cell runs past its page"), -1;
     p += n;
@@ -405,7 +480,7 @@ static int index_entry(Ctx *c, const PageHdr *h, const uint8_t *p) {
         return (c->why = "an index entry spills to an overflow page or past its page"), -1;
     const uint8_t *rend = p + P;
     uint64_t hs, t[2];
-    n = get_varint(p, rend, &hs);
+    n = varint(p, rend, &hs);
     if (n == 0 || hs > P || hs < (uint64_t)n)
         return (c->why = "an index record header runs past its payload"), -1;
     const uint8_t *q = p + n, *hend = p + hs;
@@ -413,7 +488,7 @@ static int index_entry(Ctx *c, const PageHdr *h, const uint8_t *p) {
     while (q < hend) {
         if (k == 2)
             return (c->why = "an index entry has more than 2 columns"), -1;
-        n = get_varint(q, hend, &t[k]);
+        n = varint(q, hend, &t[k]);
         if (n == 0)
             return (c->why = "a serial type runs past its record header"), -1;
         q += n;
@@ -440,8 +515,14 @@ static int index_entry(Ctx *c, const PageHdr *h, const uint8_t *p) {
         return (c->why = "an index entry's timestamp differs from its row's"), -1;
     if (++c->idx_n > c->n)
         return (c->why = "the index has more entries than the table has rows"), -1;
-    if (c->slot[j] >= 0)
-        c->order[c->norder++] = c->slot[j];
+    int32_t m = c->slot[j];
+    if (m >= 0) {
+        int32_t g = c->sel_grp[m];
+        if (m < c->glast[g])
+            c->gsorted[g] = 0;
+        c->glast[g] = m;
+        c->order[c->norder++] = m;
+    }
     return 0;
 }
 
@@ -474,38 +555,6 @@ static int walk_index(Ctx *c, uint64_t pg, int depth) {
     return leaf ? 0 : walk_index(c, h.right, depth + 1);
 }
 
-/* out == NULL: check (and mark as read) the overflow chain of selected row k; else copy its
- * blob (local part, then the chain) to out. */
-static int blob_chain(Ctx *c, size_t k, uint8_t *out) {
-    uint64_t len = (uint64_t)c->sel_len[k], have = c->sel_local[k];
-    if (have > len)
-        have = len;
-    if (out != NULL)
-        memcpy(out, c->file + c->sel_off[k], have);
-    uint64_t left = len - have;
-    uint64_t pg = c->sel_ovfl[k];
-    uint64_t per = c->usable - 4;
-    while (left > 0) {
-        const uint8_t *page;
-        if (out == NULL) {
-            page = take_page(c, pg, "an overflow page number is outside the file");
-            if (page == NULL)
-                return -1;
-        } else {
-            page = c->file + (pg - 1) * (uint64_t)c->psize;
-        }
-        uint64_t take = left < per ? left : per;
-        if (out != NULL)
-            memcpy(out + have, page + 4, take);
-        have += take;
-        left -= take;
-        pg = get4(page);
-    }
-    if (out == NULL && pg != 0)
-        return (c->why = "an overflow chain goes on past its payload"), -1;
-    return 0;
-}
-
 static void free_ctx(Ctx *c) {
     free(c->seen);
     free(c->lut);
@@ -513,12 +562,15 @@ static void free_ctx(Ctx *c) {
     free(c->rowid);
     free(c->ts);
     free(c->slot);
-    free(c->sel_off);
     free(c->sel_len);
     free(c->sel_ts);
-    free(c->sel_local);
-    free(c->sel_ovfl);
+    free(c->sel_soff);
     free(c->sel_grp);
+    for (Py_ssize_t g = 0; c->stage != NULL && g < c->ngroups; g++)
+        free(c->stage[g].buf);
+    free(c->stage);
+    free(c->glast);
+    free(c->gsorted);
     free(c->order);
 }
 
@@ -570,16 +622,19 @@ static int scan_file(Ctx *c, uint64_t table_root, uint64_t index_root, Py_ssize_
     c->rowid = malloc(n * sizeof(int64_t));
     c->ts = malloc(n * sizeof(int64_t));
     c->slot = malloc(n * sizeof(int32_t));
-    c->sel_off = malloc(n * sizeof(int64_t));
+    size_t ng = c->ngroups ? (size_t)c->ngroups : 1;
     c->sel_len = malloc(n * sizeof(int64_t));
     c->sel_ts = malloc(n * sizeof(int64_t));
-    c->sel_local = malloc(n * sizeof(uint32_t));
-    c->sel_ovfl = malloc(n * sizeof(uint32_t));
+    c->sel_soff = malloc(n * sizeof(int64_t));
     c->sel_grp = malloc(n * sizeof(int32_t));
     c->order = malloc(n * sizeof(int64_t));
-    if (!c->rowid || !c->ts || !c->slot || !c->sel_off || !c->sel_len || !c->sel_ts || !c->sel_local ||
-        !c->sel_ovfl || !c->sel_grp || !c->order)
+    c->stage = calloc(ng, sizeof(Stage));
+    c->glast = calloc(ng, sizeof(int64_t));
+    c->gsorted = malloc(ng);
+    if (!c->rowid || !c->ts || !c->slot || !c->sel_len || !c->sel_ts || !c->sel_soff ||
+        !c->sel_grp || !c->order || !c->stage || !c->glast || !c->gsorted)
         return (c->why = "out of memory"), -1;
+    memset(c->gsorted, 1, ng);
     if (read_leaves(c) != 0)
         return -1;
     c->dense = c->n == 0 || (uint64_t)c->rowid[c->n - 1] - (uint64_t)c->rowid[0] == c->n - 1;
@@ -591,27 +646,32 @@ static int scan_file(Ctx *c, uint64_t table_root, uint64_t index_root, Py_ssize_
         gcount[g] = gbytes[g] = 0;
     for (size_t i = 0; i < c->norder; i++) {
         size_t k = (size_t)c->order[i];
-        if (c->sel_ovfl[k] != 0 && blob_chain(c, k, NULL) != 0)
-            return -1;
         gcount[c->sel_grp[k]]++;
         gbytes[c->sel_grp[k]] += c->sel_len[k];
     }
     return 0;
 }
 
-/* Fill the outputs: per group, in index order, stamps, offsets into payload, lengths.
- * row_at and byte_at are ngroups scratch cursors each. */
-static void fill(Ctx *c, Py_ssize_t ngroups, const int64_t *gcount, const int64_t *gbytes,
-                 int64_t *row_at, int64_t *byte_at, int64_t *stamps, int64_t *offs,
-                 int64_t *lens, uint8_t *payload) {
-    int64_t r = 0, b = 0;
+/* Fill the outputs: per group, in index order, stamps, offsets into the group's payloads,
+ * lengths. A group whose rows the index gives in rowid order (the usual case) keeps its stage
+ * as its payloads; another is copied row by row into index order. row_at and byte_at are
+ * ngroups scratch cursors each. Returns -1 when out of memory. */
+static int fill(Ctx *c, Py_ssize_t ngroups, const int64_t *gcount, const int64_t *gbytes,
+                int64_t *row_at, int64_t *byte_at, int64_t *stamps, int64_t *offs,
+                int64_t *lens) {
+    uint8_t **dst = calloc(ngroups ? (size_t)ngroups : 1, sizeof(uint8_t *));
+    if (dst == NULL)
+        return -1;
+    int64_t r = 0;
+    int rc = 0;
     for (Py_ssize_t g = 0; g < ngroups; g++) {
         row_at[g] = r;
-        byte_at[g] = b;
+        byte_at[g] = 0;
         r += gcount[g];
-        b += gbytes[g];
+        if (!c->gsorted[g] && (dst[g] = malloc(gbytes[g] ? (size_t)gbytes[g] : 1)) == NULL)
+            rc = -1;
     }
-    for (size_t i = 0; i < c->norder; i++) {
+    for (size_t i = 0; rc == 0 && i < c->norder; i++) {
         size_t k = (size_t)c->order[i];
         int32_t g = c->sel_grp[k];
         int64_t at = row_at[g]++;
@@ -619,12 +679,76 @@ static void fill(Ctx *c, Py_ssize_t ngroups, const int64_t *gcount, const int64_
         stamps[at] = c->sel_ts[k];
         offs[at] = byte_at[g];
         lens[at] = len;
-        if (c->sel_ovfl[k] == 0)
-            memcpy(payload + byte_at[g], c->file + c->sel_off[k], (size_t)len);
-        else
-            blob_chain(c, k, payload + byte_at[g]);
+        if (dst[g] != NULL) /* ties or late stamps: the index order, row by row */
+            memcpy(dst[g] + byte_at[g], c->stage[g].buf + c->sel_soff[k], (size_t)len);
         byte_at[g] += len;
     }
+    for (Py_ssize_t g = 0; g < ngroups; g++) {
+        if (dst[g] == NULL)
+            continue;
+        if (rc == 0) {
+            free(c->stage[g].buf);
+            c->stage[g].buf = dst[g];
+            c->stage[g].cap = c->stage[g].len;
+        } else {
+            free(dst[g]);
+        }
+    }
+    free(dst);
+    return rc;
+}
+
+/* A read-write buffer owning malloc'd memory: a group's payloads, handed to numpy as they
+ * are (no copy); freed when the last view of it goes. */
+typedef struct {
+    PyObject_HEAD
+    uint8_t *data;
+    Py_ssize_t len;
+} Block;
+
+static int block_getbuffer(PyObject *self, Py_buffer *view, int flags) {
+    Block *b = (Block *)self;
+    return PyBuffer_FillInfo(view, self, b->data, b->len, 0, flags);
+}
+
+static void block_dealloc(PyObject *self) {
+    free(((Block *)self)->data);
+    Py_TYPE(self)->tp_free(self);
+}
+
+static PyBufferProcs block_as_buffer = {block_getbuffer, NULL};
+
+static PyTypeObject BlockType = {
+    PyVarObject_HEAD_INIT(NULL, 0)
+    .tp_name = "uwval.io._db3pages.Block",
+    .tp_basicsize = sizeof(Block),
+    .tp_dealloc = block_dealloc,
+    .tp_as_buffer = &block_as_buffer,
+    .tp_flags = Py_TPFLAGS_DEFAULT,
+    .tp_doc = "The payloads of one group of topics (a read-write buffer).",
+};
+
+/* A Block taking over the stage's memory (shrunk to its length). */
+static PyObject *take_stage(Stage *st) {
+    Block *b = PyObject_New(Block, &BlockType);
+    if (b == NULL)
+        return NULL;
+    uint8_t *data = st->buf;
+    if (data == NULL) {
+        data = malloc(1);
+    } else if (st->len < st->cap) {
+        uint8_t *shrunk = realloc(data, st->len ? st->len : 1);
+        if (shrunk != NULL)
+            data = shrunk;
+    }
+    st->buf = NULL;
+    if (data == NULL) {
+        Py_DECREF(b);
+        return PyErr_NoMemory();
+    }
+    b->data = data;
+    b->len = (Py_ssize_t)st->len;
+    return (PyObject *)b;
 }
 
 /* A bytes-like input of native items of the given size (e.g. numpy's tobytes()). */
@@ -646,9 +770,10 @@ PyDoc_STRVAR(scan_doc,
 "topic ids of the ``topics`` table (native int64 bytes, ascending); ``pick`` (native int32\n"
 "bytes, one per id) is the\n"
 "output group of that topic, or -1 when it is not read. Returns (stats, counts, stamps,\n"
-"offsets, lengths, payload) as bytearrays: stats is int64 (count, min, max) per id;\n"
-"counts int64 messages per group; then per message, group after group and in index order\n"
-"(timestamp, then rowid), the int64 timestamp, offset into payload and length. Returns a\n"
+"offsets, lengths, payloads): stats is int64 (count, min, max) per id; counts int64\n"
+"messages per group; then per message, group after group and in index order (timestamp,\n"
+"then rowid), the int64 timestamp, offset into its group's payloads and length (these\n"
+"as bytearrays); payloads a tuple of one writable buffer per group. Returns a\n"
 "str naming the reason when the file is anything but what it expects (the caller then\n"
 "reads it with sqlite3).");
 
@@ -686,6 +811,7 @@ static PyObject *scan(PyObject *self, PyObject *args) {
     c.ids = (const int64_t *)ids.buf;
     c.pick = (const int32_t *)pick.buf;
     c.nids = ids.len / 8;
+    c.ngroups = ngroups;
     int bad_args = pick.len / 4 != c.nids;
     for (Py_ssize_t i = 0; !bad_args && i < c.nids; i++)
         bad_args = (i > 0 && c.ids[i] <= c.ids[i - 1]) || c.pick[i] < -1 ||
@@ -712,26 +838,32 @@ static PyObject *scan(PyObject *self, PyObject *args) {
         result = PyUnicode_FromString(c.why ? c.why : "declined");
         goto done;
     }
-    int64_t total = 0;
-    for (Py_ssize_t g = 0; g < ngroups; g++)
-        total += gbytes[g];
     Py_ssize_t nout = (Py_ssize_t)c.norder;
     PyObject *stats = PyByteArray_FromStringAndSize((const char *)c.stats, 24 * c.nids);
     PyObject *counts = PyByteArray_FromStringAndSize((const char *)gcount, 8 * ngroups);
     PyObject *stamps = PyByteArray_FromStringAndSize(NULL, 8 * nout);
     PyObject *offs = PyByteArray_FromStringAndSize(NULL, 8 * nout);
     PyObject *lens = PyByteArray_FromStringAndSize(NULL, 8 * nout);
-    PyObject *payload = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)total);
+    PyObject *payload = PyTuple_New(ngroups);
     if (stats && counts && stamps && offs && lens && payload) {
         int64_t *st = (int64_t *)PyByteArray_AS_STRING(stamps);
         int64_t *of = (int64_t *)PyByteArray_AS_STRING(offs);
         int64_t *ln = (int64_t *)PyByteArray_AS_STRING(lens);
-        uint8_t *pl = (uint8_t *)PyByteArray_AS_STRING(payload);
         Py_BEGIN_ALLOW_THREADS
-        fill(&c, ngroups, gcount, gbytes, gbytes + ngroups, gbytes + 2 * ngroups, st, of, ln,
-             pl);
+        rc = fill(&c, ngroups, gcount, gbytes, gbytes + ngroups, gbytes + 2 * ngroups, st, of,
+                  ln);
         Py_END_ALLOW_THREADS
-        result = PyTuple_Pack(6, stats, counts, stamps, offs, lens, payload);
+        for (Py_ssize_t g = 0; rc == 0 && g < ngroups; g++) {
+            PyObject *block = take_stage(&c.stage[g]);
+            if (block == NULL)
+                rc = -1;
+            else
+                PyTuple_SET_ITEM(payload, g, block);
+        }
+        if (rc == 0)
+            result = PyTuple_Pack(6, stats, counts, stamps, offs, lens, payload);
+        else if (!PyErr_Occurred())
+            PyErr_NoMemory();
     }
     Py_XDECREF(stats);
     Py_XDECREF(counts);
@@ -760,4 +892,8 @@ static struct PyModuleDef module = {
     methods, NULL, NULL, NULL, NULL,
 };
 
-PyMODINIT_FUNC PyInit__db3pages(void) { return PyModule_Create(&module); }
+PyMODINIT_FUNC PyInit__db3pages(void) {
+    if (PyType_Ready(&BlockType) < 0)
+        return NULL;
+    return PyModule_Create(&module);
+}

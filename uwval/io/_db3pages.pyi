@@ -11,8 +11,9 @@ def scan(
     pick: Buffer,
     ngroups: int,
     /,
-) -> tuple[bytearray, bytearray, bytearray, bytearray, bytearray, bytearray] | str:
+) -> tuple[bytearray, bytearray, bytearray, bytearray, bytearray, tuple[Buffer, ...]] | str:
     """Read rosbag2's messages table and its timestamp index from the pages of ``file``.
 
-    Returns (stats, counts, stamps, offsets, lengths, payload) or a str naming why it declines.
+    Returns (stats, counts, stamps, offsets, lengths, payloads: one buffer per group) or a
+    str naming why it declines.
     """

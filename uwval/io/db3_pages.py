@@ -150,23 +150,19 @@ def scan_pages(
         return f"cannot map the file: {exc}"
     if isinstance(got, str):
         return got
-    stats_b, counts_b, stamps_b, offs_b, lens_b, payload_b = got
+    stats_b, counts_b, stamps_b, offs_b, lens_b, payloads = got
     stats = np.frombuffer(stats_b, dtype=np.int64).reshape(-1, 3)
     counts = np.frombuffer(counts_b, dtype=np.int64)
     stamps = np.frombuffer(stamps_b, dtype=np.int64)
     offs = np.frombuffer(offs_b, dtype=np.int64)
     lens = np.frombuffer(lens_b, dtype=np.int64)
-    payload = np.frombuffer(payload_b, dtype=np.uint8)
     out: dict[int, tuple[U8, I64, I64, I64]] = {}
     row = 0
-    byte = 0
     for tid, k in group.items():
         n = int(counts[k])
-        o, ln = offs[row : row + n], lens[row : row + n]
-        size = int(ln.sum())
-        out[tid] = (payload[byte : byte + size], o - byte, ln, stamps[row : row + n])
+        sl = slice(row, row + n)
+        out[tid] = (np.frombuffer(payloads[k], dtype=np.uint8), offs[sl], lens[sl], stamps[sl])
         row += n
-        byte += size
     return Db3Pages(
         {int(t): (int(s[0]), int(s[1]), int(s[2])) for t, s in zip(ids, stats, strict=True)},
         out,
