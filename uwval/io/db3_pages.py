@@ -161,7 +161,12 @@ def scan_pages(
     for tid, k in group.items():
         n = int(counts[k])
         sl = slice(row, row + n)
-        out[tid] = (np.frombuffer(payloads[k], dtype=np.uint8), offs[sl], lens[sl], stamps[sl])
+        out[tid] = (
+            np.frombuffer(memoryview(payloads[k]), dtype=np.uint8),
+            offs[sl],
+            lens[sl],
+            stamps[sl],
+        )
         row += n
     return Db3Pages(
         {int(t): (int(s[0]), int(s[1]), int(s[2])) for t, s in zip(ids, stats, strict=True)},
