@@ -29,6 +29,10 @@
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
+#if defined(__unix__) || defined(__APPLE__)
+#include <sys/mman.h>
+#include <unistd.h>
+#endif
 
 #define MAX_DEPTH 20 /* SQLite's own B-tree cursor depth limit (BTCURSOR_MAX_DEPTH) */
 
@@ -87,6 +91,12 @@ typedef struct {
     int64_t *order; /* table rows of the selected topics, index order */
     size_t norder;
     const char *why; /* the reason of a decline (a static string) */
+    /* release: file is a private read-only mmap of the file, whose pages may be dropped
+     * from this process once read (they stay in the page cache), so the resident size does
+     * not grow by the file's size; span: the pages read since the last drop */
+    int release;
+    const uint8_t *span_lo, *span_hi;
+    int span_n;
 } Ctx;
 
 static inline uint32_t get2(const uint8_t *p) { return ((uint32_t)p[0] << 8) | p[1]; }
@@ -155,6 +165,32 @@ static inline int64_t get_int(uint64_t t, const uint8_t *p) {
     default: /* 8 */
         return 0;
     }
+}
+
+/* Drop the pages read since the last drop from the process's mapping (madvise DONTNEED: a
+ * read-only file mapping reads them again from the page cache if touched again). */
+static void drop_span(Ctx *c) {
+#if (defined(__unix__) || defined(__APPLE__)) && defined(MADV_DONTNEED)
+    if (c->release && c->span_n > 0) {
+        uintptr_t os_page = (uintptr_t)sysconf(_SC_PAGESIZE);
+        uintptr_t a = (uintptr_t)c->span_lo & ~(os_page - 1); /* the map starts page aligned */
+        uintptr_t b = ((uintptr_t)c->span_hi + os_page - 1) & ~(os_page - 1);
+        (void)madvise((void *)a, (size_t)(b - a), MADV_DONTNEED);
+    }
+#endif
+    c->span_n = 0;
+}
+
+/* Note that the file page at page has been read; every 256 pages, drop them (if allowed). */
+static inline void done_with(Ctx *c, const uint8_t *page) {
+    if (!c->release)
+        return;
+    if (c->span_n == 0 || page < c->span_lo)
+        c->span_lo = page;
+    if (c->span_n == 0 || page + c->psize > c->span_hi)
+        c->span_hi = page + c->psize;
+    if (++c->span_n >= 256)
+        drop_span(c);
 }
 
 /* Start of page pg (1-based) after checking it is in the file and not read before. */
@@ -254,6 +290,7 @@ static int stage_blob(Ctx *c, Stage *st, const uint8_t *local, uint64_t have, ui
             return -1;
         rest -= rest < per ? rest : per;
         pg = get4(page);
+        /* (not dropped yet: the copy below reads it again) */
     }
     if (pg != 0)
         return (c->why = "an overflow chain goes on past its payload"), -1;
@@ -278,6 +315,7 @@ static int stage_blob(Ctx *c, Stage *st, const uint8_t *local, uint64_t have, ui
         out += take;
         left -= take;
         pg = get4(page);
+        done_with(c, page);
     }
     st->len += blen;
     return 0;
@@ -395,6 +433,7 @@ static int walk_table(Ctx *c, uint64_t pg, int has_lo, int64_t lo, int has_hi, i
         leaf->has_hi = has_hi;
         leaf->hi = hi;
         c->ncells += h.ncells;
+        done_with(c, h.page);
         return 0;
     }
     if (h.type != 0x05)
@@ -446,6 +485,7 @@ static int read_leaves(Ctx *c) {
                 table_row(c, &h, cell, leaf->has_lo, leaf->lo, leaf->has_hi, leaf->hi) != 0)
                 return -1;
         }
+        done_with(c, page);
     }
     return 0;
 }
@@ -552,7 +592,11 @@ static int walk_index(Ctx *c, uint64_t pg, int depth) {
         if (index_entry(c, &h, cell) != 0)
             return -1;
     }
-    return leaf ? 0 : walk_index(c, h.right, depth + 1);
+    if (leaf) {
+        done_with(c, h.page);
+        return 0;
+    }
+    return walk_index(c, h.right, depth + 1);
 }
 
 static void free_ctx(Ctx *c) {
@@ -617,6 +661,7 @@ static int scan_file(Ctx *c, uint64_t table_root, uint64_t index_root, Py_ssize_
     }
     if (walk_table(c, table_root, 0, 0, 0, 0, 0) != 0)
         return -1;
+    drop_span(c);
     /* one row a leaf cell (each cell takes at least 2 bytes of its page: no overflow here) */
     size_t n = c->ncells ? (size_t)c->ncells : 1;
     c->rowid = malloc(n * sizeof(int64_t));
@@ -637,9 +682,11 @@ static int scan_file(Ctx *c, uint64_t table_root, uint64_t index_root, Py_ssize_
     memset(c->gsorted, 1, ng);
     if (read_leaves(c) != 0)
         return -1;
+    drop_span(c);
     c->dense = c->n == 0 || (uint64_t)c->rowid[c->n - 1] - (uint64_t)c->rowid[0] == c->n - 1;
     if (walk_index(c, index_root, 0) != 0)
         return -1;
+    drop_span(c);
     if (c->idx_n != c->n)
         return (c->why = "the index has fewer entries than the table has rows"), -1;
     for (Py_ssize_t g = 0; g < ngroups; g++)
@@ -764,7 +811,8 @@ static int get_input(PyObject *obj, Py_buffer *view, Py_ssize_t item, const char
 }
 
 PyDoc_STRVAR(scan_doc,
-"scan(file, page_size, table_root, index_root, ids, pick, ngroups) -> tuple | str\n\n"
+"scan(file, page_size, table_root, index_root, ids, pick, ngroups, release=False)\n"
+"    -> tuple | str\n\n"
 "Read the rosbag2 ``messages`` table (root page ``table_root``) and its timestamp index\n"
 "(root page ``index_root``) from the bytes-like ``file`` (the whole .db3). ``ids`` are the\n"
 "topic ids of the ``topics`` table (native int64 bytes, ascending); ``pick`` (native int32\n"
@@ -775,15 +823,18 @@ PyDoc_STRVAR(scan_doc,
 "then rowid), the int64 timestamp, offset into its group's payloads and length (these\n"
 "as bytearrays); payloads a tuple of one writable buffer per group. Returns a\n"
 "str naming the reason when the file is anything but what it expects (the caller then\n"
-"reads it with sqlite3).");
+"reads it with sqlite3). ``release``: ``file`` is a read-only mmap of the file (nothing\n"
+"else!), whose pages are dropped from this process as they are read (madvise DONTNEED),\n"
+"so the resident size does not grow by the file's size.");
 
 static PyObject *scan(PyObject *self, PyObject *args) {
     (void)self;
     PyObject *file_obj, *ids_obj, *pick_obj;
     unsigned long long psize, table_root, index_root;
     Py_ssize_t ngroups;
-    if (!PyArg_ParseTuple(args, "OKKKOOn:scan", &file_obj, &psize, &table_root, &index_root,
-                          &ids_obj, &pick_obj, &ngroups))
+    int release = 0;
+    if (!PyArg_ParseTuple(args, "OKKKOOn|p:scan", &file_obj, &psize, &table_root, &index_root,
+                          &ids_obj, &pick_obj, &ngroups, &release))
         return NULL;
     if (psize < 512 || psize > 65536 || (psize & (psize - 1)) != 0 || ngroups < 0 ||
         ngroups > 0x7fffffff) {
@@ -812,6 +863,7 @@ static PyObject *scan(PyObject *self, PyObject *args) {
     c.pick = (const int32_t *)pick.buf;
     c.nids = ids.len / 8;
     c.ngroups = ngroups;
+    c.release = release;
     int bad_args = pick.len / 4 != c.nids;
     for (Py_ssize_t i = 0; !bad_args && i < c.nids; i++)
         bad_args = (i > 0 && c.ids[i] <= c.ids[i - 1]) || c.pick[i] < -1 ||

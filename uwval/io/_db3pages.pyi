@@ -10,6 +10,7 @@ def scan(
     ids: Buffer,
     pick: Buffer,
     ngroups: int,
+    release: bool = False,
     /,
 ) -> tuple[bytearray, bytearray, bytearray, bytearray, bytearray, tuple[Buffer, ...]] | str:
     """Read rosbag2's messages table and its timestamp index from the pages of ``file``.

@@ -144,7 +144,14 @@ def scan_pages(
     try:
         with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
             got = _db3pages.scan(
-                mm, page_size, table_root, index_root, ids.tobytes(), pick.tobytes(), len(group)
+                mm,
+                page_size,
+                table_root,
+                index_root,
+                ids.tobytes(),
+                pick.tobytes(),
+                len(group),
+                True,  # mm is a read-only map of the file: its pages may be dropped when read
             )
     except (OSError, ValueError) as exc:
         return f"cannot map the file: {exc}"
