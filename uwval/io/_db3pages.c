@@ -36,11 +36,30 @@
 
 #define MAX_DEPTH 20 /* SQLite's own B-tree cursor depth limit (BTCURSOR_MAX_DEPTH) */
 
-typedef struct {
-    uint32_t page;
-    int has_lo, has_hi;
-    int64_t lo, hi;
-} Leaf;
+/* Growable arrays live in their own anonymous mappings: growing one (mremap) moves page
+ * tables, never bytes, and only the part written is ever resident. */
+static void *vec_grow(void *p, size_t old_bytes, size_t new_bytes) {
+#if defined(__linux__)
+    void *q = p == NULL ? mmap(NULL, new_bytes, PROT_READ | PROT_WRITE,
+                               MAP_PRIVATE | MAP_ANONYMOUS, -1, 0)
+                        : mremap(p, old_bytes, new_bytes, MREMAP_MAYMOVE);
+    return q == MAP_FAILED ? NULL : q;
+#else
+    (void)old_bytes;
+    return realloc(p, new_bytes);
+#endif
+}
+
+static void vec_free(void *p, size_t bytes) {
+    if (p == NULL)
+        return;
+#if defined(__linux__)
+    munmap(p, bytes);
+#else
+    (void)bytes;
+    free(p);
+#endif
+}
 
 /* A growable buffer: one output group's payloads, copied while their pages are in cache. */
 typedef struct {
@@ -63,20 +82,16 @@ typedef struct {
     /* known topic ids in 0..lut_n-1: their position in ids, -1 for none (a lookup table) */
     int32_t *lut;
     int64_t lut_n;
-    /* table leaves in key order, each with the key range its parents give it: (lo, hi] */
-    Leaf *leaves;
-    size_t nleaves, leaves_cap;
-    uint64_t ncells; /* cells on those leaves: the rows */
     /* table rows in rowid order: rowid, timestamp, and for rows of a selected topic their
-     * slot in the sel_* arrays (else -1) */
+     * slot in the sel_* arrays (else -1); cap: room for rows in each */
     int64_t *rowid, *ts;
     int32_t *slot;
-    size_t n;
+    size_t n, cap;
     /* rows of selected topics, in rowid order: payload length, timestamp, output group,
      * where the payload is in its group's stage */
     int64_t *sel_len, *sel_ts, *sel_soff;
     int32_t *sel_grp;
-    size_t nsel;
+    size_t nsel, sel_cap;
     Py_ssize_t ngroups;
     Stage *stage;     /* per group, its payloads in rowid order */
     int64_t *glast;   /* per group, the last slot the index walk gave it */
@@ -295,10 +310,10 @@ static int stage_blob(Ctx *c, Stage *st, const uint8_t *local, uint64_t have, ui
     if (pg != 0)
         return (c->why = "an overflow chain goes on past its payload"), -1;
     if (st->len + blen > st->cap) {
-        size_t cap = st->cap ? 2 * st->cap : 1 << 16;
+        size_t cap = st->cap ? 2 * st->cap : 1 << 20;
         while (cap < st->len + blen)
             cap *= 2;
-        uint8_t *buf = realloc(st->buf, cap);
+        uint8_t *buf = vec_grow(st->buf, st->cap, cap);
         if (buf == NULL)
             return (c->why = "out of memory"), -1;
         st->buf = buf;
@@ -318,6 +333,43 @@ static int stage_blob(Ctx *c, Stage *st, const uint8_t *local, uint64_t have, ui
         done_with(c, page);
     }
     st->len += blen;
+    return 0;
+}
+
+/* Room for twice the rows (at least 1 << 16) in rowid, ts and slot. */
+static int grow_rows(Ctx *c) {
+    size_t cap = c->cap ? 2 * c->cap : 1 << 16;
+    if (cap > 0x7fffffff)
+        return (c->why = "more than 2^31 rows"), -1;
+    int64_t *r = vec_grow(c->rowid, c->cap * 8, cap * 8);
+    if (r != NULL)
+        c->rowid = r;
+    int64_t *t = r ? vec_grow(c->ts, c->cap * 8, cap * 8) : NULL;
+    if (t != NULL)
+        c->ts = t;
+    int32_t *s = t ? vec_grow(c->slot, c->cap * 4, cap * 4) : NULL;
+    if (s == NULL) /* (the arrays grown so far keep their old size: free_ctx uses cap) */
+        return (c->why = "out of memory"), -1;
+    c->slot = s;
+    c->cap = cap;
+    return 0;
+}
+
+/* Room for twice the selected rows in sel_len, sel_ts, sel_soff and sel_grp. */
+static int grow_sel(Ctx *c) {
+    size_t cap = c->sel_cap ? 2 * c->sel_cap : 1 << 14;
+    int64_t **a[] = {&c->sel_len, &c->sel_ts, &c->sel_soff};
+    for (int i = 0; i < 3; i++) {
+        int64_t *p = vec_grow(*a[i], c->sel_cap * 8, cap * 8);
+        if (p == NULL)
+            return (c->why = "out of memory"), -1;
+        *a[i] = p;
+    }
+    int32_t *g = vec_grow(c->sel_grp, c->sel_cap * 4, cap * 4);
+    if (g == NULL)
+        return (c->why = "out of memory"), -1;
+    c->sel_grp = g;
+    c->sel_cap = cap;
     return 0;
 }
 
@@ -378,8 +430,8 @@ static int table_row(Ctx *c, const PageHdr *h, const uint8_t *cell, int has_lo, 
         return (c->why = "a row's integers spill to an overflow page"), -1;
     int64_t topic = get_int(t[1], rec + hs);
     int64_t stamp = get_int(t[2], rec + hs + s1);
-    if (c->n == c->ncells)
-        return (c->why = "more rows than cells"), -1; /* (cannot happen: one row a cell) */
+    if (c->n == c->cap && grow_rows(c) != 0)
+        return -1;
     size_t j = c->n++;
     c->rowid[j] = rowid;
     c->ts[j] = stamp;
@@ -398,6 +450,8 @@ static int table_row(Ctx *c, const PageHdr *h, const uint8_t *cell, int has_lo, 
         c->slot[j] = -1;
         return 0;
     }
+    if (c->nsel == c->sel_cap && grow_sel(c) != 0)
+        return -1;
     size_t m = c->nsel++;
     c->slot[j] = (int32_t)m;
     c->sel_grp[m] = g;
@@ -408,8 +462,8 @@ static int table_row(Ctx *c, const PageHdr *h, const uint8_t *cell, int has_lo, 
     return stage_blob(c, st, rec + fixed, local - fixed, blen, local < P ? get4(rend) : 0);
 }
 
-/* In-order walk of the interior pages of the table B-tree below page pg: its leaves, in key
- * order, each with the range (lo, hi] its rowids must lie in, go to c->leaves. */
+/* In-order walk of the table B-tree below page pg, reading the rows of its leaves; every
+ * rowid below pg lies in (lo, hi] (the keys of its parents). */
 static int walk_table(Ctx *c, uint64_t pg, int has_lo, int64_t lo, int has_hi, int64_t hi,
                       int depth) {
     if (depth > MAX_DEPTH)
@@ -418,21 +472,11 @@ static int walk_table(Ctx *c, uint64_t pg, int has_lo, int64_t lo, int has_hi, i
     if (read_hdr(c, pg, &h, "a table page number is outside the file") != 0)
         return -1;
     if (h.type == 0x0D) {
-        if (c->nleaves == c->leaves_cap) {
-            size_t cap = c->leaves_cap ? 2 * c->leaves_cap : 256;
-            Leaf *p = realloc(c->leaves, cap * sizeof(Leaf));
-            if (p == NULL)
-                return (c->why = "out of memory"), -1;
-            c->leaves = p;
-            c->leaves_cap = cap;
+        for (uint32_t k = 0; k < h.ncells; k++) {
+            const uint8_t *cell = cell_at(c, &h, k);
+            if (cell == NULL || table_row(c, &h, cell, has_lo, lo, has_hi, hi) != 0)
+                return -1;
         }
-        Leaf *leaf = &c->leaves[c->nleaves++];
-        leaf->page = (uint32_t)pg;
-        leaf->has_lo = has_lo;
-        leaf->lo = lo;
-        leaf->has_hi = has_hi;
-        leaf->hi = hi;
-        c->ncells += h.ncells;
         done_with(c, h.page);
         return 0;
     }
@@ -454,40 +498,23 @@ static int walk_table(Ctx *c, uint64_t pg, int has_lo, int64_t lo, int has_hi, i
         int64_t k64 = (int64_t)key;
         if ((cur_has_lo && k64 <= cur_lo) || (has_hi && k64 > hi))
             return (c->why = "interior keys are out of order"), -1;
+        if (k + 1 < h.ncells) { /* fetch the next child (a leaf, usually) meanwhile */
+            uint32_t ptr = get2(h.cells + 2 * (k + 1));
+            if (h.page + ptr + 4 <= h.end) {
+                uint64_t next = get4(h.page + ptr);
+                if (next >= 1 && next <= c->npages) {
+                    const uint8_t *np = c->file + (next - 1) * (uint64_t)c->psize;
+                    for (uint32_t b = 0; b < c->usable; b += 64)
+                        __builtin_prefetch(np + b);
+                }
+            }
+        }
         if (walk_table(c, get4(cell), cur_has_lo, cur_lo, 1, k64, depth + 1) != 0)
             return -1;
         cur_has_lo = 1;
         cur_lo = k64;
     }
     return walk_table(c, h.right, cur_has_lo, cur_lo, has_hi, hi, depth + 1);
-}
-
-/* The rows of the leaves c->walk_table found, in order. */
-static int read_leaves(Ctx *c) {
-    for (size_t i = 0; i < c->nleaves; i++) {
-        const Leaf *leaf = &c->leaves[i];
-        if (i + 1 < c->nleaves) { /* the leaves are scattered: fetch the next one meanwhile */
-            const uint8_t *next = c->file + (c->leaves[i + 1].page - 1) * (uint64_t)c->psize;
-            for (uint32_t b = 0; b < c->usable; b += 64)
-                __builtin_prefetch(next + b);
-        }
-        PageHdr h;
-        const uint8_t *page = c->file + (leaf->page - 1) * (uint64_t)c->psize;
-        uint32_t off = leaf->page == 1 ? 100 : 0;
-        h.page = page;
-        h.end = page + c->usable;
-        h.type = page[off];
-        h.ncells = get2(page + off + 3);
-        h.cells = page + off + 8;
-        for (uint32_t k = 0; k < h.ncells; k++) {
-            const uint8_t *cell = cell_at(c, &h, k);
-            if (cell == NULL ||
-                table_row(c, &h, cell, leaf->has_lo, leaf->lo, leaf->has_hi, leaf->hi) != 0)
-                return -1;
-        }
-        done_with(c, page);
-    }
-    return 0;
 }
 
 /* Table row of rowid r, -1 if there is none. */
@@ -557,6 +584,8 @@ static int index_entry(Ctx *c, const PageHdr *h, const uint8_t *p) {
         return (c->why = "the index has more entries than the table has rows"), -1;
     int32_t m = c->slot[j];
     if (m >= 0) {
+        if (c->norder == c->nsel) /* (cannot happen: one entry a row, checked above) */
+            return (c->why = "a row is indexed twice"), -1;
         int32_t g = c->sel_grp[m];
         if (m < c->glast[g])
             c->gsorted[g] = 0;
@@ -602,16 +631,15 @@ static int walk_index(Ctx *c, uint64_t pg, int depth) {
 static void free_ctx(Ctx *c) {
     free(c->seen);
     free(c->lut);
-    free(c->leaves);
-    free(c->rowid);
-    free(c->ts);
-    free(c->slot);
-    free(c->sel_len);
-    free(c->sel_ts);
-    free(c->sel_soff);
-    free(c->sel_grp);
+    vec_free(c->rowid, c->cap * 8);
+    vec_free(c->ts, c->cap * 8);
+    vec_free(c->slot, c->cap * 4);
+    vec_free(c->sel_len, c->sel_cap * 8);
+    vec_free(c->sel_ts, c->sel_cap * 8);
+    vec_free(c->sel_soff, c->sel_cap * 8);
+    vec_free(c->sel_grp, c->sel_cap * 4);
     for (Py_ssize_t g = 0; c->stage != NULL && g < c->ngroups; g++)
-        free(c->stage[g].buf);
+        vec_free(c->stage[g].buf, c->stage[g].cap);
     free(c->stage);
     free(c->glast);
     free(c->gsorted);
@@ -659,30 +687,19 @@ static int scan_file(Ctx *c, uint64_t table_root, uint64_t index_root, Py_ssize_
         for (Py_ssize_t i = 0; i < c->nids; i++)
             c->lut[c->ids[i]] = (int32_t)i;
     }
-    if (walk_table(c, table_root, 0, 0, 0, 0, 0) != 0)
-        return -1;
-    drop_span(c);
-    /* one row a leaf cell (each cell takes at least 2 bytes of its page: no overflow here) */
-    size_t n = c->ncells ? (size_t)c->ncells : 1;
-    c->rowid = malloc(n * sizeof(int64_t));
-    c->ts = malloc(n * sizeof(int64_t));
-    c->slot = malloc(n * sizeof(int32_t));
     size_t ng = c->ngroups ? (size_t)c->ngroups : 1;
-    c->sel_len = malloc(n * sizeof(int64_t));
-    c->sel_ts = malloc(n * sizeof(int64_t));
-    c->sel_soff = malloc(n * sizeof(int64_t));
-    c->sel_grp = malloc(n * sizeof(int32_t));
-    c->order = malloc(n * sizeof(int64_t));
     c->stage = calloc(ng, sizeof(Stage));
     c->glast = calloc(ng, sizeof(int64_t));
     c->gsorted = malloc(ng);
-    if (!c->rowid || !c->ts || !c->slot || !c->sel_len || !c->sel_ts || !c->sel_soff ||
-        !c->sel_grp || !c->order || !c->stage || !c->glast || !c->gsorted)
+    if (!c->stage || !c->glast || !c->gsorted || grow_rows(c) != 0 || grow_sel(c) != 0)
         return (c->why = "out of memory"), -1;
     memset(c->gsorted, 1, ng);
-    if (read_leaves(c) != 0)
+    if (walk_table(c, table_root, 0, 0, 0, 0, 0) != 0)
         return -1;
     drop_span(c);
+    c->order = malloc((c->nsel ? c->nsel : 1) * sizeof(int64_t));
+    if (c->order == NULL)
+        return (c->why = "out of memory"), -1;
     c->dense = c->n == 0 || (uint64_t)c->rowid[c->n - 1] - (uint64_t)c->rowid[0] == c->n - 1;
     if (walk_index(c, index_root, 0) != 0)
         return -1;
@@ -715,7 +732,7 @@ static int fill(Ctx *c, Py_ssize_t ngroups, const int64_t *gcount, const int64_t
         row_at[g] = r;
         byte_at[g] = 0;
         r += gcount[g];
-        if (!c->gsorted[g] && (dst[g] = malloc(gbytes[g] ? (size_t)gbytes[g] : 1)) == NULL)
+        if (!c->gsorted[g] && (dst[g] = vec_grow(NULL, 0, gbytes[g] ? (size_t)gbytes[g] : 1)) == NULL)
             rc = -1;
     }
     for (size_t i = 0; rc == 0 && i < c->norder; i++) {
@@ -733,24 +750,26 @@ static int fill(Ctx *c, Py_ssize_t ngroups, const int64_t *gcount, const int64_t
     for (Py_ssize_t g = 0; g < ngroups; g++) {
         if (dst[g] == NULL)
             continue;
+        size_t size = gbytes[g] ? (size_t)gbytes[g] : 1;
         if (rc == 0) {
-            free(c->stage[g].buf);
+            vec_free(c->stage[g].buf, c->stage[g].cap);
             c->stage[g].buf = dst[g];
-            c->stage[g].cap = c->stage[g].len;
+            c->stage[g].cap = size;
         } else {
-            free(dst[g]);
+            vec_free(dst[g], size);
         }
     }
     free(dst);
     return rc;
 }
 
-/* A read-write buffer owning malloc'd memory: a group's payloads, handed to numpy as they
+/* A read-write buffer owning a stage's memory: a group's payloads, handed to numpy as they
  * are (no copy); freed when the last view of it goes. */
 typedef struct {
     PyObject_HEAD
     uint8_t *data;
     Py_ssize_t len;
+    size_t cap;
 } Block;
 
 static int block_getbuffer(PyObject *self, Py_buffer *view, int flags) {
@@ -759,7 +778,7 @@ static int block_getbuffer(PyObject *self, Py_buffer *view, int flags) {
 }
 
 static void block_dealloc(PyObject *self) {
-    free(((Block *)self)->data);
+    vec_free(((Block *)self)->data, ((Block *)self)->cap);
     Py_TYPE(self)->tp_free(self);
 }
 
@@ -775,26 +794,26 @@ static PyTypeObject BlockType = {
     .tp_doc = "The payloads of one group of topics (a read-write buffer).",
 };
 
-/* A Block taking over the stage's memory (shrunk to its length). */
+/* A Block taking over the stage's memory (the room past its length was never written,
+ * so it is not resident). */
 static PyObject *take_stage(Stage *st) {
     Block *b = PyObject_New(Block, &BlockType);
     if (b == NULL)
         return NULL;
-    uint8_t *data = st->buf;
-    if (data == NULL) {
-        data = malloc(1);
-    } else if (st->len < st->cap) {
-        uint8_t *shrunk = realloc(data, st->len ? st->len : 1);
-        if (shrunk != NULL)
-            data = shrunk;
+    if (st->buf == NULL) {
+        st->buf = vec_grow(NULL, 0, 1);
+        st->cap = 1;
+        if (st->buf == NULL) {
+            st->cap = 0;
+            Py_DECREF(b);
+            return PyErr_NoMemory();
+        }
     }
-    st->buf = NULL;
-    if (data == NULL) {
-        Py_DECREF(b);
-        return PyErr_NoMemory();
-    }
-    b->data = data;
+    b->data = st->buf;
     b->len = (Py_ssize_t)st->len;
+    b->cap = st->cap;
+    st->buf = NULL;
+    st->cap = 0;
     return (PyObject *)b;
 }
 
