@@ -200,6 +200,23 @@ def test_page_sizes_and_multi_page_blobs(tmp_path: Path, page_size: int) -> None
     assert_same(p, ["/t1"])
 
 
+def test_integers_of_every_serial_type(tmp_path: Path) -> None:
+    """Timestamps and topic ids of every integer size sqlite stores (1, 2, 3, 4, 6, 8 bytes
+    and the constants 0 and 1), negative ones included; topic ids past 65535 (looked up by
+    binary search, not the table of small ids)."""
+    edges = [0, 1, 2, 127, 128, 32767, 32768, 2**23 - 1, 2**23, 2**31 - 1, 2**31, 2**47 - 1]
+    edges += [2**47, 2**63 - 1]
+    values = sorted({v for e in edges for v in (e, -e - 1)})
+    topics = [-(2**63), -5, 0, 1, 70_000, 2**40]
+    rng = np.random.default_rng(12)
+    rows = [(topics[k % len(topics)], v, rng.bytes(8)) for k, v in enumerate(values * 3)]
+    p = write_db3(tmp_path / "ints.db3", rows, topics=topics)
+    res = assert_same(p)
+    got = sorted(t for name in res[2] for t in res[2][name][2])
+    assert got == sorted(values * 3)
+    assert {i.name for i in res[1]} == {f"/t{k}" for k in topics}
+
+
 def test_reserved_bytes_per_page(tmp_path: Path) -> None:
     """Usable size U = page size - reserved bytes (header byte 20) sets where payloads spill."""
     p = write_db3(

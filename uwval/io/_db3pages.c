@@ -106,7 +106,7 @@ typedef struct {
     int64_t *order; /* table rows of the selected topics, index order */
     size_t norder;
     const char *why; /* the reason of a decline (a static string) */
-    /* release: file is a private read-only mmap of the file, whose pages may be dropped
+    /* release: file is a read-only mmap of the file, whose pages may be dropped
      * from this process once read (they stay in the page cache), so the resident size does
      * not grow by the file's size; span: the pages read since the last drop */
     int release;
@@ -159,22 +159,31 @@ static inline int int_size(uint64_t t) {
     return t < 10 ? sizes[t] : -1;
 }
 
+/* The n-byte big-endian two's complement value v, sign-extended (unsigned arithmetic only,
+ * then one conversion, as int64_t's two's complement). */
+static inline int64_t sign_extend(uint64_t v, int n) {
+    uint64_t sign = (uint64_t)1 << (8 * n - 1);
+    uint64_t x = (v ^ sign) - sign;
+    int64_t out;
+    memcpy(&out, &x, sizeof out);
+    return out;
+}
+
 /* The big-endian two's complement integer of serial type t (int_size(t) >= 0) at p. */
 static inline int64_t get_int(uint64_t t, const uint8_t *p) {
     switch (t) {
     case 1:
-        return (int8_t)p[0];
+        return sign_extend(p[0], 1);
     case 2:
-        return (int16_t)(((uint32_t)p[0] << 8) | p[1]);
+        return sign_extend(((uint64_t)p[0] << 8) | p[1], 2);
     case 3:
-        return ((int32_t)(((uint32_t)p[0] << 24) | ((uint32_t)p[1] << 16) |
-                          ((uint32_t)p[2] << 8))) >> 8;
+        return sign_extend(((uint64_t)p[0] << 16) | ((uint64_t)p[1] << 8) | p[2], 3);
     case 4:
-        return (int32_t)get4(p);
+        return sign_extend(get4(p), 4);
     case 5:
-        return ((int64_t)(int16_t)(((uint32_t)p[0] << 8) | p[1]) << 32) | get4(p + 2);
+        return sign_extend(((uint64_t)get2(p) << 32) | get4(p + 2), 6);
     case 6:
-        return (int64_t)(((uint64_t)get4(p) << 32) | get4(p + 4));
+        return sign_extend(((uint64_t)get4(p) << 32) | get4(p + 4), 8);
     case 9:
         return 1;
     default: /* 8 */
