@@ -4,7 +4,9 @@
 * ``.bag`` (ROS 1): rosbags' rosbag1 reader (uncompressed / bz2 / lz4 chunks, unsorted
   chunks, several connections per topic), payloads gathered into one buffer per topic.
 * rosbag2 directory (``metadata.yaml``; sqlite3 or MCAP storage, split files, zstd file or
-  message compression) and bare ``.db3``: sqlite read-only (leftover -wal/-shm untouched).
+  message compression) and bare ``.db3``: sqlite read-only (leftover -wal/-shm untouched);
+  an immutable uncompressed ``.db3`` is read from its pages by :mod:`uwval.io.db3_pages`
+  (the same result; it declines to sqlite on anything unexpected).
 """
 
 from __future__ import annotations
