@@ -4,7 +4,9 @@
 * ``.bag`` (ROS 1): rosbags' rosbag1 reader (uncompressed / bz2 / lz4 chunks, unsorted
   chunks, several connections per topic), payloads gathered into one buffer per topic.
 * rosbag2 directory (``metadata.yaml``; sqlite3 or MCAP storage, split files, zstd file or
-  message compression) and bare ``.db3``: sqlite read-only (leftover -wal/-shm untouched).
+  message compression) and bare ``.db3``: sqlite read-only (leftover -wal/-shm untouched);
+  an immutable uncompressed ``.db3`` is read from its pages by :mod:`uwval.io.db3_pages`
+  (the same result; it declines to sqlite on anything unexpected).
 """
 
 from __future__ import annotations
@@ -244,10 +246,16 @@ def _scan_db3(name: Path, path: Path, topics: Iterable[str] | None, compression:
                 "the sqlite write-ahead log was not checkpointed: the writer did not finish"
             )
             return log
-    return _query_db3(name, f"file:{path}?mode=ro&immutable=1", want, compression)
+    return _query_db3(name, f"file:{path}?mode=ro&immutable=1", want, compression, pages=path)
 
 
-def _query_db3(name: Path, uri: str, want: set[str] | None, compression: str) -> RawLog:
+def _query_db3(
+    name: Path, uri: str, want: set[str] | None, compression: str, pages: Path | None = None
+) -> RawLog:
+    """Read the sqlite3 storage at ``uri``. ``pages``: the same file, immutable (no
+    write-ahead log to replay), which :mod:`uwval.io.db3_pages` may then read from its pages
+    (the same result, ~10x faster; it declines on anything unexpected and this function
+    reads with sqlite3 as before)."""
     import sqlite3  # only rosbag2 sqlite3 logs need it
 
     try:
@@ -260,9 +268,6 @@ def _query_db3(name: Path, uri: str, want: set[str] | None, compression: str) ->
             tops = rows.fetchall()
         except sqlite3.DatabaseError as exc:
             raise LogReadError(f"{name}: not a rosbag2 sqlite3 file: {one_line(exc)}") from exc
-        # Every topic's count and span is one more pass over the table: sqlite runs it on
-        # its own connection and thread (it releases the GIL) while this one fetches.
-        stats_job = _db3_stats(uri)
         builders: dict[int, TopicBuilder] = {}
         for tid, tname, ttype, fmt in tops:
             n = norm_topic(tname)
@@ -271,13 +276,26 @@ def _query_db3(name: Path, uri: str, want: set[str] | None, compression: str) ->
             builders[tid] = TopicBuilder(
                 n, normalize_type_name(ttype), "cdr" if fmt == "cdr" else fmt
             )
-        try:
-            _fetch_db3(con, name, builders, compression)
-        finally:
-            stats_job.join()
-        if isinstance(stats_job.result, BaseException):
-            raise stats_job.result
-        stats = stats_job.result
+        fast = None
+        if pages is not None and not compression:
+            from uwval.io.db3_pages import read_pages
+
+            fast = read_pages(pages, con, [t[0] for t in tops], sorted(builders))
+        if fast is not None:  # the messages table read from its pages, statistics included
+            for tid, (buf, offs, lens, stamps) in fast.topics.items():
+                builders[tid].add(buf, offs, lens, stamps, copy=False)
+            stats = fast.stats
+        else:
+            # Every topic's count and span is one more pass over the table: sqlite runs it
+            # on its own connection and thread (it releases the GIL) while this one fetches.
+            stats_job = _db3_stats(uri)
+            try:
+                _fetch_db3(con, name, builders, compression)
+            finally:
+                stats_job.join()
+            if isinstance(stats_job.result, BaseException):
+                raise stats_job.result
+            stats = stats_job.result
         infos = []
         for tid, tname, ttype, _fmt in tops:
             cnt, lo, hi = stats.get(tid, (0, 0, 0))
