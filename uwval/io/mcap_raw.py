@@ -121,19 +121,18 @@ class _Part:
 
 @dataclass
 class _Matched:
-    """A chunk at ``base`` in the batch buffer, checked against its index by the C walk
-    (``_mcapwalk.match_chunk``) on the inflate thread: per indexed channel (``groups``: id,
-    entries, first row in ``out`` or -1 when not wanted), the wanted records (``out`` rows:
-    payload (or record) start in the batch buffer, log time, record length), each log-time
-    span (``spans`` rows: min, max) and the Schema/Channel records (``tables``)."""
+    """A chunk checked against its index by the C walk (``_mcapwalk.match_chunk``) on the
+    inflate thread: per indexed channel (``groups``: id, entries, first row in ``out`` or -1
+    when not wanted), the wanted records (``out`` rows: payload start in the batch buffer, or
+    record start in the chunk when only times are read; log time; record length), each
+    log-time span (``spans`` rows: min, max) and the Schema/Channel records (``tables``)."""
 
-    base: int
     groups: list[tuple[int, np.ndarray, int]]
     out: np.ndarray
     spans: np.ndarray
     tabs: np.ndarray
-    #: where the wanted payloads go (``out`` rows then start with their place in the batch
-    #: buffer, ``payload_at`` on), or None: ``out`` rows start with the record's place
+    #: where the wanted payloads go: the chunk's slot in the batch buffer, which starts at
+    #: ``payload_at`` (None when only times are read)
     payload: np.ndarray | None
     payload_at: int
     #: the chunk's Schema/Channel records (opcode, content), in file order
@@ -423,7 +422,7 @@ class _Scanner:
             return
         assert ents is not None
         u = hdr.usize
-        if self.batch and self.fill + u > self.mem.shape[0] // 2:
+        if self.batch and self.fill + u > self.mem.shape[0]:
             self._seal()
         if not self.batch:
             self.mem, self.fill = self._buffer(u), 0
@@ -468,15 +467,15 @@ class _Scanner:
         return [self._inflate_into(hdr, dest, plan) for hdr, dest, plan in work]
 
     def _buffer(self, need: int) -> np.ndarray:
-        """A batch buffer for at least ``need`` bytes of records: the one of the batch read
-        last (free again: whatever is kept of a batch is copied out of it) or a new one
-        (fresh pages fault in on first touch, a cost per byte as large as decompressing).
-        Its first half takes the chunks' records, its second half the wanted payloads the C
-        walk copies out of them (pages never written are never made resident)."""
+        """A batch buffer of at least ``need`` bytes: the one of the batch read last (free
+        again: whatever is kept of a batch is copied out of it) or a new one (fresh pages
+        fault in on first touch, a cost per byte as large as decompressing). Each chunk has a
+        slot of its records' size: the records (numpy check) or the wanted payloads the C walk
+        copies out of them (pages never written are never made resident)."""
         spare, self.spare = self.spare, None
-        if spare is not None and spare.shape[0] // 2 >= need:
+        if spare is not None and spare.shape[0] >= need:
             return spare
-        return np.empty(2 * max(2 * BATCH_BYTES, need), dtype=np.uint8)
+        return np.empty(max(2 * BATCH_BYTES, need), dtype=np.uint8)
 
     def _seal(self) -> None:
         """The batch being filled is complete: start decompressing it, and read the one
@@ -491,23 +490,22 @@ class _Scanner:
     def _plan(self, ents: dict[int, np.ndarray], lo: int, hi: int) -> _Matched:
         """What the C walk of a chunk placed at ``lo:hi`` in the batch buffer fills in: rows
         for the channels wanted (or not known yet: their Channel record may be in this chunk)
-        and, unless only times are read, their payloads (at the same place in the buffer's
-        second half: a chunk's payloads are never larger than its records)."""
+        and, unless only times are read, their payloads (into the chunk's slot of the batch
+        buffer: its records go to a buffer of the inflate thread instead, and a chunk's
+        payloads are never larger than its records)."""
         groups: list[tuple[int, np.ndarray, int]] = []
         rows = 0
         for cid, e in ents.items():
             want = cid not in self.tables.channels or self.builder(cid) is not None
             groups.append((cid, e, rows if want else -1))
             rows += len(e) if want else 0
-        half = self.mem.shape[0] // 2
         return _Matched(
-            lo,
             groups,
             np.empty((rows, 3), dtype=np.int64),
             np.empty((len(groups), 2), dtype=np.int64),
             np.empty((MATCH_TABLES, 3), dtype=np.int64),
-            None if self.times_only else self.mem[half + lo : half + hi],
-            half + lo,
+            None if self.times_only else self.mem[lo:hi],
+            lo,
         )
 
     def _inflate_into(
