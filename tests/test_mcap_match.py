@@ -68,7 +68,7 @@ def _match(
         groups.append((cid, np.ascontiguousarray(e), rows if w else -1))
         rows += len(e) if w else 0
     out = np.full((rows, 3), -7, dtype=np.int64)
-    spans = np.zeros((len(groups), 2), dtype=np.int64)
+    spans = np.zeros((len(groups), 5), dtype=np.int64)
     tabs = np.zeros((64, 3), dtype=np.int64)
     code, n_tab = match_chunk(buf, BASE, groups, out, spans, tabs)
     return code, out, spans, [tuple(t) for t in tabs[:n_tab].tolist()], groups  # type: ignore[return-value]
@@ -87,7 +87,8 @@ def _agrees(buf: bytes, ents: dict[int, np.ndarray]) -> int:
             assert np.array_equal(rows[:, 1], e[:, 0].astype(np.int64))
             if len(e):
                 assert np.array_equal(rows[:, 2], gaps.record_lengths[cid])
-                assert spans[g].tolist() == [int(rows[:, 1].min()), int(rows[:, 1].max())]
+                assert spans[g, :2].tolist() == [int(rows[:, 1].min()), int(rows[:, 1].max())]
+                assert spans[g, 2:4].tolist() == [int(rows[:, 2].min()), int(rows[:, 2].max())]
     return code
 
 
@@ -166,7 +167,7 @@ def test_unwanted_channels_are_checked_but_not_copied() -> None:
     code, out, spans, tabs, groups = _match(buf, ents, want={2})
     assert code == 0 and out.shape == (20, 3)
     assert [row for _c, _e, row in groups] == [-1, 0, -1]
-    assert spans.tolist() == [[100, 119]] * 3
+    assert spans[:, :2].tolist() == [[100, 119]] * 3
     assert tabs == [(OP_CHANNEL, BASE + 5 * 39 + 9, BASE + 5 * 39 + 9 + 7)]
     ents[3][4, 0] += np.uint64(1)  # an unwanted channel's entry is still held to its record
     assert _match(buf, ents, want={2})[0] == 5
@@ -175,7 +176,7 @@ def test_unwanted_channels_are_checked_but_not_copied() -> None:
 def test_bad_buffers_are_refused_not_read() -> None:
     buf, index = _chunk([("msg", 1, 5, 8), ("msg", 1, 6, 8)])
     e = _entries(index)[1]
-    spans, tabs = np.zeros((1, 2), np.int64), np.zeros((4, 3), np.int64)
+    spans, tabs = np.zeros((1, 5), np.int64), np.zeros((4, 3), np.int64)
     with pytest.raises(ValueError, match="out is too small"):
         match_chunk(buf, 0, [(1, e, 0)], np.zeros((1, 3), np.int64), spans, tabs)
     with pytest.raises(ValueError, match="16-byte pairs"):
@@ -272,10 +273,14 @@ def test_wanted_payloads_are_copied_channel_after_channel() -> None:
         rows += len(e) if cid != 2 else 0
     out = np.zeros((rows, 3), np.int64)
     pay = np.zeros(len(buf), np.uint8)
-    code, _ = match_chunk(
-        buf, BASE, groups, out, np.zeros((3, 2), np.int64), np.zeros((4, 3), np.int64), pay, 77
-    )
+    spans = np.zeros((3, 5), np.int64)
+    code, _ = match_chunk(buf, BASE, groups, out, spans, np.zeros((4, 3), np.int64), pay, 77)
     assert code == 0
+    for g, (_cid, e, row) in enumerate(groups):  # where each wanted channel's payloads start
+        assert spans[g, 4] == (out[row, 0] if row >= 0 else -1)
+        if row >= 0:
+            lengths = out[row : row + len(e), 2]
+            assert spans[g, 2:4].tolist() == [int(lengths.min()), int(lengths.max())]
     data = np.frombuffer(buf, np.uint8)
     at = 77
     for _cid, e, row in groups:
@@ -292,7 +297,7 @@ def test_wanted_payloads_are_copied_channel_after_channel() -> None:
     # a payload buffer too small for them is "not confirmed", never an overrun
     small = np.zeros(5, np.uint8)
     code, _ = match_chunk(
-        buf, BASE, groups, out, np.zeros((3, 2), np.int64), np.zeros((4, 3), np.int64), small, 0
+        buf, BASE, groups, out, np.zeros((3, 5), np.int64), np.zeros((4, 3), np.int64), small, 0
     )
     assert code == 8 and not small.any()
 

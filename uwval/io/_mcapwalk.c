@@ -52,7 +52,7 @@ typedef struct {
     long cid;
     const uint64_t *ent; /* (log time, offset) pairs, little-endian uint64 */
     Py_ssize_t n, cursor, out_row, bytes;
-    int64_t lo, hi;
+    int64_t lo, hi, min_len, max_len, pay_at;
 } group_t;
 
 /* The group of channel ``cid``, or -1: a table lookup when there are many groups. */
@@ -111,6 +111,10 @@ static int match_records(const unsigned char *b, Py_ssize_t size, int64_t base, 
                 gr->lo = t;
             if (gr->cursor == 0 || t > gr->hi)
                 gr->hi = t;
+            if (gr->cursor == 0 || (int64_t)rl < gr->min_len)
+                gr->min_len = (int64_t)rl;
+            if (gr->cursor == 0 || (int64_t)rl > gr->max_len)
+                gr->max_len = (int64_t)rl;
             if (gr->out_row >= 0) {
                 int64_t *o = out + 3 * (gr->out_row + gr->cursor);
                 o[0] = (int64_t)q;
@@ -146,6 +150,7 @@ static int match_records(const unsigned char *b, Py_ssize_t size, int64_t base, 
             continue;
         if (pay != NULL && g[i].bytes > pay_cap - pfill)
             return MATCH_PAYLOAD;
+        g[i].pay_at = pay != NULL ? pay_base + (int64_t)pfill : -1;
         for (Py_ssize_t j = 0; j < g[i].n; j++) {
             int64_t *o = out + 3 * (g[i].out_row + j);
             if (pay != NULL) {
@@ -183,9 +188,11 @@ PyDoc_STRVAR(match_chunk_doc,
 "records go or -1 for a channel not wanted). Walking the records in order, each Message\n"
 "record must be the next entry of its channel (same offset and log time), and every entry\n"
 "must be used. The wanted channels' records go to the int64 buffer ``out``, three values a\n"
-"record (``base`` + record start, log time, record length after the 9-byte header); each\n"
-"group's (min, max) log time (as int64) to ``spans``; Schema and Channel records to\n"
-"``tables``, three a record (opcode, ``base`` + content start, ``base`` + content end).\n"
+"record (``base`` + record start, log time, record length after the 9-byte header); to\n"
+"``spans``, five values a group: its (min, max) log time (as int64), its records' (min,\n"
+"max) length, where its payloads start in ``payload`` (see below; -1 without); to\n"
+"``tables`` the Schema and Channel records,\n"
+"three values a record (opcode, ``base`` + content start, ``base`` + content end).\n"
 "``code`` 0: the index is right; else what stopped the match (1 a record does not fit,\n"
 "2 a short Message record, 3 a channel not in the index, 4 more records than entries,\n"
 "5 an entry differs from its record, 6 an entry without record, 7 ``tables`` full,\n"
@@ -244,8 +251,8 @@ static PyObject *match_chunk(PyObject *self, PyObject *args) {
     if (pay_obj != Py_None &&
         PyObject_GetBuffer(pay_obj, &pay, PyBUF_WRITABLE | PyBUF_C_CONTIGUOUS) != 0)
         goto done;
-    if (spans.len < 16 * ng) {
-        PyErr_SetString(PyExc_ValueError, "spans holds fewer than two values a group");
+    if (spans.len < 40 * ng) {
+        PyErr_SetString(PyExc_ValueError, "spans holds fewer than five values a group");
         goto done;
     }
     for (Py_ssize_t i = 0; i < ng; i++) {
@@ -273,8 +280,12 @@ static PyObject *match_chunk(PyObject *self, PyObject *args) {
     if (code == MATCH_OK) {
         int64_t *sp = (int64_t *)spans.buf;
         for (Py_ssize_t i = 0; i < ng; i++) {
-            sp[2 * i] = g[i].lo;
-            sp[2 * i + 1] = g[i].hi;
+            int64_t *r = sp + 5 * i;
+            r[0] = g[i].lo;
+            r[1] = g[i].hi;
+            r[2] = g[i].min_len;
+            r[3] = g[i].max_len;
+            r[4] = g[i].out_row >= 0 ? g[i].pay_at : -1;
         }
     }
     result = Py_BuildValue("in", code, n_tab);

@@ -125,7 +125,9 @@ class _Matched:
     inflate thread: per indexed channel (``groups``: id, entries, first row in ``out`` or -1
     when not wanted), the wanted records (``out`` rows: payload start in the batch buffer, or
     record start in the chunk when only times are read; log time; record length), each
-    log-time span (``spans`` rows: min, max) and the Schema/Channel records (``tables``)."""
+    log-time span, record lengths and payloads (``spans`` rows: min and max log time, min
+    and max record length, where the payloads start in the batch buffer) and the
+    Schema/Channel records (``tables``)."""
 
     groups: list[tuple[int, np.ndarray, int]]
     out: np.ndarray
@@ -502,7 +504,7 @@ class _Scanner:
         return _Matched(
             groups,
             np.empty((rows, 3), dtype=np.int64),
-            np.empty((len(groups), 2), dtype=np.int64),
+            np.empty((len(groups), 5), dtype=np.int64),
             np.empty((MATCH_TABLES, 3), dtype=np.int64),
             None if self.times_only else self.mem[lo:hi],
             lo,
@@ -768,32 +770,28 @@ class _Scanner:
                 if len(e):
                     per.setdefault(cid, []).append((m, g))
         for cid, parts in per.items():
-            count = sum(len(m.groups[g][1]) for m, g in parts)
-            self.tables.seen_span(
-                cid,
-                count,
-                min(int(m.spans[g, 0]) for m, g in parts),
-                max(int(m.spans[g, 1]) for m, g in parts),
-            )
+            spans = np.array([m.spans[g] for m, g in parts])
+            counts = [len(m.groups[g][1]) for m, g in parts]
+            lo, hi = int(spans[:, 0].min()), int(spans[:, 1].max())
+            self.tables.seen_span(cid, sum(counts), lo, hi)
             b = self.builder(cid)
             if b is None:
                 continue
-            pieces = [
-                m.out[m.groups[g][2] : m.groups[g][2] + len(m.groups[g][1])] for m, g in parts
-            ]
-            recs = pieces[0] if len(pieces) == 1 else np.concatenate(pieces)
-            log_time = recs[:, 1]
+            rows = [m.out[m.groups[g][2] :][:k] for (m, g), k in zip(parts, counts, strict=True)]
+            times = [r[:, 1] for r in rows]
+            log_time = times[0] if len(times) == 1 else np.concatenate(times)
             if self.times_only:
-                z = np.zeros(len(recs), np.int64)
+                z = np.zeros(len(log_time), np.int64)
                 b.add(mem[:0], z, z, log_time, copy=False)
                 continue
-            # the payloads, copied together by the walk (rows of one topic lie close)
-            at, rl = recs[:, 0], recs[:, 2]
-            width = int(rl[0]) - 22
-            if width > 0 and int(rl.min()) == int(rl.max()):
-                b.take_rows(mem, at, width, log_time)
-            else:
-                b.add(mem, at, rl - 22, log_time)
+            width = int(spans[0, 2]) - 22
+            if width > 0 and (spans[:, 2:4] == width + 22).all():
+                # one payload length (a pose topic): each chunk's rows lie end to end
+                blocks = [(int(at), k) for at, k in zip(spans[:, 4], counts, strict=True)]
+                b.take_blocks(mem, blocks, width, log_time)
+                continue
+            recs = rows[0] if len(rows) == 1 else np.concatenate(rows)
+            b.add(mem, recs[:, 0], recs[:, 2] - 22, log_time)
 
     def _from_index(
         self, buf: np.ndarray, ents: dict[int, np.ndarray], rlens: dict[int, np.ndarray]

@@ -7,7 +7,6 @@ decoders in :mod:`uwval.io.fastdecode` / :mod:`uwval.io.decode` then work on who
 from __future__ import annotations
 
 import contextlib
-import itertools
 import warnings
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -171,6 +170,39 @@ class TopicBuilder:
         n = int(starts.shape[0])
         if n == 0:
             return
+        dst = self._slot(n, width)
+        if dst is None:
+            self.add_rows(rows_at(buf, starts, width), log_time)
+            return
+        if buf.shape[0] < width:
+            raise ValueError(f"topic {self.name}: a message reaches outside its chunk")
+        dst[:] = window(buf, width)[starts]  # through a chunk-sized temporary
+        self._taken(n, log_time)
+
+    def take_blocks(
+        self, buf: U8, blocks: list[tuple[int, int]], width: int, log_time: I64
+    ) -> None:
+        """Add messages of one length lying end to end in ``buf``: block (at, k) holds k of
+        them from byte ``at`` on (bounds checked by the caller: ``at + k * width <=
+        len(buf)``), in order, logged at ``log_time`` (one stamp per message). Blocks are
+        copied whole (the MCAP walk copies each topic's payloads of a chunk end to end)."""
+        n = sum(k for _at, k in blocks)
+        if n == 0:
+            return
+        dst = self._slot(n, width)
+        if dst is None:  # no reserved buffer: one segment of its own
+            parts = [buf[at : at + k * width].reshape(k, width) for at, k in blocks]
+            self.add_rows(np.concatenate(parts), log_time)
+            return
+        f = 0
+        for at, k in blocks:
+            dst[f : f + k] = buf[at : at + k * width].reshape(k, width)
+            f += k
+        self._taken(n, log_time)
+
+    def _slot(self, n: int, width: int) -> U8 | None:
+        """The next ``n`` rows of the preallocated buffer (opened now if the :meth:`reserve`
+        hint allows), or None: the rows then make a segment of their own."""
         st = self._open
         if st is not None and (st.shape[1] != width or self._fill + n > st.shape[0]):
             self._close()
@@ -188,22 +220,10 @@ class TopicBuilder:
                 self._times.append(empty)
                 self._tag.append(None)
                 self._width.append(width)
-        if st is None:
-            self.add_rows(rows_at(buf, starts, width), log_time)
-            return
-        if buf.shape[0] < width:
-            raise ValueError(f"topic {self.name}: a message reaches outside its chunk")
-        dst = st[self._fill : self._fill + n]
-        # rows lying end to end in ``buf`` (the MCAP walk copies a topic's payloads so) are
-        # copied as blocks; scattered rows are gathered (through a chunk-sized temporary)
-        breaks = np.flatnonzero(np.diff(starts) != width)
-        if breaks.size < n // 64:
-            edges = [0, *(breaks + 1).tolist(), n]
-            for a, b in itertools.pairwise(edges):
-                at = int(starts[a])
-                dst[a:b] = buf[at : at + (b - a) * width].reshape(b - a, width)
-        else:
-            dst[:] = window(buf, width)[starts]
+        return None if st is None else st[self._fill : self._fill + n]
+
+    def _taken(self, n: int, log_time: I64) -> None:
+        """``n`` rows were written to the slot :meth:`_slot` gave, logged at ``log_time``."""
         self._fill += n
         self._open_times.append(log_time.astype(np.int64, copy=False))
 
