@@ -564,7 +564,10 @@ class _Scanner:
 
                     out = dest.data  # a memoryview of the (contiguous) slice
                     got = 0
-                    with zstandard.ZstdDecompressor().stream_reader(src) as reader:
+                    dctx = getattr(self.local, "dctx", None)
+                    if dctx is None:  # one decompression context per inflate thread
+                        dctx = self.local.dctx = zstandard.ZstdDecompressor()
+                    with dctx.stream_reader(src) as reader:
                         while got < len(out):
                             n = reader.readinto(out[got:])
                             if not n:
