@@ -5,7 +5,6 @@ confirmed; changed ones never wrongly. Whole bags read the same with it and with
 
 from __future__ import annotations
 
-import os
 import struct
 import sys
 from pathlib import Path
@@ -18,15 +17,11 @@ from hypothesis import strategies as st
 sys.path.insert(0, str(Path(__file__).parent))
 
 import io_loggen as gen
+from accelerators import require_module
 
 from uwval.io import bag1_raw
 
-if bag1_raw._bag1index is None:
-    if os.environ.get("UWVAL_REQUIRE_ACCELERATOR"):
-        pytest.fail(
-            "uwval.io._bag1index was not built (UWVAL_REQUIRE_ACCELERATOR is set)", pytrace=False
-        )
-    pytest.skip("the C accelerator uwval.io._bag1index is not built here", allow_module_level=True)
+require_module(bag1_raw._bag1index, "uwval.io._bag1index")
 
 locate = bag1_raw._bag1index.locate
 

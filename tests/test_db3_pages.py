@@ -19,17 +19,13 @@ from pathlib import Path
 import io_loggen as gen
 import numpy as np
 import pytest
+from accelerators import require_module
 
 import uwval.io.db3_pages as db3_pages
 from uwval.errors import LogReadError
 from uwval.io.containers import scan_log
 
-if db3_pages._db3pages is None:
-    if os.environ.get("UWVAL_REQUIRE_ACCELERATOR"):
-        pytest.fail(
-            "uwval.io._db3pages was not built (UWVAL_REQUIRE_ACCELERATOR is set)", pytrace=False
-        )
-    pytest.skip("the C accelerator uwval.io._db3pages is not built here", allow_module_level=True)
+require_module(db3_pages._db3pages, "uwval.io._db3pages")
 
 POSE = "geometry_msgs/msg/PoseStamped"
 

@@ -6,7 +6,6 @@ right; a damaged one never is. Whole logs read the same with it and without it."
 
 from __future__ import annotations
 
-import os
 import struct
 import sys
 from pathlib import Path
@@ -19,17 +18,13 @@ from hypothesis import strategies as st
 sys.path.insert(0, str(Path(__file__).parent))
 
 import io_loggen as gen
+from accelerators import require_module
 
 from uwval.io import mcap_raw
 from uwval.io.mcap_chunk import OP_CHANNEL, OP_MESSAGE, OP_SCHEMA, check_index
 from uwval.io.raw import RawLog
 
-if mcap_raw._mcapwalk is None:
-    if os.environ.get("UWVAL_REQUIRE_ACCELERATOR"):
-        pytest.fail(
-            "uwval.io._mcapwalk was not built (UWVAL_REQUIRE_ACCELERATOR is set)", pytrace=False
-        )
-    pytest.skip("the C accelerator uwval.io._mcapwalk is not built here", allow_module_level=True)
+require_module(mcap_raw._mcapwalk, "uwval.io._mcapwalk")
 
 match_chunk = mcap_raw._mcapwalk.match_chunk
 BASE = 1000  # the chunk's place in a batch buffer: every position out is shifted by it

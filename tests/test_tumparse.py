@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
+from accelerators import require_module
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -19,12 +20,7 @@ import uwval.io.tum as tum
 if TYPE_CHECKING:
     from typing_extensions import Buffer
 
-if tum._tumparse is None:
-    if os.environ.get("UWVAL_REQUIRE_ACCELERATOR"):
-        pytest.fail(
-            "uwval.io._tumparse was not built (UWVAL_REQUIRE_ACCELERATOR is set)", pytrace=False
-        )
-    pytest.skip("the C accelerator uwval.io._tumparse is not built here", allow_module_level=True)
+require_module(tum._tumparse, "uwval.io._tumparse")
 
 parse_block = tum._tumparse.parse_block
 
