@@ -3,7 +3,8 @@
 The mcap library hands out one Python object per message; at a million messages that costs
 seconds. This scanner walks only the top-level records (one step per chunk), decompresses
 each chunk that holds a wanted channel once (zstd / lz4), checks it against its CRC, and
-locates the wanted channels' messages from the chunk's MessageIndex records with numpy.
+locates the wanted channels' messages from the chunk's MessageIndex records: by one C walk
+of the records on the decompressing thread (``_mcapwalk``, optional), else with numpy.
 
 Nothing in the file is taken on faith (a damaged log must never give a silently wrong
 number): the index is checked against the records it points at (each entry a Message record
@@ -405,9 +406,11 @@ class _Scanner:
         and header look usable are batched (:meth:`_seal`), any other is read alone by
         :meth:`chunk`.
 
-        A batched chunk is decompressed straight into the batch's buffer and CRC-checked on
-        the inflate thread (zstd and the CRC release the GIL), while this thread reads the
-        batch before it: a batch is read when the next one is full, so the two overlap.
+        A batch's chunks are decompressed and CRC-checked on the inflate thread(s) (zstd and
+        the CRC release the GIL) while this thread reads the batch before it: a batch is read
+        when the next one is full, so the two overlap. With the C walk, each chunk's index is
+        checked there too and only the wanted payloads reach the batch buffer; without it,
+        the records go to the batch buffer for the numpy check.
         """
         ents = self._entries(indexes)
         if self._skip(ents):
