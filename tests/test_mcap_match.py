@@ -198,8 +198,11 @@ def test_many_channels_use_the_lookup_table() -> None:
 
 
 # ---------------------------------------------------------------- whole logs, C walk on/off
-def _read(path: Path, match: bool, monkeypatch: pytest.MonkeyPatch, **kw: bool) -> RawLog:
-    """Read every topic, with the C walk or without; with it, the walk must have read chunks."""
+def _read(
+    path: Path, match: bool, monkeypatch: pytest.MonkeyPatch, *, walks: int = 10, **kw: bool
+) -> RawLog:
+    """Read every topic, with the C walk or without; with it, the walk must have read more
+    than ``walks`` chunks."""
     monkeypatch.setattr(mcap_raw, "USE_MATCH", match)
     walked: list[int] = []
     from_matched = mcap_raw._Scanner._from_matched
@@ -210,7 +213,7 @@ def _read(path: Path, match: bool, monkeypatch: pytest.MonkeyPatch, **kw: bool) 
 
     monkeypatch.setattr(mcap_raw._Scanner, "_from_matched", counting)
     log = mcap_raw.scan_mcap(path, None, **kw)
-    assert (sum(walked) > 10) == match
+    assert (sum(walked) > walks) == match
     return log
 
 
@@ -312,3 +315,66 @@ def test_take_rows_copies_blocks_and_scattered_rows_alike() -> None:
         assert [got.payload(i) for i in range(len(starts))] == [
             buf[s : s + 8].tobytes() for s in starts
         ]
+
+
+def _lone_reads(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    """The record starts of the chunks read alone (``_Scanner.chunk``) from now on."""
+    alone: list[int] = []
+    lone = mcap_raw._Scanner.chunk
+
+    def counting(self: mcap_raw._Scanner, rec: int, *a: object) -> None:
+        alone.append(rec)
+        lone(self, rec, *a)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(mcap_raw._Scanner, "chunk", counting)
+    return alone
+
+
+def test_an_index_out_of_file_order_is_left_to_the_numpy_check(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A MessageIndex listing its channel's records out of file order is still right (the
+    numpy check sorts them): the walk does not confirm it, the chunk is read alone, and the
+    log reads as without the walk, with no warning."""
+    from mcap.reader import make_reader
+
+    path = gen.write_log(tmp_path / "log.mcap", "mcap", seconds=4.0, image_bytes=0, chunk_size=4096)
+    with open(path, "rb") as fh:
+        summary = make_reader(fh).get_summary()
+    assert summary is not None
+    data = bytearray(path.read_bytes())
+    chunk = summary.chunk_indexes[len(summary.chunk_indexes) // 2]
+    at = max(chunk.message_index_offsets.values()) + 9 + 2 + 4  # the entries of one channel
+    first, second = bytes(data[at : at + 16]), bytes(data[at + 16 : at + 32])
+    data[at : at + 16], data[at + 16 : at + 32] = second, first
+    path.write_bytes(bytes(data))
+    alone = _lone_reads(monkeypatch)
+    walked = _read(path, True, monkeypatch)
+    assert alone == [chunk.chunk_start_offset] and not walked.warnings
+    _same(walked, _read(path, False, monkeypatch))
+
+
+def test_a_chunk_with_more_channel_records_than_the_walk_takes(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """More Schema/Channel records in one chunk than the walk's table holds: that chunk is
+    read alone (numpy), the others by the walk, and the log reads as without the walk."""
+    from mcap.writer import Writer
+
+    path = tmp_path / "many.mcap"
+    with open(path, "wb") as fh:
+        w = Writer(fh, chunk_size=64 * 1024)
+        w.start(profile="", library="uwval-tests")
+        sid = w.register_schema(name="raw", encoding="", data=b"")
+        chans = [
+            w.register_channel(topic=f"/t{k}", message_encoding="raw", schema_id=sid)
+            for k in range(mcap_raw.MATCH_TABLES + 40)
+        ]
+        for i in range(3000):
+            w.add_message(chans[i % len(chans)], log_time=i, publish_time=i, data=bytes(12))
+        w.finish()
+    alone = _lone_reads(monkeypatch)
+    walked = _read(path, True, monkeypatch, walks=0)
+    assert len(alone) == 1  # the chunk holding the Channel records, read alone
+    assert not walked.warnings and len(walked.raw) == mcap_raw.MATCH_TABLES + 40
+    _same(walked, _read(path, False, monkeypatch))
