@@ -106,6 +106,16 @@ class _Pending:
         self.pos: list[Any] = []
         self.quat: list[Any] = []
 
+    def add(self, stamp: int, log: int, rank: int, position: Any = None, quat: Any = None) -> None:
+        """One message: header stamp and log time (ns), its rank in the run; a pose's
+        position and orientation (a Header has none)."""
+        self.stamps.append(stamp)
+        self.logs.append(log)
+        self.ranks.append(rank)
+        if position is not None:
+            self.pos.append(position)
+            self.quat.append(quat)
+
 
 class BridgeRecorder:
     """Write Gazebo-side and Unity-side poses of one run through ``writer``.
@@ -218,11 +228,7 @@ class BridgeRecorder:
             buf = self._gz[(name, frame_id)] = self._buffer(
                 self._topic(GAZEBO_PREFIX, name), POSE_STAMPED, frame_id
             )
-        buf.stamps.append(t)
-        buf.logs.append(log)
-        buf.ranks.append(self._rank)
-        buf.pos.append(position)
-        buf.quat.append(quat)
+        buf.add(t, log, self._rank, position, quat)
         self._rank += 1
         self._tick()
 
@@ -250,16 +256,10 @@ class BridgeRecorder:
                 self._buffer(topic + APPLIED_SUFFIX, HEADER, GAZEBO_FRAME_ID),
             )
         pose, applied = bufs
-        pose.stamps.append(t)
-        pose.logs.append(t)
-        pose.ranks.append(self._rank)
-        pose.pos.append(position)
-        pose.quat.append(quat)
+        pose.add(t, t, self._rank, position, quat)
         self._rank += 1
         self._tick()  # may flush between the pose and its stamp, as message by message
-        applied.stamps.append(int(applied_stamp_ns))
-        applied.logs.append(t)
-        applied.ranks.append(self._rank)
+        applied.add(int(applied_stamp_ns), t, self._rank)
         self._rank += 1
         self._tick()
 
