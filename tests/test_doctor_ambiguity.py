@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
-from uwval.comparison.doctor import diagnose
+from uwval.comparison import doctor as doctor_module
+from uwval.comparison.doctor import DOCTOR_SAMPLES, diagnose, thinning_step
 from uwval.frames import convert_arrays
 
 
@@ -100,3 +103,35 @@ def test_conventions_scored_on_two_threads_give_the_same_diagnosis(
     assert threads == ["uwval-doctor"]
     assert two == one and list(two["scores"]) == list(one["scores"])
     assert two["best"] == "unity-enu" and two["warning"]
+
+
+@given(n=st.integers(0, 10**7), cap=st.integers(1, 10**5))
+def test_thinning_keeps_at_most_cap_samples_and_as_many_as_it_can(n: int, cap: int) -> None:
+    step = thinning_step(n, cap)
+    kept = len(range(0, n, step))
+    assert kept <= max(cap, 0) or n == 0
+    assert step == 1 or len(range(0, n, step - 1)) > cap  # a smaller stride would keep too many
+
+
+def test_a_long_stream_is_thinned_and_a_wrong_frame_is_still_named() -> None:
+    """50,000 samples: scored on at most DOCTOR_SAMPLES of them, with the same verdicts and
+    scores within 3 % of the scores over every sample (the sampling error is ~1 %)."""
+    rng = np.random.default_rng(11)
+    n = 50_000
+    pos = np.cumsum(rng.normal(scale=0.01, size=(n, 3)), axis=0)
+    q = np.cumsum(rng.normal(scale=0.01, size=(n, 4)), axis=0) + np.array([0.0, 0.0, 0.0, 3.0])
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    up, uq = convert_arrays(pos, q, "enu", "unity-flu")
+    up = up + rng.normal(scale=0.002, size=up.shape)  # a realistic residual to score
+    d = diagnose(pos, q, up, uq, configured="unity-enu")
+    assert d.n_samples <= DOCTOR_SAMPLES < n
+    assert d.best == "unity-flu" and d.warning is not None and "unity-flu" in d.warning
+    ok = diagnose(pos, q, up, uq, configured="unity-flu")
+    assert ok.warning is None and ok.best == "unity-flu"
+    # the thinned RMS estimates the whole stream's: score every sample (cap = n) to compare
+    full = doctor_module._scores(pos, q, up, uq)
+    for name, sc in d.scores.items():
+        assert sc["position_rms_m"] == pytest.approx(full[name]["position_rms_m"], rel=0.03)
+        assert sc["rotation_rms_deg"] == pytest.approx(
+            full[name]["rotation_rms_deg"], rel=0.03, abs=1e-9
+        )

@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from uwval.comparison.align import Alignment, AlignMode, estimate_alignment
-from uwval.comparison.doctor import FrameDiagnosis, diagnose
+from uwval.comparison.doctor import FrameDiagnosis, diagnose, thinning_step
 from uwval.comparison.offset import OffsetEstimate, estimate_offset, latency_stats
 from uwval.comparison.rpe import RELATION_UNITS
 from uwval.comparison.stats import axis_stats, norm_stats
@@ -738,8 +738,9 @@ def _diagnose(
     configured: str,
     max_gap_ns: int | None = None,
 ) -> FrameDiagnosis | None:
-    """Run the frame doctor on up to ~20k reference stamps with the other stream interpolated."""
-    step = max(1, len(ref_c) // 20_000)
+    """Run the frame doctor on up to :data:`~uwval.comparison.doctor.DOCTOR_SAMPLES`
+    reference stamps (evenly thinned), the other stream interpolated at them."""
+    step = thinning_step(len(ref_c))
     sub = ref_c.slice(slice(None, None, step))
     interp = interpolate_at(
         raw_other, sub.t, max_gap_ns=max_gap_ns, offset_ns=-_offset_ns(offset_s)
