@@ -72,39 +72,6 @@ def test_index_or_slice_views_only_contiguous_runs() -> None:
     assert isinstance(index_or_slice(np.asarray([0, 0, 2])), np.ndarray)
 
 
-def test_conventions_scored_on_two_threads_give_the_same_diagnosis(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    """With a free second CPU half the conventions are scored on another thread: the
-    diagnosis (every score, to the bit, in the same order) is the one a single thread gives."""
-    from uwval.comparison import doctor
-
-    rng = np.random.default_rng(5)
-    pos = np.cumsum(rng.normal(size=(6000, 3)), axis=0)
-    q = rng.normal(size=(6000, 4))
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    op, oq = convert_arrays(pos, q, "enu", "unity-enu")
-    op += rng.normal(scale=0.01, size=op.shape)
-    threads: list[str] = []
-    import threading
-
-    real_start = threading.Thread.start
-
-    def counting_start(self: threading.Thread) -> None:
-        threads.append(self.name)
-        real_start(self)
-
-    monkeypatch.setattr(threading.Thread, "start", counting_start)
-    monkeypatch.setattr(doctor, "second_cpu_free", lambda: True)
-    two = diagnose(pos, q, op, oq, configured="unity-flu").to_json()
-    assert threads == ["uwval-doctor"]
-    monkeypatch.setattr(doctor, "second_cpu_free", lambda: False)
-    one = diagnose(pos, q, op, oq, configured="unity-flu").to_json()
-    assert threads == ["uwval-doctor"]
-    assert two == one and list(two["scores"]) == list(one["scores"])
-    assert two["best"] == "unity-enu" and two["warning"]
-
-
 @given(n=st.integers(0, 10**7), cap=st.integers(1, 10**5))
 def test_thinning_keeps_at_most_cap_samples_and_as_many_as_it_can(n: int, cap: int) -> None:
     step = thinning_step(n, cap)

@@ -259,17 +259,20 @@ def _compare_pairs(
     big = [j for j in jobs if min(len(j[1]), len(j[2])) >= PARALLEL_MIN_SAMPLES]
     if len(big) < 2 or not second_cpu_free():
         return [compare(ref, oth, frame=fr, **opts) for _, ref, oth, fr, opts, _ in jobs]
-    from concurrent.futures import ThreadPoolExecutor
+    from functools import partial
 
-    pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="uwval-compare")
+    from uwval.workers import Workers
+
+    pool = Workers(2, "uwval-compare")
     try:
-        futures = [
-            pool.submit(compare, ref, oth, frame=fr, **opts) for _, ref, oth, fr, opts, _ in jobs
+        done = [
+            pool.submit(partial(compare, ref, oth, frame=fr, **opts))
+            for _, ref, oth, fr, opts, _ in jobs
         ]
-        return [f.result() for f in futures]
+        return [d.result() for d in done]
     finally:
         # on an error or Ctrl-C, pairs not started yet are dropped
-        pool.shutdown(wait=True, cancel_futures=True)
+        pool.shutdown(cancel=True)
 
 
 def _recorded_clock_offset(path: str | Path) -> float | None:

@@ -70,7 +70,7 @@ from uwval.io.raw import (
 )
 
 if TYPE_CHECKING:
-    from concurrent.futures import Future, ThreadPoolExecutor
+    from uwval.workers import Job, Workers
 
 try:  # the optional C check of a chunk against its index (uwval/io/_mcapwalk.c)
     from uwval.io import _mcapwalk
@@ -112,7 +112,7 @@ class _Part:
     __slots__ = ("job", "k")
 
     def __init__(self, k: int) -> None:
-        self.job: Future[list[bool | _Matched]] | None = None
+        self.job: Job[list[bool | _Matched]] | None = None
         self.k = k
 
     def result(self) -> bool | _Matched:
@@ -225,7 +225,7 @@ def scan_mcap(path: Path, topics: Iterable[str] | None, *, times_only: bool = Fa
             return scanner.run()
         finally:
             if scanner.pool is not None:  # no job may read the map once it is closed
-                scanner.pool.shutdown(wait=True, cancel_futures=True)
+                scanner.pool.shutdown(cancel=True)
     finally:
         # Payloads are compacted copies, so the map can go.
         with contextlib.suppress(BufferError):  # a numpy view may still reference it
@@ -261,7 +261,7 @@ class _Scanner:
         self.mem, self.sealed_mem = empty, empty
         self.spare: np.ndarray | None = None
         self.fill = 0
-        self.pool: ThreadPoolExecutor | None = None
+        self.pool: Workers | None = None
         self.inflaters = 1
         #: the batch being filled: each chunk's (header, records slot, walk plan)
         self.work: list[tuple[ChunkHeader, np.ndarray, _Matched | None]] = []
@@ -448,14 +448,13 @@ class _Scanner:
         if not work:
             return
         if self.pool is None:
-            from concurrent.futures import ThreadPoolExecutor
-
             from uwval.cpus import second_cpu_free
+            from uwval.workers import Workers
 
             # with a free second CPU, two threads decompress (and walk) while this one
             # reads: chunks of compressible poses make decompression most of the work
             self.inflaters = 2 if second_cpu_free() else 1
-            self.pool = ThreadPoolExecutor(self.inflaters, thread_name_prefix="uwval-mcap-inflate")
+            self.pool = Workers(self.inflaters, "uwval-mcap-inflate")
         step = -(-len(work) // self.inflaters)
         jobs = [
             self.pool.submit(self._inflate_all, work[i : i + step])

@@ -182,9 +182,9 @@ def read_streams(
         # Topics decode independently and numpy releases the GIL in their array work: two
         # threads on two cores (on a busy second core they only cost switching). Results
         # and the first error are taken in the order asked.
-        from concurrent.futures import ThreadPoolExecutor
+        from uwval.workers import Workers
 
-        with ThreadPoolExecutor(2, thread_name_prefix="uwval-decode") as pool:
+        with Workers(2, "uwval-decode") as pool:
             done = [pool.submit(stream, job) for job in jobs]
             return {job[0]: d.result() for job, d in zip(jobs, done, strict=True)}
     return {job[0]: stream(job) for job in jobs}
