@@ -75,10 +75,14 @@ def test_leaving_the_with_block_on_an_error_cancels_what_has_not_started() -> No
         time.sleep(0.01)
         ran.append(k)
 
-    with pytest.raises(ZeroDivisionError), Workers(1, "uwval-test") as pool:
-        for k in range(20):
-            pool.submit(work, k)
-        raise ZeroDivisionError
+    def submit_then_fail() -> None:
+        with Workers(1, "uwval-test") as pool:
+            for k in range(20):
+                pool.submit(work, k)
+            raise ZeroDivisionError
+
+    with pytest.raises(ZeroDivisionError):
+        submit_then_fail()
     assert len(ran) < 20
 
 
