@@ -22,12 +22,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from uwval.errors import LogReadError
+from uwval.io.bagmeta import load_metadata
 from uwval.io.formats import log_kind
 from uwval.io.raw import (
     RawLog,
     TopicBuilder,
     TopicInfo,
-    load_yaml,
     merge_infos,
     merge_topics,
     norm_topic,
@@ -156,7 +156,7 @@ def _metadata(bagdir: Path) -> dict[str, Any] | None:
     if not meta.exists():
         return None
     try:
-        doc = load_yaml(meta.read_text())
+        doc = load_metadata(meta.read_text())
         info = doc["rosbag2_bagfile_information"]
     except Exception as exc:
         raise LogReadError(f"{meta}: not a rosbag2 metadata file: {one_line(exc)}") from exc
