@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from uwval.comparison import doctor as doctor_module
@@ -102,3 +102,31 @@ def test_a_long_stream_is_thinned_and_a_wrong_frame_is_still_named() -> None:
         assert sc["rotation_rms_deg"] == pytest.approx(
             full[name]["rotation_rms_deg"], rel=0.03, abs=1e-9
         )
+
+
+@given(seed=st.integers(0, 2**16), n=st.integers(3, 3000), noise=st.sampled_from([0.0, 1e-6, 0.3]))
+@settings(max_examples=60, deadline=None)
+def test_scores_equal_converting_every_sample_in_each_convention(
+    seed: int, n: int, noise: float
+) -> None:
+    """The doctor's column-wise position sums and quaternion-only conversion give each
+    convention's scores as converting the whole stream with convert_arrays does."""
+    from uwval.frames import CONVENTIONS
+    from uwval.rotations import geodesic_deg
+
+    rng = np.random.default_rng(seed)
+    pos = np.cumsum(rng.normal(size=(n, 3)), axis=0) + rng.normal(scale=100.0, size=3)
+    q = rng.normal(size=(n, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    op, oq = convert_arrays(pos, q, "enu", str(rng.choice(list(CONVENTIONS))))
+    op = op + rng.normal(scale=noise, size=op.shape)
+    got = doctor_module._scores(pos, q, op, oq)
+    assert list(got) == list(CONVENTIONS)
+    for name in CONVENTIONS:
+        p2, q2 = convert_arrays(op, oq, name, "enu")
+        d = p2 - pos
+        d -= d.mean(axis=0)
+        want_pos = float(np.sqrt(np.sum(d * d) / n))
+        want_rot = float(np.sqrt(np.mean(geodesic_deg(q2, q) ** 2)))
+        assert got[name]["position_rms_m"] == pytest.approx(want_pos, rel=1e-9, abs=1e-12)
+        assert got[name]["rotation_rms_deg"] == want_rot  # the same conversion, to the bit

@@ -180,12 +180,12 @@ def convert_arrays(
     mw = b.world_axes @ a.world_axes.T
     mb = b.body_axes @ a.body_axes.T
     pos = np.asarray(position, dtype=np.float64) @ mw.T
-    return np.ascontiguousarray(pos), _convert_quats(orientation, mw, mb)
+    return np.ascontiguousarray(pos), convert_quaternions(orientation, mw, mb)
 
 
 @functools.lru_cache(maxsize=256)
 def _quat_map(mw_bytes: bytes, mb_bytes: bytes) -> tuple[bool, F64, F64 | None]:
-    """The constants of :func:`_convert_quats` for one pair of 3x3 maps (given as bytes, to
+    """The constants of :func:`convert_quaternions` for one pair of 3x3 maps (given as bytes, to
     be cached): whether M = mw mb^T is proper, Q = +-mb with det +1, and M's quaternion as
     a (1, 4) row (None for the identity). Computed once per convention pair (the frame
     doctor converts under every convention on each compare)."""
@@ -225,8 +225,10 @@ def _left_multiply(a: F64, b: F64) -> F64:
     return out
 
 
-def _convert_quats(orientation: F64, mw: F64, mb: F64) -> F64:
-    """Quaternions of R' = mw R mb^T for signed permutations mw, mb, without matrices.
+def convert_quaternions(orientation: F64, mw: F64, mb: F64) -> F64:
+    """(N, 4) xyzw quaternions ``orientation`` under the world map ``mw`` and body map
+    ``mb`` (3x3 signed permutations, as :func:`convert_arrays` forms them): the quaternions
+    of R' = mw R mb^T, without matrices, w >= 0.
 
     With Q = +-mb proper (det +1) and M = mw mb^T (proper: det mw = det mb in every
     convention pair), R' = M (Q R Q^T): conjugation by Q rotates the quaternion's vector part
