@@ -201,7 +201,13 @@ _rosbag2_like = st.fixed_dictionaries(
                             "offered_qos_profiles": st.one_of(
                                 st.just(""),
                                 st.just("- history: 3\n  depth: 0\n  reliability: 1"),
-                                st.lists(st.dictionaries(_keys, st.integers(0, 9)), max_size=2),
+                                st.lists(
+                                    st.dictionaries(
+                                        st.sampled_from(["history", "depth", "reliability"]),
+                                        st.integers(0, 9),
+                                    ),
+                                    max_size=2,
+                                ),
                             ),
                         }
                     ),
