@@ -1,13 +1,10 @@
-"""uwval.workers: calls run on worker threads, results and errors in order, cancellation,
-and the compare path no longer importing concurrent.futures (and logging with it)."""
+"""uwval.workers: calls run on worker threads, results and errors in order, cancellation
+(that the compare path no longer imports concurrent.futures: test_compare_imports)."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
 import threading
 import time
-from pathlib import Path
 
 import pytest
 
@@ -89,22 +86,3 @@ def test_leaving_the_with_block_on_an_error_cancels_what_has_not_started() -> No
 def test_a_pool_needs_a_thread() -> None:
     with pytest.raises(ValueError, match="at least one"):
         Workers(0, "uwval-test")
-
-
-def test_a_compare_of_an_mcap_log_does_not_import_concurrent_futures(tmp_path: Path) -> None:
-    """The point of uwval.workers: the read and compare path stays off concurrent.futures
-    (which imports logging, ~3.5 ms of every command)."""
-    from uwval.comparison.synthetic import unity_view, vehicle_motion, write_pair_log
-
-    vehicle = vehicle_motion(20_000, 100.0)
-    log = write_pair_log(tmp_path / "pair.mcap", vehicle, unity_view(vehicle))
-    code = (
-        "import sys\n"
-        "from uwval.cli import main\n"
-        f"main(['compare', {str(log)!r}, '--sync', 'nearest'])\n"
-        "print('concurrent.futures' in sys.modules, 'logging' in sys.modules)\n"
-    )
-    out = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, check=True
-    ).stdout
-    assert out.strip().splitlines()[-1] == "False False"

@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 from uwval.comparison.align import Alignment, AlignMode, estimate_alignment
 from uwval.comparison.doctor import FrameDiagnosis, diagnose, thinning_step
 from uwval.comparison.offset import OffsetEstimate, estimate_offset, latency_stats
-from uwval.comparison.rpe import RELATION_UNITS
+from uwval.comparison.relations import RELATION_UNITS
 from uwval.comparison.stats import axis_stats, norm_stats
 from uwval.comparison.sync import (
     associate_nearest,

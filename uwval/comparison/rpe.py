@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from uwval.comparison.align import ALIGN_MODES, Alignment, estimate_alignment, identity, umeyama
+from uwval.comparison.relations import RELATION_UNITS
 from uwval.comparison.stats import norm_stats
 from uwval.comparison.sync import associate_nearest
 from uwval.errors import AlignmentError, ConfigError
@@ -36,16 +37,6 @@ from uwval.rotations import geodesic_angle, quat_multiply, rotate_vectors
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 
-#: evo's pose relations, and the unit of each error.
-RELATION_UNITS = {
-    "trans_part": "m",
-    "rot_part": "none",
-    "full": "none",
-    "angle_deg": "deg",
-    "angle_rad": "rad",
-    "point_distance": "m",
-    "point_distance_error_ratio": "%",
-}
 RELATIONS = tuple(RELATION_UNITS)
 #: ``--delta-unit`` letters (evo's ``-u``).
 DELTA_UNITS = {"f": "frames", "m": "m", "d": "deg", "r": "rad"}

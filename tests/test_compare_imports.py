@@ -1,0 +1,51 @@
+"""A plain ``uwval compare`` loads only what it uses: start-up is most of a short compare
+(benchmarks/README.md), so modules it does not need stay unloaded. Each one listed here was
+once loaded by every compare and cost milliseconds (python -X importtime)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+#: never loaded by a compare that prints its table (module: what loaded it, its cost)
+NOT_LOADED = (
+    "concurrent.futures",  # thread pools (uwval.workers instead): ~3.5 ms with logging
+    "logging",
+    "ruamel.yaml",  # rosbag2 metadata (uwval.io.bagmeta reads the usual form): ~8 ms
+    "uwval.comparison.rpe",  # RPE code, for its relation names: ~2.5 ms
+    "json",  # only a JSON document needs it: ~1.4 ms
+    "typer",  # the CLI framework: plain compare arguments skip it
+    "rich",
+)
+
+
+def _loaded_after_compare(args: list[str]) -> set[str]:
+    code = (
+        "import sys\n"
+        "from uwval.cli import main\n"
+        f"main({args!r})\n"
+        "print(' '.join(sorted(sys.modules)))\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    ).stdout
+    return set(out.strip().splitlines()[-1].split())
+
+
+@pytest.mark.parametrize("fmt", ["mcap", "rosbag2", "rosbag2-mcap"])
+def test_a_compare_of_a_log_does_not_load_what_it_does_not_use(tmp_path: Path, fmt: str) -> None:
+    from uwval.comparison.synthetic import unity_view, vehicle_motion
+    from uwval.io.writers import open_writer, write_stream
+
+    vehicle = vehicle_motion(20_000, 100.0)  # long enough for the inflate and decode threads
+    log = tmp_path / ("pair.mcap" if fmt == "mcap" else "pair")
+    with open_writer(log, fmt) as w:
+        write_stream(w, vehicle.topic, vehicle, "enu")
+        unity = unity_view(vehicle)
+        write_stream(w, unity.topic, unity, unity.frame)
+    loaded = _loaded_after_compare(["compare", str(log), "--sync", "nearest"])
+    assert "uwval.comparison.engine" in loaded  # the compare ran in this process
+    assert not [m for m in NOT_LOADED if m in loaded]
