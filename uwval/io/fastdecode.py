@@ -326,16 +326,16 @@ def fast_decode(msgtype: str, encoding: str, buf: U8, offset: I64, length: I64) 
     per-message decode (the same bytes reinterpreted as little-endian numbers).
     """
     n = offset.shape[0]
-    dec = Decoded.empty(n)
     fields = LAYOUTS.get(msgtype)
     if fields is None or n == 0 or encoding not in ("cdr", "ros1"):
-        return dec
+        return Decoded.empty(n)
     cdr = encoding == "cdr"
     acc = _Bytes(buf, offset, length)
     if acc.rows2d is not None and USE_ACCELERATOR:
         uniform = _decode_uniform(fields, acc, cdr)
         if uniform is not None:
             return uniform
+    dec = Decoded.empty(n)  # (after the one-pass decode: it builds its own, NaN-free)
     rows = np.arange(n, dtype=np.int64)
     if cdr:
         # Only little-endian plain CDR (encapsulation kind 0x0001) has this layout.

@@ -322,11 +322,28 @@ def _applied(p: Path, comp: RawTopic, log_time: I64) -> tuple[I64 | None, str]:
     when they cannot be matched one to one (then no stamps: latency is not measured)."""
     hdr = decode_poses(comp, errors="drop")
     ok = hdr.handled
-    order = np.argsort(comp.log_time[ok], kind="stable")
-    ct = comp.log_time[ok][order]
-    cs = hdr.stamp[ok][order]
+    if (
+        comp.log_time.shape == log_time.shape
+        and bool(ok.all())
+        and bool(np.all(log_time[1:] > log_time[:-1]))
+        and np.array_equal(comp.log_time, log_time)
+    ):
+        # the usual log: each pose's applied stamp logged at the pose's own (distinct) time,
+        # in the same order: _match_applied would pair message i with message i
+        return hdr.stamp, ""
+    return _match_applied(p, comp.name, comp.log_time, hdr.stamp, ok, log_time)
+
+
+def _match_applied(
+    p: Path, name: str, comp_time: I64, comp_stamp: I64, ok: NDArray[np.bool_], log_time: I64
+) -> tuple[I64 | None, str]:
+    """:func:`_applied`'s matching: each pose takes the decoded applied stamp logged at its
+    log time (the first such, in log-time order)."""
+    order = np.argsort(comp_time[ok], kind="stable")
+    ct = comp_time[ok][order]
+    cs = comp_stamp[ok][order]
     if ct.size == 0:
-        return None, f"{p} [{comp.name}]: no applied stamp could be decoded"
+        return None, f"{p} [{name}]: no applied stamp could be decoded"
     idx = np.minimum(np.searchsorted(ct, log_time), len(ct) - 1)
     hit = ct[idx] == log_time
     if hit.all():
@@ -335,7 +352,7 @@ def _applied(p: Path, comp: RawTopic, log_time: I64) -> tuple[I64 | None, str]:
         # a recorder that logged the two topics at different receive times: pair by rank
         return cs[np.argsort(np.argsort(log_time, kind="stable"), kind="stable")], ""
     return None, (
-        f"{p} [{comp.name}]: {int((~hit).sum())} of {len(log_time)} poses have no applied "
+        f"{p} [{name}]: {int((~hit).sum())} of {len(log_time)} poses have no applied "
         "stamp logged at the same time; applied stamps (latency) not used"
     )
 
