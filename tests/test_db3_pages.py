@@ -487,6 +487,7 @@ def test_accelerator_off_gives_the_same_numbers(tmp_path: Path) -> None:
 _RSS_CODE = """
 import sqlite3, sys
 from pathlib import Path
+import numpy  # loaded by the scan's result (not at import): not part of what is measured
 import uwval.io.db3_pages as d
 
 def hwm():

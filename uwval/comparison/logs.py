@@ -14,13 +14,15 @@ from uwval.cpus import second_cpu_free
 from uwval.errors import LogReadError
 from uwval.io.formats import INPUT_FORMATS, is_tum  # noqa: F401 - INPUT_FORMATS re-exported
 from uwval.posestream import PoseStream
-
-VEHICLE = "model_rov_pose"
-CAMERA = "gui_camera_pose"
-GAZEBO_PREFIX = "/gazebo/"
-UNITY_PREFIX = "/unity/"
-DEFAULT_GAZEBO_TOPIC = GAZEBO_PREFIX + VEHICLE
-DEFAULT_UNITY_TOPIC = UNITY_PREFIX + VEHICLE
+from uwval.topics import (
+    CAMERA,
+    DEFAULT_GAZEBO_TOPIC,
+    DEFAULT_UNITY_TOPIC,
+    GAZEBO_PREFIX,
+    UNITY_PREFIX,
+    VEHICLE,
+    log_topics,
+)
 
 
 @dataclass
@@ -172,21 +174,16 @@ def compare_logs(
         from uwval.io import read_streams
 
         frames: dict[str, str | None] = {}
+        # one pass over the log for every topic of the pairs (uwval.topics decides which)
+        topics, skip_missing = log_topics(pairs, gazebo_topic, unity_topic)
+        streams = read_streams(path_a, topics, skip_missing=skip_missing)
         if pairs and not (gazebo_topic or unity_topic):
             pairs_l = [(p.name, p.reference, p.other) for p in pairs]
             frames = {p.name: p.frame for p in pairs}
-            streams = read_streams(path_a, [t for _, g, u in pairs_l for t in (g, u)])
         elif gazebo_topic or unity_topic:
-            g = gazebo_topic or DEFAULT_GAZEBO_TOPIC
-            u = unity_topic or DEFAULT_UNITY_TOPIC
+            g, u = topics
             pairs_l = [(pair_label(g, u), g, u)]
-            streams = read_streams(path_a, [g, u])
-        else:
-            # one pass over the log: every candidate topic, then the pairs that are present
-            candidates = [
-                p + name for name in (VEHICLE, CAMERA) for p in (GAZEBO_PREFIX, UNITY_PREFIX)
-            ]
-            streams = read_streams(path_a, candidates, skip_missing=True)
+        else:  # the candidate pairs that are present
             pairs_l = [
                 (name, GAZEBO_PREFIX + name, UNITY_PREFIX + name)
                 for name in (VEHICLE, CAMERA)

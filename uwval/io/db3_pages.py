@@ -29,13 +29,16 @@ import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
-from numpy.typing import NDArray
-
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # numpy loads when a scan's result is converted (uwval.io.early runs first)
     import sqlite3
+
+    import numpy as np
+    from numpy.typing import NDArray
+
+    U8 = NDArray[np.uint8]
+    I64 = NDArray[np.int64]
 
 try:  # the optional C accelerator (uwval/io/_db3pages.c), built when a compiler is present
     from uwval.io import _db3pages
@@ -45,9 +48,6 @@ except ImportError:  # pragma: no cover - the sqlite3 path gives the same result
 #: Read pages with the C accelerator when it is built, unless the environment variable
 #: ``UWVAL_NO_ACCELERATOR`` is set (benchmarks and tests check both paths). Read at each call.
 USE_ACCELERATOR = _db3pages is not None and not os.environ.get("UWVAL_NO_ACCELERATOR")
-
-U8 = NDArray[np.uint8]
-I64 = NDArray[np.int64]
 
 #: rosbag2's messages table: (column name, declared type, primary-key position), in order.
 ROSBAG2_COLUMNS = [
@@ -137,26 +137,22 @@ def scan_pages(
         return f"sqlite3: {exc}"
     if isinstance(found, str):
         return found
-    page_size, table_root, index_root = found
-    ids = np.array(sorted(topic_ids), dtype=np.int64)
-    group = {tid: k for k, tid in enumerate(sorted(selected))}
-    pick = np.array([group.get(int(t), -1) for t in ids], dtype=np.int32)
-    try:
-        with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
-            got = _db3pages.scan(
-                mm,
-                page_size,
-                table_root,
-                index_root,
-                ids.tobytes(),
-                pick.tobytes(),
-                len(group),
-                True,  # mm is a read-only map of the file: its pages may be dropped when read
-            )
-    except (OSError, ValueError) as exc:
-        return f"cannot map the file: {exc}"
+    args = scan_args(found, topic_ids, selected)
+    from uwval.io import early
+
+    got = early.take_db3(path, args)  # a scan begun before the imports, if it is this one
+    if got is None:
+        try:
+            with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+                got = run_scan(mm, args)
+        except (OSError, ValueError) as exc:
+            return f"cannot map the file: {exc}"
     if isinstance(got, str):
         return got
+    import numpy as np
+
+    ids = np.frombuffer(args[3], dtype=np.int64)
+    group = {tid: k for k, tid in enumerate(sorted(selected))}
     stats_b, counts_b, stamps_b, offs_b, lens_b, payloads = got
     stats = np.frombuffer(stats_b, dtype=np.int64).reshape(-1, 3)
     counts = np.frombuffer(counts_b, dtype=np.int64)
@@ -179,6 +175,41 @@ def scan_pages(
         {int(t): (int(s[0]), int(s[1]), int(s[2])) for t, s in zip(ids, stats, strict=True)},
         out,
     )
+
+
+def scan_args(
+    found: tuple[int, int, int], topic_ids: list[int], selected: list[int]
+) -> tuple[int, int, int, bytes, bytes, int]:
+    """The arguments of :func:`run_scan` after the map: (page size, table root, index root)
+    from :func:`index_plan`, every topic id (ascending, int64) and each one's output group
+    (int32: its rank among the ``selected`` ids, -1 when not selected), the group count."""
+    from uwval.io.early import ids_bytes
+
+    page_size, table_root, index_root = found
+    ids = sorted(topic_ids)
+    group = {tid: k for k, tid in enumerate(sorted(selected))}
+    pick = [group.get(int(t), -1) for t in ids]
+    return (
+        page_size,
+        table_root,
+        index_root,
+        ids_bytes(ids, "q"),
+        ids_bytes(pick, "i"),
+        len(group),
+    )
+
+
+#: what the page scan returns: (stats, counts, stamps, offsets, lengths, payloads per group),
+#: or a str naming why it declines
+ScanResult = tuple[bytearray, bytearray, bytearray, bytearray, bytearray, tuple[Any, ...]] | str
+
+
+def run_scan(mm: Any, args: tuple[int, int, int, bytes, bytes, int]) -> ScanResult:
+    """``_db3pages.scan`` of the read-only map ``mm`` with :func:`scan_args`' arguments (its
+    pages are dropped from the process as they are read)."""
+    assert _db3pages is not None
+    page_size, table_root, index_root, ids, pick, ngroups = args
+    return _db3pages.scan(mm, page_size, table_root, index_root, ids, pick, ngroups, True)
 
 
 def read_pages(

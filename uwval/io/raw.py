@@ -16,6 +16,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from uwval.io.names import norm_topic as norm_topic  # re-exported: the readers import it here
+
 U8 = NDArray[np.uint8]
 I64 = NDArray[np.int64]
 
@@ -34,11 +36,6 @@ def load_yaml(text: str) -> Any:
     from ruamel.yaml import YAML
 
     return YAML(typ="safe", pure=True).load(text)
-
-
-def norm_topic(name: str) -> str:
-    """Topic names compare with one leading slash: ``groundtruth`` == ``/groundtruth``."""
-    return "/" + name.strip("/")
 
 
 @dataclass(frozen=True)

@@ -25,8 +25,8 @@ from uwval.io.containers import scan_log
 from uwval.io.decode import TF_TYPES, decode_poses, decode_tf
 from uwval.io.fastdecode import Decoded
 from uwval.io.formats import TEXT_KINDS, log_kind
+from uwval.io.names import APPLIED_SUFFIX, split_child, topics_to_scan
 from uwval.io.raw import RawLog, RawTopic, TopicInfo, norm_topic
-from uwval.io.ros import APPLIED_SUFFIX
 from uwval.posestream import PoseStream
 from uwval.rotations import quat_multiply, rotate_vectors
 
@@ -134,11 +134,10 @@ def read_streams(
         raise LogReadError(f"{p}: unknown read option(s): {', '.join(sorted(opts))}")
     if time_src not in ("header", "log"):
         raise LogReadError(f"{p}: time must be 'header' or 'log', not {time_src!r}")
-    wanted = {norm_topic(split_child(t)[0]) for t in topics}
-    extra = {t + APPLIED_SUFFIX for t in wanted}
+    scan = topics_to_scan(topics)
     if tf_static:
-        extra.add("/tf_static")
-    log = scan_log(p, sorted(wanted | extra))
+        scan.add("/tf_static")
+    log = scan_log(p, sorted(scan))
     log.warn_lost()
     jobs: list[tuple[str, RawTopic, str | None]] = []
     for t in topics:
@@ -196,13 +195,6 @@ PARALLEL_DECODE_MIN = 100_000
 
 #: Message types (name endings) with a child_frame_id, besides TF messages.
 _CHILD_TYPES = ("/Odometry", "/TransformStamped")
-
-
-def split_child(topic: str) -> tuple[str, str | None]:
-    """``/tf#turtle1`` -> (``/tf``, ``turtle1``): a topic name may carry the child frame to
-    take from a TFMessage topic (or to filter an Odometry / TransformStamped topic on)."""
-    name, sep, child = topic.partition("#")
-    return name, (child.strip("/") or None) if sep else None
 
 
 def tf_pairs(path: str | Path, topic: str) -> list[tuple[str, str, int]]:

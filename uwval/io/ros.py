@@ -8,11 +8,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from uwval.io.names import APPLIED_SUFFIX as APPLIED_SUFFIX  # re-exported (writers, tests)
+
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
 HEADER = "std_msgs/msg/Header"
-
-#: Suffix of the companion topic carrying, per Unity frame, the Gazebo header stamp shown.
-APPLIED_SUFFIX = "/applied_stamp"
 
 
 @lru_cache(maxsize=2)

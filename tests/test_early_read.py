@@ -1,0 +1,185 @@
+"""uwval.io.early: a sqlite3 bag's page scan begun before the compare's imports is taken by
+the read only when it is exactly the read's own scan; the results are the same either way;
+anything it cannot decide cheaply starts nothing."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.accelerators import require_module
+from uwval.io import db3_pages, early
+
+require_module(db3_pages._db3pages, "uwval.io._db3pages")
+
+G, U = "/gazebo/model_rov_pose", "/unity/model_rov_pose"
+
+
+@pytest.fixture(autouse=True)
+def _second_cpu_and_no_leftovers(monkeypatch: pytest.MonkeyPatch) -> Any:
+    import uwval.cpus
+
+    monkeypatch.setattr(uwval.cpus, "second_cpu_free", lambda: True)
+    monkeypatch.setattr(db3_pages, "USE_ACCELERATOR", True)
+    early._pending.clear()
+    yield
+    for scan in early._pending.values():
+        scan.thread.join()
+    early._pending.clear()
+
+
+def _bag(tmp_path: Path, fmt: str = "rosbag2", name: str = "bag") -> Path:
+    from uwval.comparison.synthetic import unity_view, vehicle_motion
+    from uwval.io.writers import open_writer, write_stream
+
+    vehicle = vehicle_motion(3000, 100.0)
+    unity = unity_view(vehicle)
+    out = tmp_path / name
+    with open_writer(out, fmt) as w:
+        write_stream(w, vehicle.topic, vehicle, "enu")
+        write_stream(w, unity.topic, unity, unity.frame)
+    return out
+
+
+def _read(bag: Path, topics: list[str]) -> dict[str, Any]:
+    from uwval.io import read_streams
+
+    return read_streams(bag, topics)
+
+
+def _same(a: dict[str, Any], b: dict[str, Any]) -> None:
+    import numpy as np
+
+    assert list(a) == list(b)
+    for k in a:
+        for f in ("t", "position", "orientation"):
+            np.testing.assert_array_equal(getattr(a[k], f), getattr(b[k], f))
+        np.testing.assert_array_equal(a[k].applied_stamp, b[k].applied_stamp)
+
+
+def _taken(monkeypatch: pytest.MonkeyPatch) -> list[bool]:
+    """Record, per read, whether it took an early scan's result."""
+    got: list[bool] = []
+    real = early.take_db3
+
+    def spy(path: Path, args: Any) -> Any:
+        r = real(path, args)
+        got.append(r is not None)
+        return r
+
+    monkeypatch.setattr(early, "take_db3", spy)
+    return got
+
+
+def test_the_read_takes_the_scan_begun_early_and_reads_the_same(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    bag = _bag(tmp_path)
+    plain = _read(bag, [G, U])
+    taken = _taken(monkeypatch)
+    early.start(bag, [G, U])
+    assert len(early._pending) == 1
+    _same(_read(bag, [G, U]), plain)
+    assert taken == [True] and not early._pending
+
+
+def test_a_scan_of_other_topics_is_not_taken(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    bag = _bag(tmp_path)
+    plain = _read(bag, [G])
+    taken = _taken(monkeypatch)
+    early.start(bag, [G, U])  # the read below asks for G alone
+    _same(_read(bag, [G]), plain)
+    assert taken == [False] and not early._pending
+
+
+def test_a_file_changed_after_the_early_scan_is_read_again(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    bag = _bag(tmp_path)
+    plain = _read(bag, [G, U])
+    taken = _taken(monkeypatch)
+    early.start(bag, [G, U])
+    db3 = next(bag.glob("*.db3"))
+    st = db3.stat()
+    os.utime(db3, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000_000))
+    _same(_read(bag, [G, U]), plain)
+    assert taken == [False]
+
+
+@pytest.mark.parametrize("case", ["mcap-file", "rosbag2-mcap", "no-metadata", "compressed", "wal"])
+def test_nothing_is_started_where_it_cannot_be_decided_cheaply(tmp_path: Path, case: str) -> None:
+    if case == "mcap-file":
+        from uwval.comparison.synthetic import unity_view, vehicle_motion, write_pair_log
+
+        v = vehicle_motion(200)
+        target = write_pair_log(tmp_path / "a.mcap", v, unity_view(v))
+    elif case == "rosbag2-mcap":
+        target = _bag(tmp_path, "rosbag2-mcap")
+    else:
+        target = _bag(tmp_path)
+        meta = target / "metadata.yaml"
+        if case == "no-metadata":
+            meta.unlink()
+        elif case == "compressed":
+            meta.write_text(
+                meta.read_text().replace("compression_mode: ''", "compression_mode: FILE")
+            )
+            assert "FILE" in meta.read_text()
+        else:
+            db3 = next(target.glob("*.db3"))
+            db3.with_name(db3.name + "-wal").write_bytes(b"x" * 100)
+    early.start(target, [G, U])
+    assert not early._pending
+
+
+def test_a_damaged_bag_starts_nothing_and_raises_nothing(tmp_path: Path) -> None:
+    bag = _bag(tmp_path)
+    db3 = next(bag.glob("*.db3"))
+    db3.write_bytes(b"not a database" * 100)
+    early.start(bag, [G, U])  # sqlite3 fails inside: swallowed, nothing pending
+    assert not early._pending
+
+
+def test_a_compare_through_the_command_line_takes_the_early_scan(tmp_path: Path) -> None:
+    """The whole command, in a fresh process: the early scan is taken, and the JSON equals
+    the one of a process where early reads are disabled."""
+    bag = _bag(tmp_path)
+    code = (
+        "import sys, json\n"
+        "import uwval.cpus\n"
+        "uwval.cpus.second_cpu_free = lambda: True\n"
+        "import uwval.io.early as e\n"
+        "if sys.argv[1] == 'off':\n"
+        "    e.start = lambda *a: None\n"
+        "real = e.take_db3\n"
+        "seen = []\n"
+        "def spy(*a):\n"
+        "    r = real(*a)\n"
+        "    seen.append(r is not None)\n"
+        "    return r\n"
+        "e.take_db3 = spy\n"
+        "from uwval.cli import main\n"
+        f"main(['compare', {str(bag)!r}, '--gazebo-topic', {G!r}, '--unity-topic', {U!r},"
+        " '--output', sys.argv[2]])\n"
+        "print(seen)\n"
+    )
+    outs = {}
+    for mode in ("on", "off"):
+        out = tmp_path / f"{mode}.json"
+        res = subprocess.run(
+            [sys.executable, "-c", code, mode, str(out)],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+        outs[mode] = json.loads(out.read_text())
+        assert res.stdout.strip().splitlines()[-1] == ("[True]" if mode == "on" else "[False]")
+    assert outs["on"] == outs["off"]
