@@ -191,10 +191,15 @@ class TopicBuilder:
             parts = [buf[at : at + k * width].reshape(k, width) for at, k in blocks]
             self.add_rows(np.concatenate(parts), log_time)
             return
+        # memoryview slice assignment: a memcpy that keeps the GIL (numpy's copy of a block
+        # lets it go and then waits for the inflate threads to hand it back: 9 vs 3 ms for
+        # the ~500 blocks of a 10-minute log)
+        into, src = dst.data.cast("B"), buf.data
         f = 0
         for at, k in blocks:
-            dst[f : f + k] = buf[at : at + k * width].reshape(k, width)
-            f += k
+            m = k * width
+            into[f : f + m] = src[at : at + m]
+            f += m
         self._taken(n, log_time)
 
     def _slot(self, n: int, width: int) -> U8 | None:
