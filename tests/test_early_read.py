@@ -27,11 +27,11 @@ def _second_cpu_and_no_leftovers(monkeypatch: pytest.MonkeyPatch) -> Any:
 
     monkeypatch.setattr(uwval.cpus, "second_cpu_free", lambda: True)
     monkeypatch.setattr(db3_pages, "USE_ACCELERATOR", True)
-    early._pending.clear()
+    db3_pages._started.clear()
     yield
-    for scan in early._pending.values():
+    for scan in db3_pages._started.values():
         scan.thread.join()
-    early._pending.clear()
+    db3_pages._started.clear()
 
 
 def _bag(tmp_path: Path, fmt: str = "rosbag2", name: str = "bag") -> Path:
@@ -66,14 +66,14 @@ def _same(a: dict[str, Any], b: dict[str, Any]) -> None:
 def _taken(monkeypatch: pytest.MonkeyPatch) -> list[bool]:
     """Record, per read, whether it took an early scan's result."""
     got: list[bool] = []
-    real = early.take_db3
+    real = db3_pages.take_started
 
     def spy(path: Path, args: Any) -> Any:
         r = real(path, args)
         got.append(r is not None)
         return r
 
-    monkeypatch.setattr(early, "take_db3", spy)
+    monkeypatch.setattr(db3_pages, "take_started", spy)
     return got
 
 
@@ -84,9 +84,9 @@ def test_the_read_takes_the_scan_begun_early_and_reads_the_same(
     plain = _read(bag, [G, U])
     taken = _taken(monkeypatch)
     early.start(bag, [G, U])
-    assert len(early._pending) == 1
+    assert len(db3_pages._started) == 1
     _same(_read(bag, [G, U]), plain)
-    assert taken == [True] and not early._pending
+    assert taken == [True] and not db3_pages._started
 
 
 def test_a_scan_of_other_topics_is_not_taken(
@@ -97,7 +97,7 @@ def test_a_scan_of_other_topics_is_not_taken(
     taken = _taken(monkeypatch)
     early.start(bag, [G, U])  # the read below asks for G alone
     _same(_read(bag, [G]), plain)
-    assert taken == [False] and not early._pending
+    assert taken == [False] and not db3_pages._started
 
 
 def test_a_file_changed_after_the_early_scan_is_read_again(
@@ -137,7 +137,7 @@ def test_nothing_is_started_where_it_cannot_be_decided_cheaply(tmp_path: Path, c
             db3 = next(target.glob("*.db3"))
             db3.with_name(db3.name + "-wal").write_bytes(b"x" * 100)
     early.start(target, [G, U])
-    assert not early._pending
+    assert not db3_pages._started
 
 
 def test_a_damaged_bag_starts_nothing_and_raises_nothing(tmp_path: Path) -> None:
@@ -145,7 +145,7 @@ def test_a_damaged_bag_starts_nothing_and_raises_nothing(tmp_path: Path) -> None
     db3 = next(bag.glob("*.db3"))
     db3.write_bytes(b"not a database" * 100)
     early.start(bag, [G, U])  # sqlite3 fails inside: swallowed, nothing pending
-    assert not early._pending
+    assert not db3_pages._started
 
 
 def test_a_compare_through_the_command_line_takes_the_early_scan(tmp_path: Path) -> None:
@@ -157,15 +157,16 @@ def test_a_compare_through_the_command_line_takes_the_early_scan(tmp_path: Path)
         "import uwval.cpus\n"
         "uwval.cpus.second_cpu_free = lambda: True\n"
         "import uwval.io.early as e\n"
+        "import uwval.io.db3_pages as d\n"
         "if sys.argv[1] == 'off':\n"
         "    e.start = lambda *a: None\n"
-        "real = e.take_db3\n"
+        "real = d.take_started\n"
         "seen = []\n"
         "def spy(*a):\n"
         "    r = real(*a)\n"
         "    seen.append(r is not None)\n"
         "    return r\n"
-        "e.take_db3 = spy\n"
+        "d.take_started = spy\n"
         "from uwval.cli import main\n"
         f"main(['compare', {str(bag)!r}, '--gazebo-topic', {G!r}, '--unity-topic', {U!r},"
         " '--output', sys.argv[2]])\n"

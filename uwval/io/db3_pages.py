@@ -138,9 +138,7 @@ def scan_pages(
     if isinstance(found, str):
         return found
     args = scan_args(found, topic_ids, selected)
-    from uwval.io import early
-
-    got = early.take_db3(path, args)  # a scan begun before the imports, if it is this one
+    got = take_started(path, args)  # a scan begun before the imports (uwval.io.early)
     if got is None:
         try:
             with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
@@ -183,8 +181,6 @@ def scan_args(
     """The arguments of :func:`run_scan` after the map: (page size, table root, index root)
     from :func:`index_plan`, every topic id (ascending, int64) and each one's output group
     (int32: its rank among the ``selected`` ids, -1 when not selected), the group count."""
-    from uwval.io.early import ids_bytes
-
     page_size, table_root, index_root = found
     ids = sorted(topic_ids)
     group = {tid: k for k, tid in enumerate(sorted(selected))}
@@ -210,6 +206,70 @@ def run_scan(mm: Any, args: tuple[int, int, int, bytes, bytes, int]) -> ScanResu
     assert _db3pages is not None
     page_size, table_root, index_root, ids, pick, ngroups = args
     return _db3pages.scan(mm, page_size, table_root, index_root, ids, pick, ngroups, True)
+
+
+def ids_bytes(values: list[int], code: str) -> bytes:
+    """``values`` as native machine integers (``array`` type ``code``: q int64, i int32), the
+    bytes numpy's ``tobytes`` gives for the same values and dtype."""
+    from array import array
+
+    return array(code, values).tobytes()
+
+
+class _StartedScan:
+    """A page scan running on its own thread (:func:`start_scan`)."""
+
+    def __init__(self, path: Path, args: tuple[int, int, int, bytes, bytes, int]) -> None:
+        import threading
+
+        self.path, self.args = path, args
+        self.result: ScanResult | None = None
+        self.thread = threading.Thread(target=self._run, name="uwval-early-db3", daemon=True)
+
+    def _run(self) -> None:
+        try:
+            with (
+                open(self.path, "rb") as f,
+                mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm,
+            ):
+                self.result = run_scan(mm, self.args)
+        except Exception:  # the read will scan again itself, and report what is wrong
+            self.result = None
+
+
+#: scans started and not taken yet, by the file (identity) and arguments they were given
+_started: dict[tuple[object, ...], _StartedScan] = {}
+
+
+def _started_key(path: Path, args: tuple[int, int, int, bytes, bytes, int]) -> tuple[object, ...]:
+    st = os.stat(path)
+    return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, *args)
+
+
+def start_scan(path: Path, args: tuple[int, int, int, bytes, bytes, int]) -> None:
+    """Run :func:`run_scan` of the file ``path`` with ``args`` on its own thread, for the read
+    to take (:func:`take_started`) if it makes exactly this scan (:mod:`uwval.io.early`)."""
+    scan = _StartedScan(path, args)
+    _started[_started_key(path, args)] = scan
+    scan.thread.start()
+
+
+def take_started(path: Path, args: tuple[int, int, int, bytes, bytes, int]) -> ScanResult | None:
+    """The result of the scan :func:`start_scan` began of ``path`` (unchanged since) with
+    exactly ``args``, waiting for it to end; None when there is none (or it failed). Every
+    scan not taken is then dropped: a read happened, they are of no use."""
+    if not _started:
+        return None
+    try:
+        key: tuple[object, ...] | None = _started_key(path, args)
+    except OSError:
+        key = None
+    scan = _started.pop(key, None) if key is not None else None
+    _started.clear()
+    if scan is None:
+        return None
+    scan.thread.join()
+    return scan.result
 
 
 def read_pages(

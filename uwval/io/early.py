@@ -4,9 +4,15 @@ Loading numpy and the comparison code takes ~60 ms of a ~170 ms compare, on one 
 rosbag2 sqlite3 bag's messages table is read by one call into C that releases the GIL
 (:mod:`uwval.io.db3_pages`, ~40 ms for 15 minutes of a simulation's topics): :func:`start`
 runs that call on a second thread, before the heavy imports, so the two overlap. The read
-that follows (:func:`uwval.io.read_streams`) takes the result through :func:`take_db3` only
-when it makes exactly the same call (the same file, unchanged, the same topics, pages and
-roots); any other read ignores it and reads as it always does. Nothing here imports numpy.
+that follows (:func:`uwval.io.read_streams`) takes the result
+(:func:`uwval.io.db3_pages.take_started`) only when it makes exactly the same call (the
+same file, unchanged, the same topics, pages and roots); any other read ignores it and reads
+as it always does. Nothing here imports numpy.
+
+(Decompressing an MCAP log's first chunks the same way, with zstandard's
+``multi_decompress_to_buffer``, was tried and measured: no faster on a 10-minute log, 5 %
+slower with images, 32 MB more memory. The MCAP read is bound by its per-chunk work on the
+reading thread, not by decompression.)
 
 Only what can be decided cheaply and surely is started: a bag whose ``metadata.yaml`` is in
 the usual form (:mod:`uwval.io.bagmeta`), one uncompressed ``.db3`` file, no write-ahead log,
@@ -15,50 +21,8 @@ the C accelerator built, a second CPU free. Anything else, or any error, starts 
 
 from __future__ import annotations
 
-import os
-import threading
-from array import array
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
-
-if TYPE_CHECKING:
-    from uwval.io.db3_pages import ScanResult
-
-#: the scans started and not taken yet, by what they were asked (see _key)
-_pending: dict[tuple[Any, ...], _Scan] = {}
-
-
-class _Scan:
-    """One page scan running on its own thread."""
-
-    def __init__(self, path: Path, args: tuple[int, int, int, bytes, bytes, int]) -> None:
-        self.path, self.args = path, args
-        self.result: ScanResult | None = None
-        self.thread = threading.Thread(target=self._run, name="uwval-early-db3", daemon=True)
-
-    def _run(self) -> None:
-        import mmap
-
-        from uwval.io import db3_pages
-
-        try:
-            with (
-                open(self.path, "rb") as f,
-                mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm,
-            ):
-                self.result = db3_pages.run_scan(mm, self.args)
-        except Exception:  # the read will scan again itself, and report what is wrong
-            self.result = None
-
-
-def _identity(path: Path) -> tuple[int, int, int, int]:
-    st = os.stat(path)
-    return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
-
-
-def _key(path: Path, args: tuple[Any, ...]) -> tuple[Any, ...]:
-    return (_identity(path), *args)
 
 
 def start(path: Path, topics: Sequence[str]) -> None:
@@ -114,30 +78,4 @@ def _start_db3(bag: Path, topics: Sequence[str]) -> None:
         con.close()
     if isinstance(found, str):
         return
-    args = db3_pages.scan_args(found, topic_ids, selected)
-    scan = _Scan(db3, args)
-    _pending[_key(db3, args)] = scan
-    scan.thread.start()
-
-
-def take_db3(path: Path, args: tuple[int, int, int, bytes, bytes, int]) -> ScanResult | None:
-    """The result of the scan :func:`start` began of ``path`` with exactly ``args`` (waiting
-    for it to end), or None when there is none. Every scan not taken is then dropped."""
-    if not _pending:
-        return None
-    try:
-        key = _key(path, args)
-    except OSError:
-        key = None
-    scan = _pending.pop(key, None) if key is not None else None
-    _pending.clear()  # a read happened: scans of anything else are of no use now
-    if scan is None:
-        return None
-    scan.thread.join()
-    return scan.result
-
-
-def ids_bytes(values: Sequence[int], code: str) -> bytes:
-    """``values`` as native machine integers (``array`` type ``code``: q int64, i int32), the
-    bytes numpy's ``tobytes`` gives for the same values and dtype."""
-    return array(code, values).tobytes()
+    db3_pages.start_scan(db3, db3_pages.scan_args(found, topic_ids, selected))
