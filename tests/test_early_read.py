@@ -184,3 +184,14 @@ def test_a_compare_through_the_command_line_takes_the_early_scan(tmp_path: Path)
         outs[mode] = json.loads(out.read_text())
         assert res.stdout.strip().splitlines()[-1] == ("[True]" if mode == "on" else "[False]")
     assert outs["on"] == outs["off"]
+
+
+def test_the_early_path_loads_no_numpy() -> None:
+    """The early scan overlaps numpy's import only if everything it needs loads without it."""
+    code = (
+        "import sys\n"
+        "import uwval.cli.compare_run, uwval.io.early, uwval.io.db3_pages, uwval.topics\n"
+        "print('numpy' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
