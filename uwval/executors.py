@@ -48,9 +48,6 @@ EXECUTORS = tuple(e.value for e in Executor)
 #: Seconds a worker is given to end after SIGTERM before it is killed.
 TERMINATE_GRACE_S = 2.0
 
-#: Longest (s) the parent waits for tasks without looking at signals it has received.
-_SIGNAL_POLL_S = 0.25
-
 #: How often (s) a worker checks that the process that started it is still alive.
 PARENT_POLL_S = 0.5
 
@@ -262,12 +259,7 @@ def _run_local(
             pending = []
             not_done = set(futures)
             while not_done:
-                # a timed wait: Python runs signal handlers (Ctrl-C's KeyboardInterrupt, the
-                # SIGTERM handler above) only on the main thread between bytecodes, and a
-                # signal the kernel hands to another thread of this process (the pool's
-                # manager or feeder thread, numpy's BLAS threads) would not wake an untimed
-                # wait for tasks that never end: seen as a rare hang under CI's load
-                done, not_done = wait(not_done, timeout=_SIGNAL_POLL_S, return_when=FIRST_COMPLETED)
+                done, not_done = wait(not_done, return_when=FIRST_COMPLETED)
                 for fut in done:
                     i = futures[fut]
                     try:
