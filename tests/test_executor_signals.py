@@ -15,7 +15,11 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 DRIVER = """
-import sys
+import signal, sys
+# a process started as a shell's background job inherits SIGINT ignored (bash does this when
+# job control is off), and Python then installs no KeyboardInterrupt handler: this driver
+# stands for a foreground run, where Ctrl-C raises KeyboardInterrupt
+signal.signal(signal.SIGINT, signal.default_int_handler)
 from tests.executor_tasks import spin_forever
 from uwval.executors import run_tasks
 pid_dir = sys.argv[1]
@@ -39,7 +43,7 @@ def _alive(pid: int) -> bool:
 
 def _start(tmp_path: Path) -> tuple[subprocess.Popen[bytes], list[int]]:
     proc = subprocess.Popen(
-        [sys.executable, "-c", DRIVER, str(tmp_path)],
+        [sys.executable, "-X", "faulthandler", "-c", DRIVER, str(tmp_path)],
         cwd=ROOT,
         stdin=subprocess.DEVNULL,
         stdout=subprocess.PIPE,
@@ -54,6 +58,18 @@ def _start(tmp_path: Path) -> tuple[subprocess.Popen[bytes], list[int]]:
         time.sleep(0.1)
     proc.kill()
     pytest.fail(f"workers never started: {proc.communicate()[1].decode()[-2000:]}")
+
+
+def _communicate_or_dump(proc: subprocess.Popen[bytes], timeout: float = 60.0) -> None:
+    """Wait for the driver to exit; if it hangs, fail with every one of its threads' stacks
+    (faulthandler prints them on SIGABRT), so that a hang says where it is."""
+    try:
+        proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGABRT)
+        _out, err = proc.communicate()
+        stacks = err.decode()[-6000:]
+        pytest.fail(f"the driver did not exit within {timeout} s; its threads:\n{stacks}")
 
 
 def _wait_gone(pids: list[int], seconds: float = 30.0) -> list[int]:
@@ -76,7 +92,7 @@ def test_signal_to_the_parent_stops_its_workers(tmp_path: Path, sig: signal.Sign
     proc, pids = _start(tmp_path)
     try:
         proc.send_signal(sig)
-        proc.communicate(timeout=60)
+        _communicate_or_dump(proc)
         assert proc.returncode == (143 if sig == signal.SIGTERM else 1) or proc.returncode < 0
         assert _wait_gone(pids) == []
     finally:
