@@ -77,41 +77,32 @@ def _taken(monkeypatch: pytest.MonkeyPatch) -> list[bool]:
     return got
 
 
-def test_the_read_takes_the_scan_begun_early_and_reads_the_same(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+@pytest.mark.parametrize(
+    ("case", "read_topics", "taken_expected"),
+    [
+        ("the same scan", [G, U], True),
+        ("other topics", [G], False),  # the scan began for G and U, the read asks for G
+        ("file touched", [G, U], False),  # the file changed after the scan began
+    ],
+)
+def test_the_read_takes_the_early_scan_only_when_it_is_its_own(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    case: str,
+    read_topics: list[str],
+    taken_expected: bool,
 ) -> None:
     bag = _bag(tmp_path)
-    plain = _read(bag, [G, U])
+    plain = _read(bag, read_topics)
     taken = _taken(monkeypatch)
     early.start(bag, [G, U])
     assert len(db3_pages._started) == 1
-    _same(_read(bag, [G, U]), plain)
-    assert taken == [True] and not db3_pages._started
-
-
-def test_a_scan_of_other_topics_is_not_taken(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    bag = _bag(tmp_path)
-    plain = _read(bag, [G])
-    taken = _taken(monkeypatch)
-    early.start(bag, [G, U])  # the read below asks for G alone
-    _same(_read(bag, [G]), plain)
-    assert taken == [False] and not db3_pages._started
-
-
-def test_a_file_changed_after_the_early_scan_is_read_again(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    bag = _bag(tmp_path)
-    plain = _read(bag, [G, U])
-    taken = _taken(monkeypatch)
-    early.start(bag, [G, U])
-    db3 = next(bag.glob("*.db3"))
-    st = db3.stat()
-    os.utime(db3, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000_000))
-    _same(_read(bag, [G, U]), plain)
-    assert taken == [False]
+    if case == "file touched":
+        db3 = next(bag.glob("*.db3"))
+        st = db3.stat()
+        os.utime(db3, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000_000))
+    _same(_read(bag, read_topics), plain)  # the same streams either way
+    assert taken == [taken_expected] and not db3_pages._started
 
 
 @pytest.mark.parametrize("case", ["mcap-file", "rosbag2-mcap", "no-metadata", "compressed", "wal"])

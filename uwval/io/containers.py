@@ -232,9 +232,11 @@ def _unzstd(src: Path, tmp: Path) -> Path:
 
 def _scan_db3(name: Path, path: Path, topics: Iterable[str] | None, compression: str) -> RawLog:
     """A rosbag2 sqlite3 storage file, opened read-only and immutable (no -wal replay)."""
+    from uwval.io.db3_pages import has_wal
+
     want = None if topics is None else {norm_topic(t) for t in topics}
     wal = path.with_name(path.name + "-wal")
-    if wal.exists() and wal.stat().st_size > 0:
+    if has_wal(path):
         # Committed pages still in the write-ahead log (writer never closed): read a private
         # copy so sqlite can replay the log without touching the original files.
         with tempfile.TemporaryDirectory(prefix="uwval-wal-") as tmp:

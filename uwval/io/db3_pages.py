@@ -123,21 +123,9 @@ def scan_pages(
     every id in ``topic_ids`` (the ``topics`` table's), messages of the ids in ``selected``.
     Returns a str naming the reason when the fast path does not apply (see the module
     docstring); sqlite3 errors of the small queries count as such a reason."""
-    import sqlite3
-
-    if _db3pages is None:
-        return "the C accelerator uwval.io._db3pages is not built"
-    if not all(isinstance(t, int) for t in topic_ids) or len(set(topic_ids)) != len(topic_ids):
-        return "topic ids are not distinct integers"
-    if not set(selected) <= set(topic_ids):
-        return "a selected topic id is not in the topics table"
-    try:
-        found = index_plan(con, sorted(selected))
-    except sqlite3.DatabaseError as exc:
-        return f"sqlite3: {exc}"
-    if isinstance(found, str):
-        return found
-    args = scan_args(found, topic_ids, selected)
+    args = plan_scan(con, topic_ids, selected)
+    if isinstance(args, str):
+        return args
     got = take_started(path, args)  # a scan begun before the imports (uwval.io.early)
     if got is None:
         try:
@@ -173,6 +161,38 @@ def scan_pages(
         {int(t): (int(s[0]), int(s[1]), int(s[2])) for t, s in zip(ids, stats, strict=True)},
         out,
     )
+
+
+def plan_scan(
+    con: sqlite3.Connection, topic_ids: list[int], selected: list[int]
+) -> tuple[int, int, int, bytes, bytes, int] | str:
+    """The arguments of :func:`run_scan` for the file ``con`` has open (every id of its
+    ``topics`` table in ``topic_ids``, the ids to read in ``selected``), or a str naming why
+    the page scan does not apply; sqlite3 errors of the small queries count as such a reason.
+    The read (:func:`scan_pages`) and the early start (:mod:`uwval.io.early`) both plan here,
+    so that they ask for the same scan."""
+    import sqlite3
+
+    if _db3pages is None:
+        return "the C accelerator uwval.io._db3pages is not built"
+    if not all(isinstance(t, int) for t in topic_ids) or len(set(topic_ids)) != len(topic_ids):
+        return "topic ids are not distinct integers"
+    if not set(selected) <= set(topic_ids):
+        return "a selected topic id is not in the topics table"
+    try:
+        found = index_plan(con, sorted(selected))
+    except sqlite3.DatabaseError as exc:
+        return f"sqlite3: {exc}"
+    if isinstance(found, str):
+        return found
+    return scan_args(found, topic_ids, selected)
+
+
+def has_wal(path: Path) -> bool:
+    """Whether the sqlite3 file ``path`` has a non-empty write-ahead log beside it (committed
+    pages not in the file yet: the file cannot be read as immutable)."""
+    wal = path.with_name(path.name + "-wal")
+    return wal.exists() and wal.stat().st_size > 0
 
 
 def scan_args(

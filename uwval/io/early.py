@@ -60,8 +60,7 @@ def _start_db3(bag: Path, topics: Sequence[str]) -> None:
     ):
         return
     db3 = bag / name
-    wal = db3.with_name(db3.name + "-wal")
-    if not db3.is_file() or (wal.exists() and wal.stat().st_size > 0):
+    if not db3.is_file() or db3_pages.has_wal(db3):
         return
     import sqlite3
 
@@ -69,13 +68,9 @@ def _start_db3(bag: Path, topics: Sequence[str]) -> None:
     con = sqlite3.connect(f"file:{db3}?mode=ro&immutable=1", uri=True)
     try:
         tops = con.execute("SELECT id, name FROM topics").fetchall()
-        topic_ids = [t[0] for t in tops]
-        selected = sorted(tid for tid, tname in tops if norm_topic(str(tname)) in want)
-        if not all(isinstance(t, int) for t in topic_ids) or len(set(topic_ids)) != len(tops):
-            return
-        found = db3_pages.index_plan(con, selected)
+        selected = [tid for tid, tname in tops if norm_topic(str(tname)) in want]
+        args = db3_pages.plan_scan(con, [t[0] for t in tops], selected)
     finally:
         con.close()
-    if isinstance(found, str):
-        return
-    db3_pages.start_scan(db3, db3_pages.scan_args(found, topic_ids, selected))
+    if not isinstance(args, str):
+        db3_pages.start_scan(db3, args)
