@@ -174,13 +174,17 @@ def convert_arrays(
 
     Returns new arrays; quaternions come back with w >= 0 (q and -q are the same rotation).
     """
-    a = get_convention(src)
-    b = get_convention(dst)
-    # world map src -> dst, body map src -> dst (signed permutations: inverse = transpose)
-    mw = b.world_axes @ a.world_axes.T
-    mb = b.body_axes @ a.body_axes.T
+    mw, mb = convention_maps(src, dst)
     pos = np.asarray(position, dtype=np.float64) @ mw.T
     return np.ascontiguousarray(pos), convert_quaternions(orientation, mw, mb)
+
+
+def convention_maps(src: str | Convention, dst: str | Convention) -> tuple[F64, F64]:
+    """The world map and the body map (3x3 signed permutations) that take poses in
+    convention ``src`` to convention ``dst`` (inverse = transpose)."""
+    a = get_convention(src)
+    b = get_convention(dst)
+    return b.world_axes @ a.world_axes.T, b.body_axes @ a.body_axes.T
 
 
 @functools.lru_cache(maxsize=256)

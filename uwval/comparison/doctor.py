@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from uwval.frames import CONVENTIONS, convert_quaternions, get_convention
+from uwval.frames import CONVENTIONS, convention_maps, convert_quaternions, get_convention
 from uwval.rotations import geodesic_deg, matrix_from_quat
 
 F64 = NDArray[np.float64]
@@ -156,11 +156,9 @@ def _scores(rp: F64, rq: F64, op: F64, oq: F64) -> dict[str, dict[str, float]]:
     ref_cols = [rp[:, j] - rp[:, j].mean() for j in range(3)]
     oth_cols = [op[:, k] - op[:, k].mean() for k in range(3)]
     squares: dict[tuple[int, int, float], float] = {}
-    enu = get_convention("enu")
     out: dict[str, dict[str, float]] = {}
-    for name, conv in CONVENTIONS.items():
-        mw = enu.world_axes @ conv.world_axes.T  # as convert_arrays(..., name, "enu")
-        mb = enu.body_axes @ conv.body_axes.T
+    for name in CONVENTIONS:
+        mw, mb = convention_maps(name, "enu")  # the maps convert_arrays(..., name, "enu") uses
         total = 0.0
         for j in range(3):
             k = int(np.argmax(np.abs(mw[j])))
