@@ -10,7 +10,7 @@ when they stop early (an error, Ctrl-C): that is all this module does.
 from __future__ import annotations
 
 import threading
-from _queue import SimpleQueue  # the C queue that queue.SimpleQueue is (without queue's import)
+from _queue import Empty, SimpleQueue  # queue.SimpleQueue's C queue, without queue's import
 from collections.abc import Callable
 from typing import Any, Generic, TypeVar
 
@@ -71,7 +71,6 @@ class Workers:
         self.n, self.name = n, name
         self._queue: SimpleQueue[Job[Any] | None] = SimpleQueue()
         self._threads: list[threading.Thread] = []
-        self._pending: list[Job[Any]] = []
         self._closed = False
 
     def submit(self, fn: Callable[..., T], *args: Any) -> Job[T]:
@@ -79,8 +78,6 @@ class Workers:
         if self._closed:
             raise RuntimeError(f"worker pool {self.name!r} is shut down")
         job: Job[T] = Job(fn, args)
-        self._pending = [j for j in self._pending if not j.done()]
-        self._pending.append(job)
         self._queue.put(job)
         if len(self._threads) < self.n:
             t = threading.Thread(
@@ -102,14 +99,19 @@ class Workers:
         calls not started yet are not run (their :meth:`Job.result` raises
         :class:`CancelledJobError`)."""
         self._closed = True
-        if cancel:
-            for job in self._pending:
-                job._cancel()
+        if cancel:  # the calls still queued end cancelled here (a running one is not stopped)
+            while True:
+                try:
+                    job = self._queue.get_nowait()
+                except Empty:
+                    break
+                if job is not None:
+                    job._cancel()
+                    job._run()
         for _ in self._threads:
             self._queue.put(None)
         for t in self._threads:
             t.join()
-        self._pending = []
 
     def __enter__(self) -> Workers:
         return self
