@@ -218,8 +218,6 @@ def _inline_value(rest: str, lines: list[tuple[int, str]], i: int, parent: int) 
 def _scalar_lines(lines: list[tuple[int, str]], i: int, parent: int) -> tuple[Any, int]:
     """A scalar that starts on a line of its own (``key:`` then the value below it)."""
     body = lines[i][1] if lines[i][1].startswith('"') else lines[i][1].rstrip(" ")
-    if body.startswith(("- ", "-")) and (body == "-" or body[1] == " "):
-        raise _DeclineError
     return _inline_value(body, lines, i + 1, parent)
 
 
