@@ -11,9 +11,8 @@
 
 from __future__ import annotations
 
-import shutil
+import contextlib
 import struct
-import tempfile
 import threading
 from collections.abc import Iterable
 from pathlib import Path
@@ -22,7 +21,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from uwval.errors import LogReadError
-from uwval.io.bagmeta import load_metadata
 from uwval.io.formats import log_kind
 from uwval.io.raw import (
     RawLog,
@@ -155,6 +153,8 @@ def _metadata(bagdir: Path) -> dict[str, Any] | None:
     meta = bagdir / "metadata.yaml"
     if not meta.exists():
         return None
+    from uwval.io.bagmeta import load_metadata  # rosbag2 only
+
     try:
         doc = load_metadata(meta.read_text())
         info = doc["rosbag2_bagfile_information"]
@@ -191,13 +191,20 @@ def _scan_rosbag2(bagdir: Path, topics: Iterable[str] | None, times_only: bool) 
     if missing:
         raise LogReadError(f"{bagdir}: storage files missing: {', '.join(missing)}")
     logs: list[RawLog] = []
-    with tempfile.TemporaryDirectory(prefix="uwval-rosbag2-") as tmp:
+    with contextlib.ExitStack() as stack:
+        tmp: Path | None = None  # made for the first compressed file only
         for f in files:
             src = f
             if comp_mode == "FILE":
                 if comp_fmt != "zstd":
                     raise LogReadError(f"{bagdir}: unsupported compression {comp_fmt!r}")
-                src = _unzstd(f, Path(tmp))
+                if tmp is None:
+                    import tempfile
+
+                    tmp = Path(
+                        stack.enter_context(tempfile.TemporaryDirectory(prefix="uwval-rosbag2-"))
+                    )
+                src = _unzstd(f, tmp)
             if src.stat().st_size == 0:
                 raise LogReadError(f"{f}: storage file is empty (0 bytes)")
             is_mcap = storage == "mcap" or src.suffix == ".mcap"
@@ -239,6 +246,9 @@ def _scan_db3(name: Path, path: Path, topics: Iterable[str] | None, compression:
     if has_wal(path):
         # Committed pages still in the write-ahead log (writer never closed): read a private
         # copy so sqlite can replay the log without touching the original files.
+        import shutil
+        import tempfile
+
         with tempfile.TemporaryDirectory(prefix="uwval-wal-") as tmp:
             for src in (path, wal, path.with_name(path.name + "-shm")):
                 if src.exists():

@@ -36,12 +36,14 @@ def start(path: Path, topics: Sequence[str]) -> None:
 
 
 def _start_db3(bag: Path, topics: Sequence[str]) -> None:
+    if not bag.is_dir():  # a single-file log (MCAP, ROS 1 bag, ...): nothing to start
+        return
     from uwval.cpus import second_cpu_free
     from uwval.io import db3_pages
     from uwval.io.bagmeta import parse_block_yaml
     from uwval.io.names import norm_topic, topics_to_scan
 
-    if not db3_pages.USE_ACCELERATOR or not bag.is_dir() or not second_cpu_free():
+    if not db3_pages.USE_ACCELERATOR or not second_cpu_free():
         return
     meta = bag / "metadata.yaml"
     doc = parse_block_yaml(meta.read_text()) if meta.is_file() else None
