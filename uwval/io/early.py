@@ -9,10 +9,11 @@ that follows (:func:`uwval.io.read_streams`) takes the result
 same file, unchanged, the same topics, pages and roots); any other read ignores it and reads
 as it always does. Nothing here imports numpy.
 
-(Decompressing an MCAP log's first chunks the same way, with zstandard's
-``multi_decompress_to_buffer``, was tried and measured: no faster on a 10-minute log, 5 %
-slower with images, 32 MB more memory. The MCAP read is bound by its per-chunk work on the
-reading thread, not by decompression.)
+(An MCAP log's first chunks are not read this way. Tried twice and measured slower: with
+zstandard's ``multi_decompress_to_buffer``, no faster on a 10-minute log, 5 % slower with
+images, 32 MB more memory; with a numpy-free thread decompressing, checking and walking each
+chunk, 0.159 vs 0.143 s on the 10-minute log, because each chunk needs the GIL several times
+and the importing thread holds it (benchmarks/README.md, sixth pass).)
 
 Only what can be decided cheaply and surely is started: a bag whose ``metadata.yaml`` is in
 the usual form (:mod:`uwval.io.bagmeta`), one uncompressed ``.db3`` file, no write-ahead log,
