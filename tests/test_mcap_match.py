@@ -204,6 +204,7 @@ def _read(
     """Read every topic, with the C walk or without; with it, the walk must have read more
     than ``walks`` chunks."""
     monkeypatch.setattr(mcap_raw, "USE_MATCH", match)
+    monkeypatch.setattr(mcap_raw, "USE_SCAN", False)  # the batched path's walk (test_mcap_scan)
     walked: list[int] = []
     from_matched = mcap_raw._Scanner._from_matched
 

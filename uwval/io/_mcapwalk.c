@@ -308,8 +308,733 @@ done:
     return result;
 }
 
+
+/* ------------------------------------------------------------------------------------------
+ * scan_chunks: the whole fast path of a run of chunks, with the GIL released throughout.
+ *
+ * Handing chunks one by one to Python inflate threads costs a GIL hand-over per chunk (and
+ * the reading thread's Python per chunk): on a log of many chunks the second CPU then sat
+ * mostly idle (benchmarks/README, sixth pass). Here one call walks a run of top-level Chunk
+ * and MessageIndex records, decompresses (zstd, reached through dlopen of libzstd) and
+ * CRC-checks the chunks holding a wanted channel on POSIX threads, checks each against its
+ * index with match_records, and hands back the wanted records per channel, packed. Whatever
+ * it does not do exactly as the Python path would, it does not do: it stops before that
+ * record and says why, and the reader reads from there its own way (which reports damage).
+ * ------------------------------------------------------------------------------------------ */
+#include <dlfcn.h>
+#include <pthread.h>
+#include <stdlib.h>
+
+#define OP_CHUNK 0x06
+#define OP_MESSAGE_INDEX 0x07
+#define SCAN_TABLES 256
+
+typedef void *(*zstd_create_t)(void);
+typedef size_t (*zstd_free_t)(void *);
+typedef size_t (*zstd_decompress_t)(void *, void *, size_t, const void *, size_t);
+typedef unsigned (*zstd_iserror_t)(size_t);
+typedef uint32_t (*crc_isal_t)(uint32_t, const unsigned char *, uint64_t);
+typedef unsigned long (*crc_zlib_t)(unsigned long, const unsigned char *, unsigned);
+
+static zstd_create_t zstd_create;
+static zstd_free_t zstd_free;
+static zstd_decompress_t zstd_decompress;
+static zstd_iserror_t zstd_iserror;
+static crc_isal_t crc_isal;
+static crc_zlib_t crc_zlib;
+static int codecs_state; /* 0 not tried, 1 ready, -1 unavailable */
+
+static uint32_t crc32_of(const unsigned char *b, int64_t n) {
+    if (crc_isal != NULL)
+        return crc_isal(0, b, (uint64_t)n);
+    unsigned long c = 0;
+    while (n > 0) {
+        unsigned step = n > (1 << 30) ? (1u << 30) : (unsigned)n;
+        c = crc_zlib(c, b, step);
+        b += step;
+        n -= step;
+    }
+    return (uint32_t)c;
+}
+
+PyDoc_STRVAR(setup_codecs_doc,
+"setup_codecs(crc_library) -> bool\n\n"
+"Find zstd's decompressor (libzstd.so.1) and a CRC-32 for :func:`scan_chunks`: ISA-L's\n"
+"crc32_gzip_refl in the already loaded library ``crc_library`` (a path, or None), else\n"
+"zlib's crc32. False when zstd or both CRCs are missing (the reader then keeps its Python\n"
+"path). Called once; later calls return the first answer.");
+
+static PyObject *setup_codecs(PyObject *self, PyObject *args) {
+    (void)self;
+    const char *crc_lib = NULL;
+    if (!PyArg_ParseTuple(args, "z:setup_codecs", &crc_lib))
+        return NULL;
+    if (codecs_state == 0) {
+        codecs_state = -1;
+        void *z = dlopen("libzstd.so.1", RTLD_NOW | RTLD_LOCAL);
+        if (z != NULL) {
+            zstd_create = (zstd_create_t)dlsym(z, "ZSTD_createDCtx");
+            zstd_free = (zstd_free_t)dlsym(z, "ZSTD_freeDCtx");
+            zstd_decompress = (zstd_decompress_t)dlsym(z, "ZSTD_decompressDCtx");
+            zstd_iserror = (zstd_iserror_t)dlsym(z, "ZSTD_isError");
+        }
+        if (crc_lib != NULL) {
+            void *i = dlopen(crc_lib, RTLD_NOW | RTLD_NOLOAD | RTLD_LOCAL);
+            if (i != NULL)
+                crc_isal = (crc_isal_t)dlsym(i, "crc32_gzip_refl");
+        }
+        if (crc_isal == NULL) {
+            void *zl = dlopen("libz.so.1", RTLD_NOW | RTLD_LOCAL);
+            if (zl != NULL)
+                crc_zlib = (crc_zlib_t)dlsym(zl, "crc32");
+        }
+        if (zstd_create && zstd_free && zstd_decompress && zstd_iserror && (crc_isal || crc_zlib))
+            codecs_state = 1;
+    }
+    return PyBool_FromLong(codecs_state == 1);
+}
+
+PyDoc_STRVAR(crc32_doc, "crc32(data) -> int\n\nThe CRC-32 :func:`scan_chunks` checks chunks with "
+"(after setup_codecs; for tests: it must equal zlib.crc32).");
+
+static PyObject *crc32_py(PyObject *self, PyObject *args) {
+    (void)self;
+    Py_buffer b;
+    if (codecs_state != 1) {
+        PyErr_SetString(PyExc_RuntimeError, "setup_codecs() has not found the codecs");
+        return NULL;
+    }
+    if (!PyArg_ParseTuple(args, "y*:crc32", &b))
+        return NULL;
+    uint32_t c;
+    Py_BEGIN_ALLOW_THREADS
+    c = crc32_of((const unsigned char *)b.buf, (int64_t)b.len);
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&b);
+    return PyLong_FromUnsignedLong(c);
+}
+
+enum {
+    SCAN_END = 0,     /* every record up to ``end`` was read */
+    SCAN_RECORD = 1,  /* the record at next_pos is not a Chunk / MessageIndex, or does not fit */
+    SCAN_BUDGET = 2,  /* the run is full; next_pos is the next chunk */
+    SCAN_CHUNK = 3,   /* the chunk at next_pos is for the reader (damaged, odd, new tables,
+                         larger than max_chunk) */
+    SCAN_OTHER = 4,   /* the chunk at next_pos is of a kind this path does not read (lz4,
+                         no index): the reader reads the rest of the file */
+};
+
+enum { ST_OK = 0, ST_FAIL = 1, ST_SKIP = 2 };
+
+typedef struct {
+    int64_t rec, data_at, data_len, usize, slot;
+    uint32_t crc;
+    int comp; /* 0 stored, 1 zstd */
+    int status;
+    int arena; /* the worker whose arena holds its wanted payloads */
+    Py_ssize_t g0, ng; /* its groups */
+} chunk_t;
+
+/* What one reading thread keeps from call to call (fresh buffers would fault their pages in
+ * again at every call): its chunk buffer, its payload arena, its zstd context and its
+ * channel lookup table. */
+typedef struct {
+    unsigned char *scratch, *arena;
+    int64_t cap, acap, afill;
+    void *dctx;
+    int32_t *table;
+    int broken; /* out of memory: every chunk it takes fails (the reader reads them) */
+} worker_t;
+
+#define SCAN_THREADS 8
+typedef struct {
+    worker_t w[SCAN_THREADS];
+} workspace_t;
+
+#define WORKSPACE "uwval.io._mcapwalk.workspace"
+
+static void workspace_free(PyObject *cap) {
+    workspace_t *ws = PyCapsule_GetPointer(cap, WORKSPACE);
+    if (ws == NULL)
+        return;
+    for (int t = 0; t < SCAN_THREADS; t++) {
+        free(ws->w[t].scratch);
+        free(ws->w[t].arena);
+        free(ws->w[t].table);
+        if (ws->w[t].dctx != NULL && zstd_free != NULL)
+            zstd_free(ws->w[t].dctx);
+    }
+    free(ws);
+}
+
+PyDoc_STRVAR(scan_workspace_doc, "scan_workspace() -> capsule\n\nThe buffers scan_chunks' "
+"threads keep from one call to the next (one workspace per reader; not for two calls at once).");
+
+static PyObject *scan_workspace(PyObject *self, PyObject *args) {
+    (void)self;
+    (void)args;
+    workspace_t *ws = calloc(1, sizeof(workspace_t));
+    if (ws == NULL)
+        return PyErr_NoMemory();
+    PyObject *cap = PyCapsule_New(ws, WORKSPACE, workspace_free);
+    if (cap == NULL)
+        free(ws);
+    return cap;
+}
+
+typedef struct {
+    const unsigned char *mm;
+    chunk_t *chunks;
+    Py_ssize_t n_chunks;
+    group_t *groups;
+    int64_t *rows;
+    int payloads;
+    const unsigned char *maps;
+    workspace_t *ws;
+    Py_ssize_t next;   /* next chunk to take (atomic) */
+    int next_worker;   /* next worker slot to take (atomic) */
+} scan_t;
+
+static int64_t as_i64(uint64_t v) { return (int64_t)v; }
+
+static int cmp_long(const void *a, const void *b) {
+    long x = *(const long *)a, y = *(const long *)b;
+    return (x > y) - (x < y);
+}
+
+static int grow(unsigned char **buf, int64_t *cap, int64_t need) {
+    if (*buf != NULL && *cap >= need)
+        return 0;
+    int64_t n = *cap > 0 ? *cap : (1 << 20);
+    while (n < need)
+        n *= 2;
+    unsigned char *nb = realloc(*buf, (size_t)n);
+    if (nb == NULL)
+        return -1;
+    *buf = nb;
+    *cap = n;
+    return 0;
+}
+
+static void scan_one(scan_t *s, chunk_t *ch, worker_t *w, int wid) {
+    const unsigned char *rec;
+    if (ch->comp == 0) {
+        if (ch->data_len != ch->usize) {
+            ch->status = ST_FAIL;
+            return;
+        }
+        rec = s->mm + ch->data_at;
+    } else {
+        if (grow(&w->scratch, &w->cap, ch->usize) != 0) {
+            ch->status = ST_FAIL;
+            return;
+        }
+        if (w->dctx == NULL)
+            w->dctx = zstd_create();
+        if (w->dctx == NULL) {
+            ch->status = ST_FAIL;
+            return;
+        }
+        size_t r = zstd_decompress(w->dctx, w->scratch, (size_t)ch->usize, s->mm + ch->data_at,
+                                   (size_t)ch->data_len);
+        if (zstd_iserror(r) || (int64_t)r != ch->usize) {
+            ch->status = ST_FAIL;
+            return;
+        }
+        rec = w->scratch;
+    }
+    if (ch->crc != 0 && crc32_of(rec, ch->usize) != ch->crc) {
+        ch->status = ST_FAIL;
+        return;
+    }
+    if (s->payloads && grow(&w->arena, &w->acap, w->afill + ch->usize) != 0) {
+        ch->status = ST_FAIL;
+        return;
+    }
+    group_t *g = s->groups + ch->g0;
+    int32_t *tb = NULL;
+    if (ch->ng > 16) {
+        for (Py_ssize_t i = 0; i < ch->ng; i++)
+            w->table[g[i].cid] = (int32_t)i;
+        tb = w->table;
+    }
+    int64_t tabs[3 * SCAN_TABLES];
+    Py_ssize_t n_tab = 0;
+    int code = match_records(rec, (Py_ssize_t)ch->usize, 0, g, ch->ng, tb, s->rows,
+                             s->payloads ? w->arena + w->afill : NULL,
+                             s->payloads ? (Py_ssize_t)ch->usize : 0, w->afill, tabs,
+                             SCAN_TABLES, &n_tab);
+    if (tb != NULL)
+        for (Py_ssize_t i = 0; i < ch->ng; i++)
+            w->table[g[i].cid] = -1;
+    if (code != MATCH_OK) {
+        ch->status = ST_FAIL;
+        return;
+    }
+    /* Schema/Channel records in the chunk: only repeats of known ids are passed over here
+     * (as the Python path does); a new one is read by the reader, in file order. */
+    for (Py_ssize_t t = 0; t < n_tab; t++) {
+        int64_t op = tabs[3 * t], a = tabs[3 * t + 1], b = tabs[3 * t + 2];
+        int bit = op == OP_CHANNEL ? 2 : 4;
+        if (b - a < 2 || !(s->maps[le16(rec + a)] & bit)) {
+            ch->status = ST_FAIL;
+            return;
+        }
+    }
+    if (s->payloads)
+        for (Py_ssize_t i = 0; i < ch->ng; i++)
+            if (g[i].out_row >= 0)
+                w->afill += (int64_t)g[i].bytes;
+    ch->arena = wid;
+    ch->status = ST_OK;
+}
+
+static void *scan_worker(void *arg) {
+    scan_t *s = (scan_t *)arg;
+    int wid = __atomic_fetch_add(&s->next_worker, 1, __ATOMIC_RELAXED);
+    worker_t *w = s->ws->w + wid;
+    if (w->table == NULL) {
+        w->table = malloc(65536 * sizeof(int32_t));
+        if (w->table != NULL)
+            memset(w->table, 0xFF, 65536 * sizeof(int32_t));
+    }
+    w->afill = 0;
+    for (;;) {
+        Py_ssize_t k = __atomic_fetch_add(&s->next, 1, __ATOMIC_RELAXED);
+        if (k >= s->n_chunks)
+            break;
+        chunk_t *ch = s->chunks + k;
+        if (ch->status == ST_SKIP)
+            continue;
+        if (w->table == NULL) {
+            ch->status = ST_FAIL;
+            continue;
+        }
+        scan_one(s, ch, w, wid);
+    }
+    return NULL;
+}
+
+/* A Chunk record's header fields (content at c, ln bytes): 0, or -1 when damaged, -2 when
+ * of a compression this path does not read. */
+static int chunk_header(const unsigned char *mm, int64_t c, int64_t ln, chunk_t *ch) {
+    if (ln < 8 + 8 + 8 + 4 + 4 + 8)
+        return -1;
+    ch->usize = as_i64(le64(mm + c + 16));
+    ch->crc = (uint32_t)(mm[c + 24] | (mm[c + 25] << 8) | (mm[c + 26] << 16) |
+                         ((uint32_t)mm[c + 27] << 24));
+    uint32_t sl = (uint32_t)(mm[c + 28] | (mm[c + 29] << 8) | (mm[c + 30] << 16) |
+                             ((uint32_t)mm[c + 31] << 24));
+    if ((int64_t)sl > ln - 32 - 8)
+        return -1;
+    const unsigned char *name = mm + c + 32;
+    if (sl == 0)
+        ch->comp = 0;
+    else if (sl == 4 && memcmp(name, "zstd", 4) == 0)
+        ch->comp = 1;
+    else
+        return -2;
+    int64_t p = c + 32 + sl;
+    uint64_t rl = le64(mm + p);
+    ch->data_at = p + 8;
+    if (rl > (uint64_t)(c + ln - ch->data_at))
+        return -1; /* the Python header parser clips this; the reader says what it means */
+    ch->data_len = (int64_t)rl;
+    if (ch->usize < 0)
+        return -1;
+    return 0;
+}
+
+PyDoc_STRVAR(scan_chunks_doc,
+"scan_chunks(workspace, mm, pos, end, maps, file_budget, slot_budget, threads, payloads,\n"
+"            max_chunk) -> (stop, next_pos, n_chunks, rows, packed, per_channel)\n\n"
+"Read the run of complete Chunk records (each with its MessageIndex records) that starts\n"
+"at byte ``pos`` of the MCAP file ``mm``, up to byte ``end`` (the summary), on ``threads``\n"
+"threads with the GIL released. ``maps`` (65536 bytes, one per id): bit 1 the channel is\n"
+"wanted (or not known yet), bit 2 a known channel, bit 4 a known schema. A chunk none of\n"
+"whose indexed channels is wanted is not decompressed (its index counts its messages);\n"
+"any other is decompressed, CRC-checked and checked against its index by one walk\n"
+"(match_chunk). The run ends at ``end``, at a record that is not a chunk or its index, once\n"
+"``file_budget`` file bytes or ``slot_budget`` decompressed bytes were taken, or before the\n"
+"first chunk this path leaves to the reader; ``stop`` says which (0-4, see SCAN_*), and\n"
+"``next_pos`` where the reader goes on. Chunks before it are read: ``rows`` (int64, three\n"
+"a record: payload start in ``packed``, log time, record length), ``packed`` (the wanted\n"
+"payloads, channel after channel, each in file order; None without ``payloads``), and\n"
+"``per_channel`` (int64, nine a channel: id, count, min and max log time, min and max record\n"
+"length of its wanted records, first row, rows, first packed byte).");
+
+static PyObject *scan_chunks(PyObject *self, PyObject *args) {
+    (void)self;
+    PyObject *ws_obj, *mm_obj;
+    Py_buffer mmb = {0}, mapsb = {0};
+    long long pos, end, file_budget, slot_budget, max_chunk;
+    int threads, payloads;
+    if (!PyArg_ParseTuple(args, "OOLLy*LLipL:scan_chunks", &ws_obj, &mm_obj, &pos, &end, &mapsb,
+                          &file_budget, &slot_budget, &threads, &payloads, &max_chunk))
+        return NULL;
+    workspace_t *ws = PyCapsule_GetPointer(ws_obj, WORKSPACE);
+    if (ws == NULL) {
+        PyBuffer_Release(&mapsb);
+        return NULL;
+    }
+    PyObject *result = NULL;
+    chunk_t *chunks = NULL;
+    group_t *groups = NULL;
+    int64_t *rows = NULL, *acc = NULL, *stats = NULL;
+    int32_t *cidx = NULL;
+    long *ucid = NULL;
+    Py_ssize_t nu = 0;
+    unsigned char *packed = NULL;
+    Py_ssize_t nc = 0, capc = 0, ngr = 0, capg = 0, nrows = 0, n_out = 0, done = 0;
+    int64_t packed_size = 0;
+    int stop = SCAN_END, oom = 0;
+    long long next_pos = pos;
+    if (PyObject_GetBuffer(mm_obj, &mmb, PyBUF_C_CONTIGUOUS) != 0)
+        goto fail;
+    if (mapsb.len != 65536) {
+        PyErr_SetString(PyExc_ValueError, "maps must hold 65536 bytes");
+        goto fail;
+    }
+    if (codecs_state != 1) {
+        PyErr_SetString(PyExc_RuntimeError, "setup_codecs() has not found the codecs");
+        goto fail;
+    }
+    if (end > (long long)mmb.len)
+        end = (long long)mmb.len;
+    if (threads < 1)
+        threads = 1;
+    if (threads > SCAN_THREADS)
+        threads = SCAN_THREADS;
+    const unsigned char *mm = (const unsigned char *)mmb.buf;
+    const unsigned char *maps = (const unsigned char *)mapsb.buf;
+
+    Py_BEGIN_ALLOW_THREADS
+    /* 1. the run of chunks, their headers and indexes (reads only headers and indexes) */
+    int64_t p = pos, slot_fill = 0;
+    for (;;) {
+        if (p >= end) {
+            stop = SCAN_END;
+            break;
+        }
+        if (nc > 0 && (p - pos >= file_budget || slot_fill >= slot_budget)) {
+            stop = SCAN_BUDGET;
+            break;
+        }
+        if (end - p < 9 || mm[p] != OP_CHUNK) {
+            stop = SCAN_RECORD;
+            break;
+        }
+        uint64_t ln = le64(mm + p + 1);
+        int64_t c = p + 9;
+        if (ln > (uint64_t)(end - c)) {
+            stop = SCAN_RECORD;
+            break;
+        }
+        if (nc == capc) {
+            capc = capc ? 2 * capc : 256;
+            chunk_t *nw = realloc(chunks, (size_t)capc * sizeof(chunk_t));
+            if (nw == NULL) {
+                oom = 1;
+                break;
+            }
+            chunks = nw;
+        }
+        chunk_t *ch = chunks + nc;
+        memset(ch, 0, sizeof(*ch));
+        ch->rec = p;
+        int h = chunk_header(mm, c, (int64_t)ln, ch);
+        if (h == -2) {
+            stop = SCAN_OTHER;
+            break;
+        }
+        if (h != 0 || ch->usize > max_chunk) {
+            stop = SCAN_CHUNK;
+            break;
+        }
+        /* its MessageIndex records */
+        int64_t q = c + (int64_t)ln, entries = 0;
+        int bad = 0, wanted = 0;
+        ch->g0 = ngr;
+        while (end - q >= 9 && mm[q] == OP_MESSAGE_INDEX) {
+            uint64_t il = le64(mm + q + 1);
+            int64_t ic = q + 9;
+            if (il > (uint64_t)(end - ic) || il < 6) {
+                bad = 1;
+                break;
+            }
+            long cid = le16(mm + ic);
+            uint32_t n = (uint32_t)(mm[ic + 2] | (mm[ic + 3] << 8) | (mm[ic + 4] << 16) |
+                                    ((uint32_t)mm[ic + 5] << 24));
+            if ((uint64_t)n + 6 > il || n % 16) {
+                bad = 1;
+                break;
+            }
+            for (Py_ssize_t i = ch->g0; i < ngr; i++)
+                if (groups[i].cid == cid)
+                    bad = 1; /* a channel indexed twice: the reader's dict keeps the last */
+            if (bad)
+                break;
+            if (ngr == capg) {
+                capg = capg ? 2 * capg : 1024;
+                group_t *nw = realloc(groups, (size_t)capg * sizeof(group_t));
+                if (nw == NULL) {
+                    oom = 1;
+                    break;
+                }
+                groups = nw;
+            }
+            group_t *gr = groups + ngr++;
+            memset(gr, 0, sizeof(*gr));
+            gr->cid = cid;
+            gr->ent = (const uint64_t *)(mm + ic + 6);
+            gr->n = (Py_ssize_t)(n / 16);
+            gr->out_row = (maps[cid] & 1) ? 0 : -1; /* placed in step 2 */
+            entries += gr->n;
+            if ((maps[cid] & 1) && gr->n > 0)
+                wanted = 1;
+            q = ic + (int64_t)il;
+        }
+        if (oom)
+            break;
+        ch->ng = ngr - ch->g0;
+        if (bad || ch->ng == 0 || entries == 0) {
+            /* no index (the reader walks the records), a damaged one, or only empty ones */
+            ngr = ch->g0;
+            stop = (ch->ng == 0 && !bad) ? SCAN_OTHER : SCAN_CHUNK;
+            break;
+        }
+        if (!wanted) {
+            int any_wanted = 0;
+            for (Py_ssize_t i = ch->g0; i < ngr; i++)
+                any_wanted |= maps[groups[i].cid] & 1;
+            if (any_wanted) { /* a wanted channel with an empty index: the reader */
+                ngr = ch->g0;
+                stop = SCAN_CHUNK;
+                break;
+            }
+            ch->status = ST_SKIP;
+            ch->slot = -1;
+        } else {
+            ch->slot = slot_fill;
+            slot_fill += ch->usize;
+        }
+        nc++;
+        p = q;
+    }
+    next_pos = p;
+
+    /* 2. the channels of the run (ascending ids) and their rows: channel after channel,
+     *    each in chunk order */
+    if (!oom && nc > 0) {
+        cidx = malloc(65536 * sizeof(int32_t));
+        ucid = malloc((size_t)(ngr > 0 ? ngr : 1) * sizeof(long));
+        if (cidx == NULL || ucid == NULL)
+            oom = 1;
+    }
+    if (!oom && nc > 0) {
+        memset(cidx, 0xFF, 65536 * sizeof(int32_t));
+        for (Py_ssize_t i = 0; i < ngr; i++)
+            if (cidx[groups[i].cid] < 0) {
+                cidx[groups[i].cid] = 0;
+                ucid[nu++] = groups[i].cid;
+            }
+        qsort(ucid, (size_t)nu, sizeof(long), cmp_long);
+        for (Py_ssize_t j = 0; j < nu; j++)
+            cidx[ucid[j]] = (int32_t)j;
+        acc = calloc((size_t)(nu > 0 ? nu : 1), 10 * sizeof(int64_t));
+        if (acc == NULL)
+            oom = 1;
+    }
+    if (!oom && nc > 0) {
+        /* acc[10 j + 9]: rows of channel j so far */
+        for (Py_ssize_t k = 0; k < nc; k++)
+            for (Py_ssize_t i = chunks[k].g0; i < chunks[k].g0 + chunks[k].ng; i++) {
+                if (chunks[k].status == ST_SKIP)
+                    groups[i].out_row = -1;
+                else if (groups[i].out_row >= 0)
+                    acc[10 * cidx[groups[i].cid] + 9] += groups[i].n;
+            }
+        int64_t total = 0;
+        for (Py_ssize_t j = 0; j < nu; j++) {
+            int64_t k = acc[10 * j + 9];
+            acc[10 * j + 9] = total;
+            total += k;
+        }
+        nrows = (Py_ssize_t)total;
+        for (Py_ssize_t k = 0; k < nc; k++)
+            for (Py_ssize_t i = chunks[k].g0; i < chunks[k].g0 + chunks[k].ng; i++) {
+                if (groups[i].out_row < 0)
+                    continue;
+                int64_t *r = acc + 10 * cidx[groups[i].cid] + 9;
+                groups[i].out_row = (Py_ssize_t)*r;
+                *r += groups[i].n;
+            }
+        memset(acc, 0, (size_t)nu * 10 * sizeof(int64_t));
+        rows = malloc((size_t)(nrows > 0 ? nrows : 1) * 24);
+        if (rows == NULL)
+            oom = 1;
+    }
+
+    /* 3. decompress, check and walk, on ``threads`` threads */
+    if (!oom && nc > 0) {
+        scan_t s = {mm, chunks, nc, groups, rows, payloads, maps, ws, 0, 0};
+        pthread_t tid[SCAN_THREADS];
+        int started = 0;
+        for (int t = 1; t < threads && t < SCAN_THREADS; t++)
+            if (pthread_create(&tid[started], NULL, scan_worker, &s) == 0)
+                started++;
+        scan_worker(&s);
+        for (int t = 0; t < started; t++)
+            pthread_join(tid[t], NULL);
+    }
+
+    /* 4. the chunks read (up to the first left to the reader), per channel */
+    if (!oom && nc > 0) {
+        while (done < nc && chunks[done].status != ST_FAIL)
+            done++;
+        if (done < nc) {
+            stop = SCAN_CHUNK;
+            next_pos = chunks[done].rec;
+        }
+        /* per channel j, acc[10 j ...]: count, lo, hi, min and max length, first row (-1:
+         * none wanted), rows, packed start, payload bytes, packed fill */
+        for (Py_ssize_t k = 0; k < done; k++) {
+            for (Py_ssize_t i = chunks[k].g0; i < chunks[k].g0 + chunks[k].ng; i++) {
+                group_t *g = groups + i;
+                if (g->n == 0)
+                    continue;
+                int64_t lo, hi;
+                if (chunks[k].status == ST_SKIP) {
+                    lo = hi = as_i64(le64((const unsigned char *)(g->ent)));
+                    for (Py_ssize_t j = 1; j < g->n; j++) {
+                        int64_t t = as_i64(le64((const unsigned char *)(g->ent + 2 * j)));
+                        if (t < lo)
+                            lo = t;
+                        if (t > hi)
+                            hi = t;
+                    }
+                } else {
+                    lo = g->lo;
+                    hi = g->hi;
+                }
+                int64_t *a = acc + 10 * cidx[g->cid];
+                if (a[0] == 0) {
+                    a[1] = lo;
+                    a[2] = hi;
+                    a[5] = -1;
+                }
+                a[0] += g->n;
+                if (lo < a[1])
+                    a[1] = lo;
+                if (hi > a[2])
+                    a[2] = hi;
+                if (g->out_row < 0)
+                    continue;
+                if (a[5] < 0) {
+                    a[3] = g->min_len;
+                    a[4] = g->max_len;
+                    a[5] = g->out_row;
+                }
+                if (g->min_len < a[3])
+                    a[3] = g->min_len;
+                if (g->max_len > a[4])
+                    a[4] = g->max_len;
+                a[6] += g->n;
+                a[8] += (int64_t)g->bytes;
+            }
+        }
+        for (Py_ssize_t j = 0; j < nu; j++) {
+            int64_t *a = acc + 10 * j;
+            if (a[0] == 0)
+                continue;
+            n_out++;
+            if (a[5] >= 0) {
+                a[7] = packed_size;
+                packed_size += a[8];
+            }
+        }
+        stats = malloc((size_t)(n_out > 0 ? n_out : 1) * 9 * sizeof(int64_t));
+        if (payloads)
+            packed = malloc((size_t)(packed_size > 0 ? packed_size : 1));
+        if (stats == NULL || (payloads && packed == NULL))
+            oom = 1;
+        /* the payloads, channel after channel, in chunk order; the rows then point there */
+        for (Py_ssize_t k = 0; !oom && payloads && k < done; k++) {
+            if (chunks[k].status == ST_SKIP)
+                continue;
+            for (Py_ssize_t i = chunks[k].g0; i < chunks[k].g0 + chunks[k].ng; i++) {
+                group_t *g = groups + i;
+                if (g->out_row < 0 || g->n == 0)
+                    continue;
+                int64_t *a = acc + 10 * cidx[g->cid];
+                int64_t at = a[7] + a[9];
+                memcpy(packed + at, ws->w[chunks[k].arena].arena + g->pay_at, (size_t)g->bytes);
+                for (Py_ssize_t j = 0; j < g->n; j++) {
+                    int64_t *o = rows + 3 * (g->out_row + j);
+                    o[0] = at;
+                    at += o[2] - 22;
+                }
+                a[9] += (int64_t)g->bytes;
+            }
+        }
+        Py_ssize_t w = 0;
+        for (Py_ssize_t j = 0; !oom && j < nu; j++) {
+            int64_t *a = acc + 10 * j;
+            if (a[0] == 0)
+                continue;
+            int64_t *o = stats + 9 * w++;
+            int has = a[5] >= 0;
+            o[0] = ucid[j];
+            o[1] = a[0];
+            o[2] = a[1];
+            o[3] = a[2];
+            o[4] = has ? a[3] : 0;
+            o[5] = has ? a[4] : 0;
+            o[6] = has ? a[5] : 0;
+            o[7] = has ? a[6] : 0;
+            o[8] = has ? a[7] : 0;
+        }
+    }
+    Py_END_ALLOW_THREADS
+
+    if (oom) {
+        PyErr_NoMemory();
+        goto fail;
+    }
+    {
+        PyObject *rows_b = PyBytes_FromStringAndSize((const char *)rows, rows ? (Py_ssize_t)nrows * 24 : 0);
+        PyObject *packed_b = payloads ? PyBytes_FromStringAndSize((const char *)packed, packed ? (Py_ssize_t)packed_size : 0)
+                                      : (Py_INCREF(Py_None), Py_None);
+        PyObject *stats_b = PyBytes_FromStringAndSize((const char *)stats, stats ? (Py_ssize_t)n_out * 72 : 0);
+        if (rows_b && packed_b && stats_b)
+            result = Py_BuildValue("iLnNNN", stop, next_pos, done, rows_b, packed_b, stats_b);
+        else {
+            Py_XDECREF(rows_b);
+            Py_XDECREF(packed_b);
+            Py_XDECREF(stats_b);
+        }
+    }
+fail:
+    free(chunks);
+    free(groups);
+    free(rows);
+    free(packed);
+    free(stats);
+    free(acc);
+    free(cidx);
+    free(ucid);
+    if (mmb.obj)
+        PyBuffer_Release(&mmb);
+    PyBuffer_Release(&mapsb);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"match_chunk", match_chunk, METH_VARARGS, match_chunk_doc},
+    {"setup_codecs", setup_codecs, METH_VARARGS, setup_codecs_doc},
+    {"crc32", crc32_py, METH_VARARGS, crc32_doc},
+    {"scan_chunks", scan_chunks, METH_VARARGS, scan_chunks_doc},
+    {"scan_workspace", scan_workspace, METH_NOARGS, scan_workspace_doc},
     {NULL, NULL, 0, NULL},
 };
 

@@ -22,3 +22,29 @@ def match_chunk(
     -1). Returns (code, Schema/Channel records found): code 0 = the index is right. With
     ``payload``, the wanted payloads are copied there (``out`` rows then give their place).
     """
+
+def setup_codecs(crc_library: str | None, /) -> bool:
+    """Find libzstd's decompressor and a CRC-32 (ISA-L's in ``crc_library``, else zlib's)
+    for :func:`scan_chunks`; False when they are missing. Asked once per process."""
+
+def crc32(data: Any, /) -> int:
+    """The CRC-32 :func:`scan_chunks` checks chunks with (equal to ``zlib.crc32``)."""
+
+def scan_workspace() -> object:
+    """The buffers :func:`scan_chunks`' threads keep from call to call (one per reader)."""
+
+def scan_chunks(
+    workspace: object,
+    mm: Any,
+    pos: int,
+    end: int,
+    maps: bytes,
+    file_budget: int,
+    slot_budget: int,
+    threads: int,
+    payloads: bool,
+    max_chunk: int,
+    /,
+) -> tuple[int, int, int, bytes, bytes | None, bytes]:
+    """Read the run of chunks from byte ``pos`` (see _mcapwalk.c): (stop reason, where the
+    reader goes on, chunks read, rows, packed payloads, per-channel table)."""

@@ -83,6 +83,36 @@ except ImportError:  # pragma: no cover - installs without a C compiler: the num
 USE_MATCH = _mcapwalk is not None and not os.environ.get("UWVAL_NO_ACCELERATOR")
 #: Schema/Channel records a chunk may hold for the C walk (more: the numpy check reads it)
 MATCH_TABLES = 256
+#: Whether runs of chunks are read by one C call each (``_mcapwalk.scan_chunks``: zstd and
+#: the CRC from C, on POSIX threads, no GIL hand-over per chunk); needs the C walk and
+#: libzstd (found at the first read). The batched path below reads the rest (lz4 chunks,
+#: chunks without index, logs without summary) and every chunk the C call leaves to it.
+USE_SCAN = USE_MATCH
+#: file bytes a C call reads at most (their map pages are dropped from RSS after each call)
+SCAN_FILE_BYTES = 4 << 20
+#: decompressed bytes of wanted chunks a C call reads at most (a slot each for their
+#: wanted payloads: only those pages are touched)
+SCAN_SLOT_BYTES = 32 << 20
+#: scan_chunks' reasons to stop (see _mcapwalk.c): the chunk at next_pos is for the batched
+#: path (damaged, odd, new tables), or of a kind the C call never reads (the rest of the
+#: file then goes to the batched path)
+SCAN_CHUNK, SCAN_OTHER = 3, 4
+_codecs: list[bool] = []
+
+
+def _scan_ready() -> bool:
+    """Whether the C run reader found zstd and a CRC-32 (asked once per process)."""
+    if not _codecs:
+        lib = None
+        try:
+            import isal.isal_zlib
+
+            lib = isal.isal_zlib.__file__
+        except ImportError:  # pragma: no cover - isal is a dependency
+            pass
+        _codecs.append(bool(_mcapwalk is not None and _mcapwalk.setup_codecs(lib)))
+    return _codecs[0]
+
 
 _MSG = struct.Struct("<HIQQ")
 #: decompressed bytes of chunks read together (see ``_Scanner.queue``): a few MB keeps the
@@ -266,6 +296,13 @@ class _Scanner:
         #: the batch being filled: each chunk's (header, records slot, walk plan)
         self.work: list[tuple[ChunkHeader, np.ndarray, _Matched | None]] = []
         self.local = threading.local()  # each inflate thread's chunk buffer (_scratch)
+        #: runs of chunks go to the C call (logs with a summary: it tells which chunks hold
+        #: no wanted channel); ``scan_skip``: a chunk it left to the batched path
+        self.scan = USE_SCAN and self.summary is not None and _scan_ready()
+        self.scan_skip = -1
+        self.scan_threads = 0
+        self.scan_maps: tuple[int, int, bytes] | None = None
+        self.scan_ws: object = None  # the C threads' buffers, kept from call to call
 
     def builder(self, cid: int) -> TopicBuilder | None:
         """The builder of channel ``cid`` when its topic is wanted (``None`` otherwise)."""
@@ -328,6 +365,11 @@ class _Scanner:
                 pos = nxt
                 continue
             if op == OP_CHUNK:
+                if self.scan and pos != self.scan_skip:
+                    nxt = self._scan(pos, end)
+                    if nxt is not None:
+                        pos = nxt
+                        continue
                 pending = (pos, c, ln)
             elif op == OP_MESSAGE_INDEX and ln >= 6:
                 (cid,) = U16.unpack_from(mm, c)
@@ -376,6 +418,80 @@ class _Scanner:
             n = 0 if self.times_only else ln - 22
             data = np.frombuffer(bytes(self.mm[c + 22 : c + 22 + n]), dtype=np.uint8)
             bld.add(data, np.zeros(1, np.int64), np.array([n], np.int64), t, copy=False)
+
+    # ------------------------------------------------------------------ runs of chunks (C)
+    def _maps(self) -> bytes:
+        """Per channel / schema id (one byte each, for ``scan_chunks``): 1 the channel is
+        wanted or not known yet (a Channel record in its chunk may name it), 2 a known
+        channel, 4 a known schema."""
+        key = (len(self.tables.channels), len(self.tables.schemas))
+        if self.scan_maps is None or self.scan_maps[:2] != key:
+            m = np.ones(65536, dtype=np.uint8)
+            for cid, ch in self.tables.channels.items():
+                want = self.want is None or norm_topic(ch.topic) in self.want
+                m[cid] = 3 if want else 2
+            if self.tables.schemas:
+                m[list(self.tables.schemas)] |= 4
+            self.scan_maps = (*key, m.tobytes())
+        return self.scan_maps[2]
+
+    def _scan(self, pos: int, end: int) -> int | None:
+        """Read the run of chunks from ``pos`` on by ``_mcapwalk.scan_chunks``; where the
+        reader goes on, or None when the C call read nothing (the chunk at ``pos`` is then
+        read by the batched path)."""
+        assert _mcapwalk is not None
+        if self.batch or self.sealed:
+            self.flush()  # chunks are read in file order
+        if not self.scan_threads:
+            from uwval.cpus import second_cpu_free
+
+            self.scan_threads = 2 if second_cpu_free() else 1
+        if self.scan_ws is None:
+            self.scan_ws = _mcapwalk.scan_workspace()
+        stop, nxt, n, rows, packed, stats = _mcapwalk.scan_chunks(
+            self.scan_ws,
+            self.mm,
+            pos,
+            end,
+            self._maps(),
+            SCAN_FILE_BYTES,
+            SCAN_SLOT_BYTES,
+            self.scan_threads,
+            not self.times_only,
+            BATCH_MAX,
+        )
+        if n:
+            self._from_scan(rows, packed, stats)
+            self.released = release_pages(self.mm, self.released, nxt)
+        if stop == SCAN_OTHER:
+            self.scan = False
+        elif stop == SCAN_CHUNK:
+            self.scan_skip = nxt
+        return nxt if n else None
+
+    def _from_scan(self, rows: bytes, packed: bytes | None, stats: bytes) -> None:
+        """Add what one ``scan_chunks`` call read: per channel (id, count, log-time span,
+        min and max record length, its rows; ``packed`` holds its payloads end to end)."""
+        per = np.frombuffer(stats, dtype=np.int64).reshape(-1, 9)
+        recs = np.frombuffer(rows, dtype=np.int64).reshape(-1, 3)
+        buf = np.frombuffer(packed, dtype=np.uint8) if packed is not None else None
+        for cid, count, lo, hi, len_lo, len_hi, r0, nr, at in per.tolist():
+            self.tables.seen_span(cid, count, lo, hi)
+            b = self.builder(cid) if nr else None
+            if b is None:
+                continue
+            r = recs[r0 : r0 + nr]
+            log_time = r[:, 1].copy()  # not a view: it would keep every row alive
+            if buf is None:
+                z = np.zeros(nr, np.int64)
+                b.add(np.empty(0, np.uint8), z, z, log_time, copy=False)
+                continue
+            width = len_lo - 22
+            if width > 0 and len_lo == len_hi:
+                # one payload length (a pose topic): the rows lie end to end
+                b.take_blocks(buf, [(at, nr)], width, log_time)
+            else:
+                b.add(buf, r[:, 0], r[:, 2] - 22, log_time)
 
     # ------------------------------------------------------------------ chunks
     def _entries(self, indexes: dict[int, tuple[int, int]]) -> dict[int, np.ndarray] | None:
