@@ -238,3 +238,54 @@ def test_a_chunk_whose_size_is_wrong_mid_batch(
     assert len(batched.warnings) == 1
     assert f"MCAP chunk at byte {start}" in batched.warnings[0]
     _same(batched, _scan(log, 0, monkeypatch))
+
+
+def test_a_log_cut_in_its_last_chunk_keeps_file_order(
+    log: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The decompressible prefix of a chunk cut off by the end of the file is read after the
+    chunks queued before it (it once went first: its messages led every topic)."""
+    chunks = _chunks(log)
+    start, offsets = chunks[-1]
+    data = log.read_bytes()
+    cut = start + (min(offsets.values()) - start) * 9 // 10
+    log.write_bytes(data[:cut])  # the last chunk cut, no summary
+    batched = _scan(log, mcap_raw.BATCH_BYTES, monkeypatch)
+    assert batched.unclean
+    if b"zstd" not in data[:4096] and b"lz4" not in data[:4096]:
+        # a stored chunk's prefix gives messages (one compressed block gives none)
+        assert "recovered 0 message" not in batched.cut_detail, batched.cut_detail
+    for name, topic in batched.raw.items():
+        assert (np.diff(topic.log_time) >= 0).all(), name  # written in time order
+    _same(batched, _scan(log, 0, monkeypatch))
+
+
+def test_message_indexes_of_a_lost_chunk_are_not_the_next_chunks(
+    log: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A Chunk record damaged into another opcode is passed over; its MessageIndex records
+    are then nobody's (they once joined the next chunk's, ahead of its own)."""
+    chunks = _chunks(log)
+    k = next(
+        i
+        for i in range(1, len(chunks) - 1)
+        if sorted(chunks[i][1], key=chunks[i][1].get)
+        != sorted(chunks[i + 1][1], key=chunks[i + 1][1].get)
+    )
+    data = bytearray(log.read_bytes())
+    data[chunks[k][0]] = 0x0C  # a Metadata record now (of the chunk's length)
+    log.write_bytes(bytes(data))
+    seen: dict[int, list[int]] = {}
+    queue = mcap_raw._Scanner.queue
+
+    def recording(self: mcap_raw._Scanner, rec: int, c: int, ln: int, indexes: dict) -> None:
+        seen[rec] = list(indexes)
+        queue(self, rec, c, ln, indexes)
+
+    monkeypatch.setattr(mcap_raw._Scanner, "queue", recording)
+    monkeypatch.setattr(mcap_raw, "USE_SCAN", False)  # every chunk through queue()
+    batched = _scan(log, mcap_raw.BATCH_BYTES, monkeypatch)
+    nxt, offsets = chunks[k + 1]
+    assert seen[nxt] == sorted(offsets, key=offsets.get)  # its own, in file order
+    assert any("summary counts" in w for w in batched.warnings)  # the lost chunk's messages
+    _same(batched, _scan(log, 0, monkeypatch))

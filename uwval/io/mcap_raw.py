@@ -343,6 +343,8 @@ class _Scanner:
                     self.released = release_pages(mm, self.released, pos)
             if op not in (OP_CHUNK, OP_MESSAGE_INDEX) and (self.batch or self.sealed):
                 self.flush()  # records between chunks apply in file order
+            if (op == 0 or op > 0x20 or c + ln > end) and (self.batch or self.sealed):
+                self.flush()  # the queued chunks come first: their messages and warnings
             if op == OP_CHUNK and c + ln > size and self.summary is None:
                 self.partial_chunk(pos, c)
                 self.lost = size - pos
@@ -370,8 +372,10 @@ class _Scanner:
                     if nxt is not None:
                         pos = nxt
                         continue
-                pending = (pos, c, ln)
-            elif op == OP_MESSAGE_INDEX and ln >= 6:
+                # a chunk's own MessageIndex records follow it (ones whose chunk was lost
+                # to damage are not this chunk's)
+                pending, indexes = (pos, c, ln), {}
+            elif op == OP_MESSAGE_INDEX and ln >= 6 and pending is not None:
                 (cid,) = U16.unpack_from(mm, c)
                 (n,) = U32.unpack_from(mm, c + 2)
                 indexes[cid] = (c + 6, n if 6 + n <= ln else -1)
