@@ -322,6 +322,8 @@ done:
  * record and says why, and the reader reads from there its own way (which reports damage).
  * ------------------------------------------------------------------------------------------ */
 #include <dlfcn.h>
+#include <sys/mman.h>
+#include <unistd.h>
 #include <pthread.h>
 #include <stdlib.h>
 
@@ -661,16 +663,19 @@ PyDoc_STRVAR(scan_chunks_doc,
 "a record: payload start in ``packed``, log time, record length), ``packed`` (the wanted\n"
 "payloads, channel after channel, each in file order; None without ``payloads``), and\n"
 "``per_channel`` (int64, nine a channel: id, count, min and max log time, min and max record\n"
-"length of its wanted records, first row, rows, first packed byte).");
+"length of its wanted records, first row, rows, first packed byte). With ``drop_from`` and\n"
+"``drop_to`` (page-aligned offsets), the map pages between them are dropped from the\n"
+"process's RSS (MADV_DONTNEED) while the other threads start.");
 
 static PyObject *scan_chunks(PyObject *self, PyObject *args) {
     (void)self;
     PyObject *ws_obj, *mm_obj;
     Py_buffer mmb = {0}, mapsb = {0};
-    long long pos, end, file_budget, slot_budget, max_chunk;
+    long long pos, end, file_budget, slot_budget, max_chunk, drop_from = 0, drop_to = 0;
     int threads, payloads;
-    if (!PyArg_ParseTuple(args, "OOLLy*LLipL:scan_chunks", &ws_obj, &mm_obj, &pos, &end, &mapsb,
-                          &file_budget, &slot_budget, &threads, &payloads, &max_chunk))
+    if (!PyArg_ParseTuple(args, "OOLLy*LLipL|LL:scan_chunks", &ws_obj, &mm_obj, &pos, &end,
+                          &mapsb, &file_budget, &slot_budget, &threads, &payloads, &max_chunk,
+                          &drop_from, &drop_to))
         return NULL;
     workspace_t *ws = PyCapsule_GetPointer(ws_obj, WORKSPACE);
     if (ws == NULL) {
@@ -883,6 +888,13 @@ static PyObject *scan_chunks(PyObject *self, PyObject *args) {
         for (int t = 1; t < threads && t < SCAN_THREADS; t++)
             if (pthread_create(&tid[started], NULL, scan_worker, &s) == 0)
                 started++;
+        /* while the other threads start on the run: the map pages of what earlier calls
+         * read leave this process's RSS (dropping them is a page-table walk per page:
+         * done here it overlaps the decompression instead of following it) */
+        long page = sysconf(_SC_PAGESIZE);
+        if (page > 0 && drop_from >= 0 && drop_to <= (long long)mmb.len && drop_to > drop_from &&
+            drop_from % page == 0 && drop_to % page == 0)
+            madvise((void *)(mm + drop_from), (size_t)(drop_to - drop_from), MADV_DONTNEED);
         scan_worker(&s);
         for (int t = 0; t < started; t++)
             pthread_join(tid[t], NULL);

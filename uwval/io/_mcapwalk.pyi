@@ -44,6 +44,8 @@ def scan_chunks(
     threads: int,
     payloads: bool,
     max_chunk: int,
+    drop_from: int = 0,
+    drop_to: int = 0,
     /,
 ) -> tuple[int, int, int, bytes, bytes | None, bytes]:
     """Read the run of chunks from byte ``pos`` (see _mcapwalk.c): (stop reason, where the

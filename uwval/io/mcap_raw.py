@@ -89,14 +89,14 @@ MATCH_TABLES = 256
 #: chunks without index, logs without summary) and every chunk the C call leaves to it.
 USE_SCAN = USE_MATCH
 #: file bytes a C call reads at most (their map pages are dropped from RSS after each call)
-SCAN_FILE_BYTES = 4 << 20
+SCAN_FILE_BYTES = 8 << 20
 #: decompressed bytes of wanted chunks a C call reads at most (a slot each for their
 #: wanted payloads: only those pages are touched)
-SCAN_SLOT_BYTES = 32 << 20
-#: scan_chunks' reasons to stop (see _mcapwalk.c): the chunk at next_pos is for the batched
-#: path (damaged, odd, new tables), or of a kind the C call never reads (the rest of the
-#: file then goes to the batched path)
-SCAN_CHUNK, SCAN_OTHER = 3, 4
+SCAN_SLOT_BYTES = 8 << 20
+#: scan_chunks' reasons to stop (see _mcapwalk.c): the run is full (the next call goes on),
+#: the chunk at next_pos is for the batched path (damaged, odd, new tables, too large), or
+#: of a kind the C call never reads (the rest of the file then goes to the batched path)
+SCAN_BUDGET, SCAN_CHUNK, SCAN_OTHER = 2, 3, 4
 _codecs: list[bool] = []
 
 
@@ -452,6 +452,11 @@ class _Scanner:
             self.scan_threads = 2 if second_cpu_free() else 1
         if self.scan_ws is None:
             self.scan_ws = _mcapwalk.scan_workspace()
+        # the map pages read by earlier calls are dropped by this one, while it decompresses
+        # (release_pages' rule: whole pages, from the last release on, 2 MB at least)
+        start = self.released - self.released % mmap.PAGESIZE
+        stop_at = pos - pos % mmap.PAGESIZE
+        drop = (start, stop_at) if stop_at - start >= 2 << 20 else ()
         stop, nxt, n, rows, packed, stats = _mcapwalk.scan_chunks(
             self.scan_ws,
             self.mm,
@@ -463,9 +468,13 @@ class _Scanner:
             self.scan_threads,
             not self.times_only,
             BATCH_MAX,
+            *drop,
         )
+        if drop:
+            self.released = drop[1]
         if n:
             self._from_scan(rows, packed, stats)
+        if stop != SCAN_BUDGET:  # the reader goes on from here: what was read may go
             self.released = release_pages(self.mm, self.released, nxt)
         if stop == SCAN_OTHER:
             self.scan = False
