@@ -19,7 +19,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 
 import io_loggen as gen
 
-from uwval.io import mcap_raw
+from uwval.io import mcap_raw, mcap_runs
 from uwval.io.raw import RawLog
 
 TOPICS = ["/gazebo/model_rov_pose", "/unity/model_rov_pose", "/tf", "/camera/image_raw/compressed"]
@@ -34,7 +34,7 @@ def mode(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str
         if os.environ.get("UWVAL_REQUIRE_ACCELERATOR"):
             pytest.fail("uwval.io._mcapwalk was not built (UWVAL_REQUIRE_ACCELERATOR is set)")
         pytest.skip("the C accelerator uwval.io._mcapwalk is not built here")
-    if request.param == "scan" and not mcap_raw._scan_ready():
+    if request.param == "scan" and not mcap_runs.scan_ready():
         if os.environ.get("UWVAL_REQUIRE_ACCELERATOR"):
             pytest.fail("scan_chunks found no zstd (UWVAL_REQUIRE_ACCELERATOR is set)")
         pytest.skip("libzstd.so.1 is not on this machine: no C run reader")

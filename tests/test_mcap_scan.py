@@ -23,7 +23,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 import io_loggen as gen
 
 from uwval.errors import LogReadError
-from uwval.io import mcap_raw
+from uwval.io import mcap_raw, mcap_runs
 from uwval.io.raw import RawLog
 
 TOPICS = ["/gazebo/model_rov_pose", "/unity/model_rov_pose", "/tf", "/camera/image_raw/compressed"]
@@ -31,7 +31,7 @@ TOPICS = ["/gazebo/model_rov_pose", "/unity/model_rov_pose", "/tf", "/camera/ima
 
 @pytest.fixture(autouse=True)
 def scan_ready() -> None:
-    if mcap_raw._mcapwalk is None or not mcap_raw._scan_ready():
+    if mcap_raw._mcapwalk is None or not mcap_runs.scan_ready():
         if os.environ.get("UWVAL_REQUIRE_ACCELERATOR"):
             pytest.fail("the C run reader is not available (UWVAL_REQUIRE_ACCELERATOR is set)")
         pytest.skip("no C run reader here (uwval.io._mcapwalk or libzstd.so.1 missing)")

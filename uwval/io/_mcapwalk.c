@@ -649,7 +649,8 @@ static int chunk_header(const unsigned char *mm, int64_t c, int64_t ln, chunk_t 
 
 PyDoc_STRVAR(scan_chunks_doc,
 "scan_chunks(workspace, mm, pos, end, maps, file_budget, slot_budget, threads, payloads,\n"
-"            max_chunk) -> (stop, next_pos, n_chunks, rows, packed, per_channel)\n\n"
+"            max_chunk[, drop_from, drop_to, whole])\n"
+"    -> (stop, next_pos, n_chunks, rows, packed, per_channel)\n\n"
 "Read the run of complete Chunk records (each with its MessageIndex records) that starts\n"
 "at byte ``pos`` of the MCAP file ``mm``, up to byte ``end`` (the summary), on ``threads``\n"
 "threads with the GIL released. ``maps`` (65536 bytes, one per id): bit 1 the channel is\n"
@@ -665,24 +666,26 @@ PyDoc_STRVAR(scan_chunks_doc,
 "``per_channel`` (int64, nine a channel: id, count, min and max log time, min and max record\n"
 "length of its wanted records, first row, rows, first packed byte). With ``drop_from`` and\n"
 "``drop_to`` (page-aligned offsets), the map pages between them are dropped from the\n"
-"process's RSS (MADV_DONTNEED) while the other threads start.");
+"process's RSS (MADV_DONTNEED) while the other threads start. With ``whole``, run follows\n"
+"run until one stops for another reason than the budget, each dropping the pages read\n"
+"before it (``drop_from``: where the last drop ended), all with the GIL released; the\n"
+"result is then the list of the runs' tuples.");
 
-static PyObject *scan_chunks(PyObject *self, PyObject *args) {
-    (void)self;
-    PyObject *ws_obj, *mm_obj;
-    Py_buffer mmb = {0}, mapsb = {0};
-    long long pos, end, file_budget, slot_budget, max_chunk, drop_from = 0, drop_to = 0;
-    int threads, payloads;
-    if (!PyArg_ParseTuple(args, "OOLLy*LLipL|LL:scan_chunks", &ws_obj, &mm_obj, &pos, &end,
-                          &mapsb, &file_budget, &slot_budget, &threads, &payloads, &max_chunk,
-                          &drop_from, &drop_to))
-        return NULL;
-    workspace_t *ws = PyCapsule_GetPointer(ws_obj, WORKSPACE);
-    if (ws == NULL) {
-        PyBuffer_Release(&mapsb);
-        return NULL;
-    }
-    PyObject *result = NULL;
+typedef struct {
+    int stop, oom;
+    long long next_pos;
+    Py_ssize_t done, nrows, n_out;
+    int64_t *rows, *stats;
+    unsigned char *packed;
+    int64_t packed_size;
+} run_t;
+
+/* One run of chunks from ``pos`` (see scan_chunks); called without the GIL. The caller
+ * frees out->rows, out->packed and out->stats. */
+static void scan_run(const unsigned char *mm, Py_ssize_t mm_len, const unsigned char *maps,
+                     workspace_t *ws, long long pos, long long end, long long file_budget,
+                     long long slot_budget, int threads, int payloads, long long max_chunk,
+                     long long drop_from, long long drop_to, run_t *out) {
     chunk_t *chunks = NULL;
     group_t *groups = NULL;
     int64_t *rows = NULL, *acc = NULL, *stats = NULL;
@@ -694,26 +697,6 @@ static PyObject *scan_chunks(PyObject *self, PyObject *args) {
     int64_t packed_size = 0;
     int stop = SCAN_END, oom = 0;
     long long next_pos = pos;
-    if (PyObject_GetBuffer(mm_obj, &mmb, PyBUF_C_CONTIGUOUS) != 0)
-        goto fail;
-    if (mapsb.len != 65536) {
-        PyErr_SetString(PyExc_ValueError, "maps must hold 65536 bytes");
-        goto fail;
-    }
-    if (codecs_state != 1) {
-        PyErr_SetString(PyExc_RuntimeError, "setup_codecs() has not found the codecs");
-        goto fail;
-    }
-    if (end > (long long)mmb.len)
-        end = (long long)mmb.len;
-    if (threads < 1)
-        threads = 1;
-    if (threads > SCAN_THREADS)
-        threads = SCAN_THREADS;
-    const unsigned char *mm = (const unsigned char *)mmb.buf;
-    const unsigned char *maps = (const unsigned char *)mapsb.buf;
-
-    Py_BEGIN_ALLOW_THREADS
     /* 1. the run of chunks, their headers and indexes (reads only headers and indexes) */
     int64_t p = pos, slot_fill = 0;
     for (;;) {
@@ -892,7 +875,7 @@ static PyObject *scan_chunks(PyObject *self, PyObject *args) {
          * read leave this process's RSS (dropping them is a page-table walk per page:
          * done here it overlaps the decompression instead of following it) */
         long page = sysconf(_SC_PAGESIZE);
-        if (page > 0 && drop_from >= 0 && drop_to <= (long long)mmb.len && drop_to > drop_from &&
+        if (page > 0 && drop_from >= 0 && drop_to <= (long long)mm_len && drop_to > drop_from &&
             drop_from % page == 0 && drop_to % page == 0)
             madvise((void *)(mm + drop_from), (size_t)(drop_to - drop_from), MADV_DONTNEED);
         scan_worker(&s);
@@ -1007,34 +990,155 @@ static PyObject *scan_chunks(PyObject *self, PyObject *args) {
             o[8] = has ? a[7] : 0;
         }
     }
+    free(chunks);
+    free(groups);
+    free(acc);
+    free(cidx);
+    free(ucid);
+    if (oom) {
+        free(rows);
+        free(packed);
+        free(stats);
+        rows = stats = NULL;
+        packed = NULL;
+    }
+    out->stop = stop;
+    out->oom = oom;
+    out->next_pos = next_pos;
+    out->done = done;
+    out->nrows = nrows;
+    out->n_out = n_out;
+    out->rows = rows;
+    out->stats = stats;
+    out->packed = packed;
+    out->packed_size = packed_size;
+}
+
+static PyObject *run_tuple(const run_t *r, int payloads) {
+    PyObject *rows_b = PyBytes_FromStringAndSize((const char *)r->rows, r->rows ? (Py_ssize_t)r->nrows * 24 : 0);
+    PyObject *packed_b = NULL;
+    if (payloads)
+        packed_b = PyBytes_FromStringAndSize((const char *)r->packed, r->packed ? (Py_ssize_t)r->packed_size : 0);
+    else {
+        Py_INCREF(Py_None);
+        packed_b = Py_None;
+    }
+    PyObject *stats_b = PyBytes_FromStringAndSize((const char *)r->stats, r->stats ? (Py_ssize_t)r->n_out * 72 : 0);
+    if (rows_b && packed_b && stats_b)
+        return Py_BuildValue("iLnNNN", r->stop, r->next_pos, r->done, rows_b, packed_b, stats_b);
+    Py_XDECREF(rows_b);
+    Py_XDECREF(packed_b);
+    Py_XDECREF(stats_b);
+    return NULL;
+}
+
+#define DROP_EVERY (2 << 20) /* as uwval.io.mcap_runs.DROP_EVERY */
+
+static PyObject *scan_chunks(PyObject *self, PyObject *args) {
+    (void)self;
+    PyObject *ws_obj, *mm_obj;
+    Py_buffer mmb = {0}, mapsb = {0};
+    long long pos, end, file_budget, slot_budget, max_chunk, drop_from = 0, drop_to = 0;
+    int threads, payloads, whole = 0;
+    if (!PyArg_ParseTuple(args, "OOLLy*LLipL|LLp:scan_chunks", &ws_obj, &mm_obj, &pos, &end,
+                          &mapsb, &file_budget, &slot_budget, &threads, &payloads, &max_chunk,
+                          &drop_from, &drop_to, &whole))
+        return NULL;
+    workspace_t *ws = PyCapsule_GetPointer(ws_obj, WORKSPACE);
+    if (ws == NULL) {
+        PyBuffer_Release(&mapsb);
+        return NULL;
+    }
+    PyObject *result = NULL;
+    run_t *runs = NULL;
+    Py_ssize_t nr = 0, capr = 0;
+    int oom = 0;
+    if (PyObject_GetBuffer(mm_obj, &mmb, PyBUF_C_CONTIGUOUS) != 0)
+        goto fail;
+    if (mapsb.len != 65536) {
+        PyErr_SetString(PyExc_ValueError, "maps must hold 65536 bytes");
+        goto fail;
+    }
+    if (codecs_state != 1) {
+        PyErr_SetString(PyExc_RuntimeError, "setup_codecs() has not found the codecs");
+        goto fail;
+    }
+    if (end > (long long)mmb.len)
+        end = (long long)mmb.len;
+    if (threads < 1)
+        threads = 1;
+    if (threads > SCAN_THREADS)
+        threads = SCAN_THREADS;
+    const unsigned char *mm = (const unsigned char *)mmb.buf;
+    const unsigned char *maps = (const unsigned char *)mapsb.buf;
+
+    Py_BEGIN_ALLOW_THREADS
+    /* whole: run after run up to the first stop that is not the budget, each dropping the
+     * map pages read before it (DROP_EVERY at least), ``drop_from`` being where the last
+     * drop ended; one GIL hand-over for all of them */
+    long page = sysconf(_SC_PAGESIZE);
+    long long released = drop_from;
+    for (;;) {
+        if (nr == capr) {
+            capr = capr ? 2 * capr : 16;
+            run_t *nw = realloc(runs, (size_t)capr * sizeof(run_t));
+            if (nw == NULL) {
+                oom = 1;
+                break;
+            }
+            runs = nw;
+        }
+        long long df = drop_from, dt = drop_to;
+        if (whole) {
+            df = page > 0 ? released - released % page : 0;
+            dt = page > 0 ? pos - pos % page : 0;
+            if (dt - df >= DROP_EVERY)
+                released = dt;
+            else
+                df = dt = 0;
+        }
+        run_t *r = runs + nr++;
+        scan_run(mm, mmb.len, maps, ws, pos, end, file_budget, slot_budget, threads, payloads,
+                 max_chunk, df, dt, r);
+        if (r->oom) {
+            oom = 1;
+            break;
+        }
+        if (!whole || r->stop != SCAN_BUDGET)
+            break;
+        pos = r->next_pos;
+    }
     Py_END_ALLOW_THREADS
 
     if (oom) {
         PyErr_NoMemory();
         goto fail;
     }
-    {
-        PyObject *rows_b = PyBytes_FromStringAndSize((const char *)rows, rows ? (Py_ssize_t)nrows * 24 : 0);
-        PyObject *packed_b = payloads ? PyBytes_FromStringAndSize((const char *)packed, packed ? (Py_ssize_t)packed_size : 0)
-                                      : (Py_INCREF(Py_None), Py_None);
-        PyObject *stats_b = PyBytes_FromStringAndSize((const char *)stats, stats ? (Py_ssize_t)n_out * 72 : 0);
-        if (rows_b && packed_b && stats_b)
-            result = Py_BuildValue("iLnNNN", stop, next_pos, done, rows_b, packed_b, stats_b);
-        else {
-            Py_XDECREF(rows_b);
-            Py_XDECREF(packed_b);
-            Py_XDECREF(stats_b);
-        }
+    if (!whole) {
+        result = run_tuple(runs, payloads);
+        goto fail;
+    }
+    result = PyList_New(nr);
+    for (Py_ssize_t i = 0; result != NULL && i < nr; i++) {
+        PyObject *t = run_tuple(runs + i, payloads);
+        /* each run's buffers go as soon as they are copied: the copies reuse their memory */
+        free(runs[i].rows);
+        free(runs[i].packed);
+        free(runs[i].stats);
+        runs[i].rows = runs[i].stats = NULL;
+        runs[i].packed = NULL;
+        if (t == NULL)
+            Py_CLEAR(result);
+        else
+            PyList_SET_ITEM(result, i, t);
     }
 fail:
-    free(chunks);
-    free(groups);
-    free(rows);
-    free(packed);
-    free(stats);
-    free(acc);
-    free(cidx);
-    free(ucid);
+    for (Py_ssize_t i = 0; i < nr; i++) {
+        free(runs[i].rows);
+        free(runs[i].packed);
+        free(runs[i].stats);
+    }
+    free(runs);
     if (mmb.obj)
         PyBuffer_Release(&mmb);
     PyBuffer_Release(&mapsb);

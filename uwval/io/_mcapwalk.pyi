@@ -46,7 +46,9 @@ def scan_chunks(
     max_chunk: int,
     drop_from: int = 0,
     drop_to: int = 0,
+    whole: bool = False,
     /,
-) -> tuple[int, int, int, bytes, bytes | None, bytes]:
+) -> Any:
     """Read the run of chunks from byte ``pos`` (see _mcapwalk.c): (stop reason, where the
-    reader goes on, chunks read, rows, packed payloads, per-channel table)."""
+    reader goes on, chunks read, rows, packed payloads, per-channel table); with ``whole``,
+    the list of such tuples of the runs up to the first stop that is not the budget."""

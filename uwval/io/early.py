@@ -31,9 +31,26 @@ def start(path: Path, topics: Sequence[str]) -> None:
     be asked for them) on another thread, when that can be done now (see the module
     docstring); otherwise do nothing."""
     try:
-        _start_db3(Path(path), topics)
+        if Path(path).is_dir():
+            _start_db3(Path(path), topics)
+        else:
+            _start_mcap(Path(path), topics)
     except Exception:  # nothing started: the read happens as it always does
         return
+
+
+def _start_mcap(path: Path, topics: Sequence[str]) -> None:
+    if path.suffix.lower() != ".mcap":
+        return
+    from uwval.cpus import second_cpu_free
+    from uwval.io import mcap_runs
+    from uwval.io.names import topics_to_scan
+
+    if not mcap_runs.scan_ready() or not second_cpu_free():
+        return
+    # two threads, as the read would use: one CPU also loads numpy meanwhile, yet two end
+    # sooner than one (0.154 vs 0.167 s for the image log's compare, measured)
+    mcap_runs.start_scan(path, topics_to_scan(topics), threads=2)
 
 
 def _start_db3(bag: Path, topics: Sequence[str]) -> None:

@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from uwval.errors import LogReadError
+from uwval.io import mcap_runs
 from uwval.io.crc import crc32
 from uwval.io.mcap_chunk import (
     MAGIC,
@@ -83,35 +84,19 @@ except ImportError:  # pragma: no cover - installs without a C compiler: the num
 USE_MATCH = _mcapwalk is not None and not os.environ.get("UWVAL_NO_ACCELERATOR")
 #: Schema/Channel records a chunk may hold for the C walk (more: the numpy check reads it)
 MATCH_TABLES = 256
-#: Whether runs of chunks are read by one C call each (``_mcapwalk.scan_chunks``: zstd and
-#: the CRC from C, on POSIX threads, no GIL hand-over per chunk); needs the C walk and
-#: libzstd (found at the first read). The batched path below reads the rest (lz4 chunks,
-#: chunks without index, logs without summary) and every chunk the C call leaves to it.
+#: Whether runs of chunks are read by one C call each (``_mcapwalk.scan_chunks``, see
+#: :mod:`uwval.io.mcap_runs`: zstd and the CRC from C, on POSIX threads, no GIL hand-over per
+#: chunk); needs the C walk and libzstd (found at the first read). The batched path below
+#: reads the rest (lz4 chunks, chunks without index, logs without summary) and every chunk
+#: the C call leaves to it.
 USE_SCAN = USE_MATCH
-#: file bytes a C call reads at most (their map pages are dropped from RSS after each call)
-SCAN_FILE_BYTES = 8 << 20
-#: decompressed bytes of wanted chunks a C call reads at most (a slot each for their
-#: wanted payloads: only those pages are touched)
-SCAN_SLOT_BYTES = 8 << 20
-#: scan_chunks' reasons to stop (see _mcapwalk.c): the run is full (the next call goes on),
-#: the chunk at next_pos is for the batched path (damaged, odd, new tables, too large), or
-#: of a kind the C call never reads (the rest of the file then goes to the batched path)
-SCAN_BUDGET, SCAN_CHUNK, SCAN_OTHER = 2, 3, 4
-_codecs: list[bool] = []
-
-
-def _scan_ready() -> bool:
-    """Whether the C run reader found zstd and a CRC-32 (asked once per process)."""
-    if not _codecs:
-        lib = None
-        try:
-            import isal.isal_zlib
-
-            lib = isal.isal_zlib.__file__
-        except ImportError:  # pragma: no cover - isal is a dependency
-            pass
-        _codecs.append(bool(_mcapwalk is not None and _mcapwalk.setup_codecs(lib)))
-    return _codecs[0]
+SCAN_FILE_BYTES = mcap_runs.SCAN_FILE_BYTES
+SCAN_SLOT_BYTES = mcap_runs.SCAN_SLOT_BYTES
+SCAN_BUDGET, SCAN_CHUNK, SCAN_OTHER = (
+    mcap_runs.SCAN_BUDGET,
+    mcap_runs.SCAN_CHUNK,
+    mcap_runs.SCAN_OTHER,
+)
 
 
 _MSG = struct.Struct("<HIQQ")
@@ -120,7 +105,7 @@ _MSG = struct.Struct("<HIQQ")
 BATCH_BYTES = 2 << 20
 #: larger chunks (or a damaged size field claiming more) are read alone, never into a batch
 #: buffer sized by their header
-BATCH_MAX = 64 << 20
+BATCH_MAX = mcap_runs.MAX_CHUNK
 #: a queued chunk: (record start, content start, length, index locations, entries, where
 #: its records go in the batch buffer (lo, hi), the job decompressing them there)
 _Queued = tuple[
@@ -254,6 +239,7 @@ def scan_mcap(path: Path, topics: Iterable[str] | None, *, times_only: bool = Fa
         try:
             return scanner.run()
         finally:
+            mcap_runs.discard_started()
             if scanner.pool is not None:  # no job may read the map once it is closed
                 scanner.pool.shutdown(cancel=True)
     finally:
@@ -298,7 +284,7 @@ class _Scanner:
         self.local = threading.local()  # each inflate thread's chunk buffer (_scratch)
         #: runs of chunks go to the C call (logs with a summary: it tells which chunks hold
         #: no wanted channel); ``scan_skip``: a chunk it left to the batched path
-        self.scan = USE_SCAN and self.summary is not None and _scan_ready()
+        self.scan = USE_SCAN and self.summary is not None and mcap_runs.scan_ready()
         self.scan_skip = -1
         self.scan_threads = 0
         self.scan_maps: tuple[int, int, bytes] | None = None
@@ -425,55 +411,63 @@ class _Scanner:
 
     # ------------------------------------------------------------------ runs of chunks (C)
     def _maps(self) -> bytes:
-        """Per channel / schema id (one byte each, for ``scan_chunks``): 1 the channel is
-        wanted or not known yet (a Channel record in its chunk may name it), 2 a known
-        channel, 4 a known schema."""
+        """The per-id table of ``scan_chunks`` (:func:`uwval.io.mcap_runs.scan_maps`) for
+        the channels and schemas known now."""
         key = (len(self.tables.channels), len(self.tables.schemas))
         if self.scan_maps is None or self.scan_maps[:2] != key:
-            m = np.ones(65536, dtype=np.uint8)
-            for cid, ch in self.tables.channels.items():
-                want = self.want is None or norm_topic(ch.topic) in self.want
-                m[cid] = 3 if want else 2
-            if self.tables.schemas:
-                m[list(self.tables.schemas)] |= 4
-            self.scan_maps = (*key, m.tobytes())
+            channels = {cid: norm_topic(ch.topic) for cid, ch in self.tables.channels.items()}
+            maps = mcap_runs.scan_maps(channels, self.tables.schemas, self.want)
+            self.scan_maps = (*key, maps)
         return self.scan_maps[2]
 
     def _scan(self, pos: int, end: int) -> int | None:
-        """Read the run of chunks from ``pos`` on by ``_mcapwalk.scan_chunks``; where the
-        reader goes on, or None when the C call read nothing (the chunk at ``pos`` is then
-        read by the batched path)."""
+        """Read the run of chunks from ``pos`` on by ``_mcapwalk.scan_chunks`` (or take the
+        runs :mod:`uwval.io.early` began, when they are exactly these); where the reader goes
+        on, or None when nothing was read (the chunk at ``pos`` is then read by the batched
+        path)."""
         assert _mcapwalk is not None
         if self.batch or self.sealed:
             self.flush()  # chunks are read in file order
-        if not self.scan_threads:
-            from uwval.cpus import second_cpu_free
+        maps = self._maps()
+        results = mcap_runs.take_started(self.path, pos, end, maps, not self.times_only, BATCH_MAX)
+        if results is not None:
+            # read on the early thread, with its own map: nothing of this one to drop
+            self.released = max(self.released, pos - pos % mmap.PAGESIZE)
+        else:
+            if not self.scan_threads:
+                from uwval.cpus import second_cpu_free
 
-            self.scan_threads = 2 if second_cpu_free() else 1
-        if self.scan_ws is None:
-            self.scan_ws = _mcapwalk.scan_workspace()
-        # the map pages read by earlier calls are dropped by this one, while it decompresses
-        # (release_pages' rule: whole pages, from the last release on, 2 MB at least)
-        start = self.released - self.released % mmap.PAGESIZE
-        stop_at = pos - pos % mmap.PAGESIZE
-        drop = (start, stop_at) if stop_at - start >= 2 << 20 else ()
-        stop, nxt, n, rows, packed, stats = _mcapwalk.scan_chunks(
-            self.scan_ws,
-            self.mm,
-            pos,
-            end,
-            self._maps(),
-            SCAN_FILE_BYTES,
-            SCAN_SLOT_BYTES,
-            self.scan_threads,
-            not self.times_only,
-            BATCH_MAX,
-            *drop,
-        )
-        if drop:
-            self.released = drop[1]
-        if n:
-            self._from_scan(rows, packed, stats)
+                self.scan_threads = 2 if second_cpu_free() else 1
+            if self.scan_ws is None:
+                self.scan_ws = _mcapwalk.scan_workspace()
+            # the map pages read by earlier calls are dropped by this one while its other
+            # thread decompresses
+            drop = mcap_runs.drop_range(self.released, pos)
+            results = [
+                _mcapwalk.scan_chunks(
+                    self.scan_ws,
+                    self.mm,
+                    pos,
+                    end,
+                    maps,
+                    SCAN_FILE_BYTES,
+                    SCAN_SLOT_BYTES,
+                    self.scan_threads,
+                    not self.times_only,
+                    BATCH_MAX,
+                    *drop,
+                )
+            ]
+            if drop:
+                self.released = drop[1]
+        n = 0
+        stop, nxt = results[-1][:2]
+        results.reverse()
+        while results:  # each run's buffers go once its messages are added
+            _stop, _nxt, k, rows, packed, stats = results.pop()
+            if k:
+                self._from_scan(rows, packed, stats)
+            n += k
         if stop != SCAN_BUDGET:  # the reader goes on from here: what was read may go
             self.released = release_pages(self.mm, self.released, nxt)
         if stop == SCAN_OTHER:

@@ -1,0 +1,253 @@
+"""Runs of MCAP chunks read by one C call each, and such a read begun before numpy loads.
+
+:mod:`uwval.io.mcap_raw` reads a log's chunks by calls of ``_mcapwalk.scan_chunks`` (zstd and
+the CRC from C, on POSIX threads, the GIL released for the whole run). This module holds
+what that needs and does not need numpy: whether the C reader is there (:func:`scan_ready`),
+the per-id table the call is given (:func:`scan_maps`), and the early start
+(:func:`start_scan`): ``uwval compare`` of one MCAP file begins the same calls on another
+thread while numpy and the comparison code load (:mod:`uwval.io.early`), and the read takes
+their results (:func:`take_started`) only when it would make exactly the same calls: the
+same file, unchanged, the same first chunk, summary start, channel table and budgets.
+Anything else, or any doubt while starting, starts nothing; a started read that is not taken
+is dropped.
+"""
+
+from __future__ import annotations
+
+import mmap
+import os
+import struct
+import threading
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+#: file bytes a C call reads at most (their map pages are dropped from RSS by the next call)
+SCAN_FILE_BYTES = 8 << 20
+#: the early read's runs are smaller: it runs while numpy loads, and the two add up in RSS
+#: (4 MB: the image log's peak as without images; 8 MB: +7 %, measured)
+EARLY_FILE_BYTES = 4 << 20
+#: decompressed bytes of the chunks holding a wanted channel that a C call reads at most
+#: (their wanted payloads go to the threads' arenas, then packed per channel)
+SCAN_SLOT_BYTES = 8 << 20
+#: larger chunks (or a damaged size field claiming more) are never read by the C runs
+MAX_CHUNK = 64 << 20
+#: scan_chunks' reasons to stop (see _mcapwalk.c): the run is full (the next call goes on),
+#: the chunk at next_pos is for the batched path (damaged, odd, new tables, too large), or
+#: of a kind the C call never reads (the rest of the file then goes to the batched path)
+SCAN_BUDGET, SCAN_CHUNK, SCAN_OTHER = 2, 3, 4
+#: drop the map pages of what was read once this many bytes have accumulated
+DROP_EVERY = 2 << 20
+
+#: one scan_chunks result: (stop, next_pos, chunks read, rows, packed payloads, per channel)
+ScanResult = tuple[int, int, int, bytes, "bytes | None", bytes]
+
+_MAGIC = b"\x89MCAP0\r\n"
+_OP_HEADER, _OP_FOOTER, _OP_SCHEMA, _OP_CHANNEL, _OP_CHUNK = 1, 2, 3, 4, 6
+_REC = struct.Struct("<BQ")
+_codecs: list[bool] = []
+
+
+def accelerator() -> Any:
+    """The C module (``uwval.io._mcapwalk``) when built and ``UWVAL_NO_ACCELERATOR`` is not
+    set; else None."""
+    if os.environ.get("UWVAL_NO_ACCELERATOR"):
+        return None
+    try:
+        from uwval.io import _mcapwalk
+    except ImportError:  # pragma: no cover - installs without a C compiler
+        return None
+    return _mcapwalk
+
+
+def scan_ready() -> bool:
+    """Whether the C run reader is on (see :func:`accelerator`) and found libzstd and a
+    CRC-32 (asked once per process)."""
+    if accelerator() is None:
+        return False
+    if not _codecs:
+        mod = accelerator()
+        lib = None
+        try:
+            import isal.isal_zlib
+
+            lib = isal.isal_zlib.__file__
+        except ImportError:  # pragma: no cover - isal is a dependency
+            pass
+        _codecs.append(bool(mod is not None and mod.setup_codecs(lib)))
+    return _codecs[0]
+
+
+def scan_maps(channels: Mapping[int, str], schemas: Iterable[int], want: set[str] | None) -> bytes:
+    """The table ``scan_chunks`` is given, one byte per id: 1 the channel is wanted or not
+    known yet (a Channel record in its chunk may name it), 2 a known channel, 4 a known
+    schema. ``channels``: id -> normalised topic; ``want``: normalised topics (None: all)."""
+    m = bytearray(b"\x01" * 65536)
+    for cid, topic in channels.items():
+        m[cid] = 3 if want is None or topic in want else 2
+    for sid in schemas:
+        m[sid] |= 4
+    return bytes(m)
+
+
+def drop_range(released: int, pos: int) -> tuple[int, int] | tuple[()]:
+    """The page-aligned map range a call starting at ``pos`` drops (the pages read since
+    ``released``), or () while less than :data:`DROP_EVERY` has accumulated."""
+    start = released - released % mmap.PAGESIZE
+    stop = pos - pos % mmap.PAGESIZE
+    return (start, stop) if stop - start >= DROP_EVERY else ()
+
+
+# ---------------------------------------------------------------------------- early start
+def _string(b: bytes | mmap.mmap, pos: int, end: int) -> tuple[str, int]:
+    (n,) = struct.unpack_from("<I", b, pos)
+    if pos + 4 + n > end:
+        raise ValueError("a string runs past its record")
+    return bytes(b[pos + 4 : pos + 4 + n]).decode("utf-8"), pos + 4 + n
+
+
+def _table(
+    op: int, b: mmap.mmap, c: int, end: int, channels: dict[int, str], schemas: set[int]
+) -> None:
+    """A Schema or Channel record, parsed as uwval.io.mcap_chunk.Tables.record parses it
+    (any damage raises: nothing is started then)."""
+    from uwval.io.names import norm_topic
+
+    if op == _OP_SCHEMA:
+        (sid,) = struct.unpack_from("<H", b, c)
+        p = c + 2
+        for _ in range(3):
+            _text, p = _string(b, p, end)
+        schemas.add(sid)
+    else:
+        cid, _sid = struct.unpack_from("<HH", b, c)
+        topic, p = _string(b, c + 4, end)
+        _string(b, p, end)
+        channels.setdefault(cid, norm_topic(topic))
+
+
+def plan_early(mm: mmap.mmap, want: set[str]) -> tuple[int, int, bytes] | None:
+    """(first chunk, summary start, channel table) of a log whose summary is sound and whose
+    data section begins with nothing but its Header and Schema/Channel records; None for
+    anything else (the read then does it all itself)."""
+    from uwval.io.crc import crc32
+
+    size = len(mm)
+    if size < 8 + 29 + 8 or mm[:8] != _MAGIC or mm[size - 8 :] != _MAGIC:
+        return None
+    op, ln = _REC.unpack_from(mm, size - 8 - 29)
+    if op != _OP_FOOTER or ln != 20:
+        return None
+    start, _offs, crc = struct.unpack_from("<QQI", mm, size - 8 - 20)
+    if not 8 < start <= size - 8 - 29 or (crc and crc32(mm[start : size - 8 - 4]) != crc):
+        return None
+    channels: dict[int, str] = {}
+    schemas: set[int] = set()
+    pos, end = start, size - 8 - 29
+    while pos + 9 <= end:
+        op, ln = _REC.unpack_from(mm, pos)
+        if pos + 9 + ln > end:
+            return None
+        if op in (_OP_SCHEMA, _OP_CHANNEL):
+            _table(op, mm, pos + 9, pos + 9 + ln, channels, schemas)
+        pos += 9 + ln
+    pos = 8
+    while pos + 9 <= start:
+        op, ln = _REC.unpack_from(mm, pos)
+        if op == _OP_CHUNK:
+            return pos, start, scan_maps(channels, schemas, want)
+        if op not in (_OP_HEADER, _OP_SCHEMA, _OP_CHANNEL) or pos + 9 + ln > start:
+            return None
+        if op != _OP_HEADER:
+            _table(op, mm, pos + 9, pos + 9 + ln, channels, schemas)
+        pos += 9 + ln
+    return None
+
+
+class _Started:
+    """The C runs of one log, read on their own thread (:func:`start_scan`)."""
+
+    def __init__(self, path: Path, plan: tuple[int, int, bytes], threads: int) -> None:
+        self.path, self.plan, self.threads = path, plan, threads
+        self.results: list[ScanResult] | None = None
+        self.thread = threading.Thread(target=self._run, name="uwval-early-mcap", daemon=True)
+
+    def _run(self) -> None:
+        pos, end, maps = self.plan
+        mod = accelerator()
+        try:
+            with (
+                open(self.path, "rb") as f,
+                mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm,
+            ):
+                # one call for every run: the thread needs the GIL only to start and end
+                # (between calls it would wait for the importing thread each time)
+                out = mod.scan_chunks(
+                    mod.scan_workspace(),
+                    mm,
+                    pos,
+                    end,
+                    maps,
+                    EARLY_FILE_BYTES,
+                    SCAN_SLOT_BYTES,
+                    self.threads,
+                    True,
+                    MAX_CHUNK,
+                    0,
+                    0,
+                    True,
+                )
+        except Exception:  # the read will read the chunks itself, and report what is wrong
+            return
+        self.results = out
+
+
+_started: dict[tuple[object, ...], _Started] = {}
+
+
+def _key(
+    path: Path, pos: int, end: int, maps: bytes, payloads: bool, max_chunk: int
+) -> tuple[object, ...]:
+    # the budgets are not in it: runs of any size add up to the same messages, counts and
+    # warnings (tests/test_mcap_scan.py reads with small runs against the chunk-by-chunk read)
+    st = os.stat(path)
+    return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, pos, end, maps, payloads, max_chunk)
+
+
+def start_scan(path: Path, want: set[str], threads: int) -> None:
+    """Begin the C runs of the MCAP file ``path`` for the normalised topics ``want`` (as the
+    read will do them, with payloads and the default budgets) on another thread, when
+    :func:`plan_early` finds the log in the usual form; else do nothing."""
+    with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+        plan = plan_early(mm, want)
+    if plan is None:
+        return
+    key = _key(path, *plan, True, MAX_CHUNK)
+    run = _Started(path, plan, threads)
+    _started[key] = run
+    run.thread.start()
+
+
+def discard_started() -> None:
+    """Drop every started read not taken (a read that never asked for one has happened)."""
+    _started.clear()
+
+
+def take_started(
+    path: Path, pos: int, end: int, maps: bytes, payloads: bool, max_chunk: int
+) -> list[ScanResult] | None:
+    """The results of the runs :func:`start_scan` began of ``path`` (unchanged since) with
+    exactly these arguments, waiting for them to end; None when there are none (or they
+    failed). Every start not taken is then dropped: a read happened."""
+    if not _started:
+        return None
+    try:
+        key: tuple[object, ...] | None = _key(path, pos, end, maps, payloads, max_chunk)
+    except OSError:
+        key = None
+    run = _started.pop(key, None) if key is not None else None
+    _started.clear()
+    if run is None:
+        return None
+    run.thread.join()
+    return run.results
