@@ -321,6 +321,8 @@ done:
  * it does not do exactly as the Python path would, it does not do: it stops before that
  * record and says why, and the reader reads from there its own way (which reports damage).
  * ------------------------------------------------------------------------------------------ */
+#if defined(__unix__) || defined(__APPLE__) /* dlopen and POSIX threads */
+#define UWVAL_SCAN 1
 #include <dlfcn.h>
 #include <sys/mman.h>
 #include <unistd.h>
@@ -1145,12 +1147,16 @@ fail:
     return result;
 }
 
+#endif /* UWVAL_SCAN */
+
 static PyMethodDef methods[] = {
     {"match_chunk", match_chunk, METH_VARARGS, match_chunk_doc},
+#ifdef UWVAL_SCAN
     {"setup_codecs", setup_codecs, METH_VARARGS, setup_codecs_doc},
     {"crc32", crc32_py, METH_VARARGS, crc32_doc},
     {"scan_chunks", scan_chunks, METH_VARARGS, scan_chunks_doc},
     {"scan_workspace", scan_workspace, METH_NOARGS, scan_workspace_doc},
+#endif
     {NULL, NULL, 0, NULL},
 };
 

@@ -74,7 +74,9 @@ def scan_ready() -> bool:
             lib = isal.isal_zlib.__file__
         except ImportError:  # pragma: no cover - isal is a dependency
             pass
-        _codecs.append(bool(mod is not None and mod.setup_codecs(lib)))
+        # (built without POSIX threads and dlopen, the module has no run reader)
+        ready = mod is not None and hasattr(mod, "setup_codecs") and mod.setup_codecs(lib)
+        _codecs.append(bool(ready))
     return _codecs[0]
 
 
