@@ -14,6 +14,8 @@
  * what is wrong exactly as without this module.
  *
  * Every read is bounds-checked against the chunk; the GIL is released while walking.
+ *
+ * scan_chunks (below) runs the whole of this for runs of chunks on its own threads.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -1162,7 +1164,8 @@ static PyMethodDef methods[] = {
 
 static struct PyModuleDef module = {
     PyModuleDef_HEAD_INIT, "_mcapwalk",
-    "One-walk check of a decompressed MCAP chunk against its index (see uwval.io.mcap_raw).", -1, methods,
+    "One-walk check of a decompressed MCAP chunk against its index, and runs of chunks read "
+    "on POSIX threads (see uwval.io.mcap_raw and uwval.io.mcap_runs).", -1, methods,
     NULL, NULL, NULL, NULL,
 };
 

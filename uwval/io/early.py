@@ -1,23 +1,25 @@
 """Start reading a log on another thread while ``uwval compare`` is still loading its modules.
 
-Loading numpy and the comparison code takes ~60 ms of a ~170 ms compare, on one CPU. A
-rosbag2 sqlite3 bag's messages table is read by one call into C that releases the GIL
-(:mod:`uwval.io.db3_pages`, ~40 ms for 15 minutes of a simulation's topics): :func:`start`
-runs that call on a second thread, before the heavy imports, so the two overlap. The read
-that follows (:func:`uwval.io.read_streams`) takes the result
-(:func:`uwval.io.db3_pages.take_started`) only when it makes exactly the same call (the
-same file, unchanged, the same topics, pages and roots); any other read ignores it and reads
-as it always does. Nothing here imports numpy.
-
-(An MCAP log's first chunks are not read this way. Tried twice and measured slower: with
-zstandard's ``multi_decompress_to_buffer``, no faster on a 10-minute log, 5 % slower with
-images, 32 MB more memory; with a numpy-free thread decompressing, checking and walking each
-chunk, 0.159 vs 0.143 s on the 10-minute log, because each chunk needs the GIL several times
-and the importing thread holds it (benchmarks/README.md, sixth pass).)
+Loading numpy and the comparison code takes ~60 ms of a ~150 ms compare, on one CPU. Two
+kinds of log are read by calls into C that release the GIL, and :func:`start` begins those
+calls on a second thread, before the heavy imports, so that the two overlap:
+- a rosbag2 sqlite3 bag's messages table (:mod:`uwval.io.db3_pages`, ~40 ms for 15 minutes
+  of a simulation's topics); the read takes the result (``db3_pages.take_started``) only
+  when it makes exactly the same call (the same file, unchanged, the same topics, pages and
+  roots);
+- an MCAP file's runs of chunks (:mod:`uwval.io.mcap_runs`, 15-60 ms for 10 minutes), as one
+  call for all runs: a call per run would wait for the importing thread's GIL at each (an
+  early read per chunk was measured slower than none, benchmarks/README.md, sixth pass). The
+  read takes them (``mcap_runs.take_started``) only for the same file, unchanged, the same
+  first chunk, summary and channel table.
+Any other read ignores what was started and reads as it always does. Nothing here imports
+numpy.
 
 Only what can be decided cheaply and surely is started: a bag whose ``metadata.yaml`` is in
-the usual form (:mod:`uwval.io.bagmeta`), one uncompressed ``.db3`` file, no write-ahead log,
-the C accelerator built, a second CPU free. Anything else, or any error, starts nothing.
+the usual form (:mod:`uwval.io.bagmeta`), one uncompressed ``.db3`` file, no write-ahead log;
+an ``.mcap`` file with a sound summary and nothing but Schema/Channel records before its
+first chunk (``mcap_runs.plan_early``); the C accelerator built, a second CPU free. Anything
+else, or any error, starts nothing.
 """
 
 from __future__ import annotations

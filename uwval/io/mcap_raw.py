@@ -3,8 +3,13 @@
 The mcap library hands out one Python object per message; at a million messages that costs
 seconds. This scanner walks only the top-level records (one step per chunk), decompresses
 each chunk that holds a wanted channel once (zstd / lz4), checks it against its CRC, and
-locates the wanted channels' messages from the chunk's MessageIndex records: by one C walk
-of the records on the decompressing thread (``_mcapwalk``, optional), else with numpy.
+locates the wanted channels' messages from the chunk's MessageIndex records. Two paths do
+that, with the same result: runs of chunks read by one C call each (``scan_chunks``, see
+:mod:`uwval.io.mcap_runs`: its own threads decompress, check and walk, with the GIL released
+for the whole run), which leaves whatever it would not read exactly as the batched path does
+(damaged or odd chunks, new Schema/Channel records, lz4, chunks without index, logs without
+summary) to the batched path: chunks decompressed on inflate threads and located by one C
+walk of each (``_mcapwalk``, optional), else with numpy, on the reading thread.
 
 Nothing in the file is taken on faith (a damaged log must never give a silently wrong
 number): the index is checked against the records it points at (each entry a Message record
