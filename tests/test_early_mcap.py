@@ -112,6 +112,26 @@ def test_the_read_takes_the_early_runs_only_when_they_are_its_own(
     assert taken == [taken_expected] and not mcap_runs._started
 
 
+def test_a_rosbag2_bag_of_one_mcap_file_is_started_and_taken(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from uwval.comparison.synthetic import unity_view, vehicle_motion
+    from uwval.io.writers import open_writer, write_stream
+
+    vehicle = vehicle_motion(3000, 100.0)
+    unity = unity_view(vehicle)
+    bag = tmp_path / "bag"
+    with open_writer(bag, "rosbag2-mcap") as w:
+        write_stream(w, vehicle.topic, vehicle, "enu")
+        write_stream(w, unity.topic, unity, unity.frame)
+    plain = _read(bag, [G, U])
+    taken = _taken(monkeypatch)
+    early.start(bag, [G, U])
+    assert len(mcap_runs._started) == 1
+    _same(_read(bag, [G, U]), plain)
+    assert taken == [True]
+
+
 def test_early_runs_stopped_by_a_damaged_chunk_are_taken_and_the_read_goes_on(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -17,8 +17,8 @@ numpy.
 
 Only what can be decided cheaply and surely is started: a bag whose ``metadata.yaml`` is in
 the usual form (:mod:`uwval.io.bagmeta`), one uncompressed ``.db3`` file, no write-ahead log;
-an ``.mcap`` file with a sound summary and nothing but Schema/Channel records before its
-first chunk (``mcap_runs.plan_early``); the C accelerator built, a second CPU free. Anything
+an ``.mcap`` file (alone, or a bag's one uncompressed storage file) with a sound summary and
+nothing but Schema/Channel records before its first chunk (``mcap_runs.plan_early``); the C accelerator built, a second CPU free. Anything
 else, or any error, starts nothing.
 """
 
@@ -33,12 +33,40 @@ def start(path: Path, topics: Sequence[str]) -> None:
     be asked for them) on another thread, when that can be done now (see the module
     docstring); otherwise do nothing."""
     try:
-        if Path(path).is_dir():
-            _start_db3(Path(path), topics)
-        else:
-            _start_mcap(Path(path), topics)
+        path = Path(path)
+        if not path.is_dir():
+            _start_mcap(path, topics)
+            return
+        got = _bag_file(path)
+        if got is None:
+            return
+        storage, file = got
+        if storage == "sqlite3" and file.suffix == ".db3":
+            _start_db3(file, topics)
+        elif storage == "mcap" and file.suffix == ".mcap":
+            _start_mcap(file, topics)
     except Exception:  # nothing started: the read happens as it always does
         return
+
+
+def _bag_file(bag: Path) -> tuple[str, Path] | None:
+    """(storage, the one file) of a rosbag2 bag whose metadata.yaml is in the usual form and
+    lists one uncompressed storage file; None for anything else."""
+    from uwval.io.bagmeta import parse_block_yaml
+
+    meta = bag / "metadata.yaml"
+    doc = parse_block_yaml(meta.read_text()) if meta.is_file() else None
+    info = doc.get("rosbag2_bagfile_information") if doc else None
+    if not isinstance(info, dict):
+        return None
+    files = info.get("relative_file_paths")
+    if not (isinstance(files, list) and len(files) == 1 and isinstance(files[0], str)):
+        return None
+    name = files[0]
+    if "/" in name or str(info.get("compression_mode", "") or ""):
+        return None
+    file = bag / name
+    return (str(info.get("storage_identifier", "")), file) if file.is_file() else None
 
 
 def _start_mcap(path: Path, topics: Sequence[str]) -> None:
@@ -55,34 +83,12 @@ def _start_mcap(path: Path, topics: Sequence[str]) -> None:
     mcap_runs.start_scan(path, topics_to_scan(topics), threads=2)
 
 
-def _start_db3(bag: Path, topics: Sequence[str]) -> None:
-    if not bag.is_dir():  # a single-file log (MCAP, ROS 1 bag, ...): nothing to start
-        return
+def _start_db3(db3: Path, topics: Sequence[str]) -> None:
     from uwval.cpus import second_cpu_free
     from uwval.io import db3_pages
-    from uwval.io.bagmeta import parse_block_yaml
     from uwval.io.names import norm_topic, topics_to_scan
 
-    if not db3_pages.USE_ACCELERATOR or not second_cpu_free():
-        return
-    meta = bag / "metadata.yaml"
-    doc = parse_block_yaml(meta.read_text()) if meta.is_file() else None
-    info = doc.get("rosbag2_bagfile_information") if doc else None
-    if not isinstance(info, dict):
-        return
-    files = info.get("relative_file_paths")
-    if not (isinstance(files, list) and len(files) == 1 and isinstance(files[0], str)):
-        return
-    name = files[0]
-    if (
-        "/" in name
-        or not name.endswith(".db3")
-        or str(info.get("storage_identifier", "")) != "sqlite3"
-        or str(info.get("compression_mode", "") or "")
-    ):
-        return
-    db3 = bag / name
-    if not db3.is_file() or db3_pages.has_wal(db3):
+    if not db3_pages.USE_ACCELERATOR or not second_cpu_free() or db3_pages.has_wal(db3):
         return
     import sqlite3
 
