@@ -18,8 +18,8 @@ numpy.
 Only what can be decided cheaply and surely is started: a bag whose ``metadata.yaml`` is in
 the usual form (:mod:`uwval.io.bagmeta`), one uncompressed ``.db3`` file, no write-ahead log;
 an ``.mcap`` file (alone, or a bag's one uncompressed storage file) with a sound summary and
-nothing but Schema/Channel records before its first chunk (``mcap_runs.plan_early``); the C accelerator built, a second CPU free. Anything
-else, or any error, starts nothing.
+nothing but Schema/Channel records before its first chunk (``mcap_runs.plan_early``); the C
+accelerator built, a second CPU free. Anything else, or any error, starts nothing.
 """
 
 from __future__ import annotations
