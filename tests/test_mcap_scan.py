@@ -256,3 +256,16 @@ def test_damaged_logs_read_as_the_batched_path_reads_them(
         left_to_batched += sum(stop == 3 for stop, _n in counted.calls)
         _same(got, _read(damaged, monkeypatch, scan=False))
     assert left_to_batched > 5  # the damage reached chunks the C runs handed over
+
+
+def test_without_libzstd_the_batched_path_reads_the_same(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """setup_codecs finding no libzstd (a machine without it): no C runs, same result."""
+    log = _write(tmp_path / "log.mcap")
+    with_runs = _read(log, monkeypatch, scan=True)
+    monkeypatch.setattr(mcap_runs, "_codecs", [False])
+    counted = Counted(monkeypatch)
+    without = _read(log, monkeypatch, scan=True)
+    assert counted.calls == []
+    _same(without, with_runs)
