@@ -21,7 +21,8 @@ import io_loggen as gen
 from accelerators import require_module
 
 from uwval.io import mcap_raw
-from uwval.io.mcap_chunk import OP_CHANNEL, OP_MESSAGE, OP_SCHEMA, check_index
+from uwval.io.mcap_chunk import check_index
+from uwval.io.mcap_records import OP_CHANNEL, OP_MESSAGE, OP_SCHEMA
 from uwval.io.raw import RawLog
 
 require_module(mcap_raw._mcapwalk, "uwval.io._mcapwalk")

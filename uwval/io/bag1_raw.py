@@ -25,7 +25,8 @@ from numpy.typing import NDArray
 
 from uwval.errors import LogReadError
 from uwval.io.fastdecode import gather
-from uwval.io.mcap_chunk import Buffer, unaligned
+from uwval.io.mcap_chunk import unaligned
+from uwval.io.mcap_records import Buffer
 from uwval.io.raw import (
     RawLog,
     TopicBuilder,

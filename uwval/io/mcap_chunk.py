@@ -15,32 +15,21 @@ import numpy as np
 from numpy.typing import NDArray
 
 from uwval.errors import LogReadError
+from uwval.io.mcap_records import (
+    OP_CHANNEL,
+    OP_MESSAGE,
+    OP_SCHEMA,
+    REC,
+    U64,
+    Buffer,
+    parse_channel,
+    parse_schema,
+    string_at,
+)
 from uwval.io.ros import normalize_type_name
 
-MAGIC = b"\x89MCAP0\r\n"
-OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 1, 2, 3, 4, 5, 6
-OP_MESSAGE_INDEX, OP_CHUNK_INDEX, OP_STATISTICS, OP_DATA_END = 7, 8, 11, 15
-OP_METADATA, OP_METADATA_INDEX, OP_SUMMARY_OFFSET = 0x0C, 0x0D, 0x0E
-
-REC = struct.Struct("<BQ")
-U16 = struct.Struct("<H")
-U32 = struct.Struct("<I")
-U64 = struct.Struct("<Q")
 _CHUNK = struct.Struct("<QQQI")
 _MSG = struct.Struct("<HIQQ")
-
-#: bytes, memoryview, mmap or a uint8 ndarray: whatever struct reads and slicing copies
-#: (typeshed's ReadableBuffer cannot be sliced, and numpy's stubs do not make arrays one).
-Buffer = Any
-
-
-def string_at(b: Buffer, pos: int, end: int) -> tuple[str, int]:
-    """A u32-length-prefixed UTF-8 string at ``pos`` that must end by ``end``."""
-    (n,) = U32.unpack_from(b, pos)
-    if pos + 4 + n > end:
-        raise ValueError(f"a string of {n} bytes at byte {pos} runs past its record")
-    # text that is not UTF-8 is damage (the mcap library refuses it too): ValueError
-    return bytes(b[pos + 4 : pos + 4 + n]).decode("utf-8"), pos + 4 + n
 
 
 @dataclass
@@ -65,15 +54,10 @@ class Tables:
     def record(self, op: int, b: Buffer, pos: int, end: int) -> None:
         """Parse a Schema or Channel record whose content is ``b[pos:end]``."""
         if op == OP_SCHEMA:
-            (sid,) = U16.unpack_from(b, pos)
-            name, p = string_at(b, pos + 2, end)
-            enc, p = string_at(b, p, end)
-            text, _ = string_at(b, p, end)
+            sid, name, enc, text = parse_schema(b, pos, end)
             self.schemas[sid] = (name, enc, text)
         elif op == OP_CHANNEL:
-            cid, sid = struct.unpack_from("<HH", b, pos)
-            topic, p = string_at(b, pos + 4, end)
-            enc, _ = string_at(b, p, end)
+            cid, sid, topic, enc = parse_channel(b, pos, end)
             self.channels.setdefault(cid, Channel(cid, topic, enc, sid))
 
     def msgtype(self, ch: Channel) -> tuple[str, str, str]:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import struct
 from pathlib import Path
 
-from uwval.io.mcap_chunk import (
+from uwval.io.mcap_records import (
     MAGIC,
     OP_FOOTER,
     OP_METADATA,

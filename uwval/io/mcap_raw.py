@@ -40,6 +40,16 @@ from uwval.errors import LogReadError
 from uwval.io import mcap_runs
 from uwval.io.crc import crc32
 from uwval.io.mcap_chunk import (
+    ChunkHeader,
+    Tables,
+    WalkResult,
+    check_index,
+    decompress,
+    decompress_prefix,
+    parse_chunk_header,
+    walk_records,
+)
+from uwval.io.mcap_records import (
     MAGIC,
     OP_CHANNEL,
     OP_CHUNK,
@@ -55,15 +65,8 @@ from uwval.io.mcap_chunk import (
     U32,
     U64,
     Buffer,
-    ChunkHeader,
-    Tables,
-    WalkResult,
-    check_index,
-    decompress,
-    decompress_prefix,
-    parse_chunk_header,
-    walk_records,
 )
+from uwval.io.mcap_records import summary_start as summary_start_of
 from uwval.io.raw import (
     RawLog,
     TopicBuilder,
@@ -174,25 +177,10 @@ class _Summary:
 
 def _read_summary(mm: Buffer, size: int, path: Path, warns: list[str]) -> _Summary | None:
     """The summary section, if the file has a valid one (footer, magic, CRC when present)."""
-    if size < 8 + 29 + 8 or mm[size - 8 : size] != MAGIC:
-        return None
-    op, ln = REC.unpack_from(mm, size - 8 - 29)
-    if op != OP_FOOTER or ln != 20:
-        return None
-    summary_start, _offs, crc = struct.unpack_from("<QQI", mm, size - 8 - 20)
-    if summary_start == 0:
-        return None
-    if summary_start < 8 or summary_start > size - 8 - 29:
-        warns.append(
-            f"{path}: the footer's summary offset {summary_start} is outside the file; "
-            "read without the summary"
-        )
-        return None
-    if crc and crc32(mm[summary_start : size - 8 - 4]) != crc:
-        warns.append(
-            f"{path}: the summary section (byte {summary_start}) fails its CRC check; "
-            "read without it"
-        )
+    summary_start, damage = summary_start_of(mm, size)
+    if damage:
+        warns.append(f"{path}: {damage}")
+    if not summary_start:
         return None
     out = _Summary(Tables(), start=summary_start)
     pos = summary_start

@@ -16,11 +16,22 @@ from __future__ import annotations
 
 import mmap
 import os
-import struct
 import threading
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
+
+from uwval.io.mcap_records import (
+    MAGIC,
+    OP_CHANNEL,
+    OP_CHUNK,
+    OP_HEADER,
+    OP_SCHEMA,
+    REC,
+    parse_channel,
+    parse_schema,
+    summary_start,
+)
 
 #: file bytes a C call reads at most (their map pages are dropped from RSS by the next call)
 SCAN_FILE_BYTES = 8 << 20
@@ -42,9 +53,6 @@ DROP_EVERY = 2 << 20
 #: one scan_chunks result: (stop, next_pos, chunks read, rows, packed payloads, per channel)
 ScanResult = tuple[int, int, int, bytes, "bytes | None", bytes]
 
-_MAGIC = b"\x89MCAP0\r\n"
-_OP_HEADER, _OP_FOOTER, _OP_SCHEMA, _OP_CHANNEL, _OP_CHUNK = 1, 2, 3, 4, 6
-_REC = struct.Struct("<BQ")
 _codecs: list[bool] = []
 
 
@@ -101,30 +109,17 @@ def drop_range(released: int, pos: int) -> tuple[int, int] | tuple[()]:
 
 
 # ---------------------------------------------------------------------------- early start
-def _string(b: bytes | mmap.mmap, pos: int, end: int) -> tuple[str, int]:
-    (n,) = struct.unpack_from("<I", b, pos)
-    if pos + 4 + n > end:
-        raise ValueError("a string runs past its record")
-    return bytes(b[pos + 4 : pos + 4 + n]).decode("utf-8"), pos + 4 + n
-
-
 def _table(
     op: int, b: mmap.mmap, c: int, end: int, channels: dict[int, str], schemas: set[int]
 ) -> None:
-    """A Schema or Channel record, parsed as uwval.io.mcap_chunk.Tables.record parses it
-    (any damage raises: nothing is started then)."""
+    """A Schema or Channel record, taken as uwval.io.mcap_chunk.Tables.record takes it (the
+    same parsers; any damage raises: nothing is started then)."""
     from uwval.io.names import norm_topic
 
-    if op == _OP_SCHEMA:
-        (sid,) = struct.unpack_from("<H", b, c)
-        p = c + 2
-        for _ in range(3):
-            _text, p = _string(b, p, end)
-        schemas.add(sid)
+    if op == OP_SCHEMA:
+        schemas.add(parse_schema(b, c, end)[0])
     else:
-        cid, _sid = struct.unpack_from("<HH", b, c)
-        topic, p = _string(b, c + 4, end)
-        _string(b, p, end)
+        cid, _sid, topic, _enc = parse_channel(b, c, end)
         channels.setdefault(cid, norm_topic(topic))
 
 
@@ -132,35 +127,28 @@ def plan_early(mm: mmap.mmap, want: set[str]) -> tuple[int, int, bytes] | None:
     """(first chunk, summary start, channel table) of a log whose summary is sound and whose
     data section begins with nothing but its Header and Schema/Channel records; None for
     anything else (the read then does it all itself)."""
-    from uwval.io.crc import crc32
-
     size = len(mm)
-    if size < 8 + 29 + 8 or mm[:8] != _MAGIC or mm[size - 8 :] != _MAGIC:
-        return None
-    op, ln = _REC.unpack_from(mm, size - 8 - 29)
-    if op != _OP_FOOTER or ln != 20:
-        return None
-    start, _offs, crc = struct.unpack_from("<QQI", mm, size - 8 - 20)
-    if not 8 < start <= size - 8 - 29 or (crc and crc32(mm[start : size - 8 - 4]) != crc):
+    start, _damage = summary_start(mm, size)
+    if not start or mm[:8] != MAGIC:
         return None
     channels: dict[int, str] = {}
     schemas: set[int] = set()
     pos, end = start, size - 8 - 29
     while pos + 9 <= end:
-        op, ln = _REC.unpack_from(mm, pos)
+        op, ln = REC.unpack_from(mm, pos)
         if pos + 9 + ln > end:
             return None
-        if op in (_OP_SCHEMA, _OP_CHANNEL):
+        if op in (OP_SCHEMA, OP_CHANNEL):
             _table(op, mm, pos + 9, pos + 9 + ln, channels, schemas)
         pos += 9 + ln
     pos = 8
     while pos + 9 <= start:
-        op, ln = _REC.unpack_from(mm, pos)
-        if op == _OP_CHUNK:
+        op, ln = REC.unpack_from(mm, pos)
+        if op == OP_CHUNK:
             return pos, start, scan_maps(channels, schemas, want)
-        if op not in (_OP_HEADER, _OP_SCHEMA, _OP_CHANNEL) or pos + 9 + ln > start:
+        if op not in (OP_HEADER, OP_SCHEMA, OP_CHANNEL) or pos + 9 + ln > start:
             return None
-        if op != _OP_HEADER:
+        if op != OP_HEADER:
             _table(op, mm, pos + 9, pos + 9 + ln, channels, schemas)
         pos += 9 + ln
     return None
