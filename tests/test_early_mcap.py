@@ -230,7 +230,7 @@ def test_the_early_runs_load_no_numpy(tmp_path: Path) -> None:
         f"early.start({str(log)!r}, [{G!r}, {U!r}])\n"
         "(run,) = mcap_runs._started.values()\n"
         "run.thread.join()\n"
-        "print(len(run.results), 'numpy' in sys.modules)\n"
+        "print(len(run.result), 'numpy' in sys.modules)\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     n, numpy_loaded = out.stdout.split()

@@ -31,6 +31,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from uwval.io.started import StartedReads
+
 if TYPE_CHECKING:  # numpy loads when a scan's result is converted (uwval.io.early runs first)
     import sqlite3
 
@@ -236,60 +238,21 @@ def ids_bytes(values: list[int], code: str) -> bytes:
     return array(code, values).tobytes()
 
 
-class _StartedScan:
-    """A page scan running on its own thread (:func:`start_scan`)."""
-
-    def __init__(self, path: Path, args: tuple[int, int, int, bytes, bytes, int]) -> None:
-        import threading
-
-        self.path, self.args = path, args
-        self.result: ScanResult | None = None
-        self.thread = threading.Thread(target=self._run, name="uwval-early-db3", daemon=True)
-
-    def _run(self) -> None:
-        try:
-            with (
-                open(self.path, "rb") as f,
-                mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm,
-            ):
-                self.result = run_scan(mm, self.args)
-        except Exception:  # the read will scan again itself, and report what is wrong
-            self.result = None
-
-
 #: scans started and not taken yet, by the file (identity) and arguments they were given
-_started: dict[tuple[object, ...], _StartedScan] = {}
-
-
-def _started_key(path: Path, args: tuple[int, int, int, bytes, bytes, int]) -> tuple[object, ...]:
-    st = os.stat(path)
-    return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, *args)
+_started: StartedReads[ScanResult] = StartedReads()
 
 
 def start_scan(path: Path, args: tuple[int, int, int, bytes, bytes, int]) -> None:
     """Run :func:`run_scan` of the file ``path`` with ``args`` on its own thread, for the read
     to take (:func:`take_started`) if it makes exactly this scan (:mod:`uwval.io.early`)."""
-    scan = _StartedScan(path, args)
-    _started[_started_key(path, args)] = scan
-    scan.thread.start()
+    _started.start(path, args, lambda mm: run_scan(mm, args), "uwval-early-db3")
 
 
 def take_started(path: Path, args: tuple[int, int, int, bytes, bytes, int]) -> ScanResult | None:
     """The result of the scan :func:`start_scan` began of ``path`` (unchanged since) with
     exactly ``args``, waiting for it to end; None when there is none (or it failed). Every
     scan not taken is then dropped: a read happened, they are of no use."""
-    if not _started:
-        return None
-    try:
-        key: tuple[object, ...] | None = _started_key(path, args)
-    except OSError:
-        key = None
-    scan = _started.pop(key, None) if key is not None else None
-    _started.clear()
-    if scan is None:
-        return None
-    scan.thread.join()
-    return scan.result
+    return _started.take(path, args)
 
 
 def read_pages(

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import mmap
 import os
-import threading
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
@@ -32,6 +31,7 @@ from uwval.io.mcap_records import (
     parse_schema,
     summary_start,
 )
+from uwval.io.started import StartedReads
 
 #: file bytes a C call reads at most (their map pages are dropped from RSS by the next call)
 SCAN_FILE_BYTES = 8 << 20
@@ -154,68 +154,45 @@ def plan_early(mm: mmap.mmap, want: set[str]) -> tuple[int, int, bytes] | None:
     return None
 
 
-class _Started:
-    """The C runs of one log, read on their own thread (:func:`start_scan`)."""
-
-    def __init__(self, path: Path, plan: tuple[int, int, bytes], threads: int) -> None:
-        self.path, self.plan, self.threads = path, plan, threads
-        self.results: list[ScanResult] | None = None
-        self.thread = threading.Thread(target=self._run, name="uwval-early-mcap", daemon=True)
-
-    def _run(self) -> None:
-        pos, end, maps = self.plan
-        mod = accelerator()
-        try:
-            with (
-                open(self.path, "rb") as f,
-                mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm,
-            ):
-                # one call for every run: the thread needs the GIL only to start and end
-                # (between calls it would wait for the importing thread each time)
-                out = mod.scan_chunks(
-                    mod.scan_workspace(),
-                    mm,
-                    pos,
-                    end,
-                    maps,
-                    EARLY_FILE_BYTES,
-                    SCAN_SLOT_BYTES,
-                    self.threads,
-                    True,
-                    MAX_CHUNK,
-                    0,
-                    0,
-                    True,
-                )
-        except Exception:  # the read will read the chunks itself, and report what is wrong
-            return
-        self.results = out
+def _read_runs(mm: mmap.mmap, plan: tuple[int, int, bytes], threads: int) -> list[ScanResult]:
+    """Every run of the plan, by one ``scan_chunks`` call: the thread needs the GIL only to
+    start and end (between calls it would wait for the importing thread each time)."""
+    pos, end, maps = plan
+    mod = accelerator()
+    out: list[ScanResult] = mod.scan_chunks(
+        mod.scan_workspace(),
+        mm,
+        pos,
+        end,
+        maps,
+        EARLY_FILE_BYTES,
+        SCAN_SLOT_BYTES,
+        threads,
+        True,
+        MAX_CHUNK,
+        0,
+        0,
+        True,
+    )
+    return out
 
 
-_started: dict[tuple[object, ...], _Started] = {}
-
-
-def _key(
-    path: Path, pos: int, end: int, maps: bytes, payloads: bool, max_chunk: int
-) -> tuple[object, ...]:
-    # the budgets are not in it: runs of any size add up to the same messages, counts and
-    # warnings (tests/test_mcap_scan.py reads with small runs against the chunk-by-chunk read)
-    st = os.stat(path)
-    return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, pos, end, maps, payloads, max_chunk)
+#: the runs started and not taken yet. Their key holds no budget: runs of any size add up
+#: to the same messages, counts and warnings (tests/test_mcap_scan.py reads with small runs
+#: against the chunk-by-chunk read)
+_started: StartedReads[list[ScanResult]] = StartedReads()
 
 
 def start_scan(path: Path, want: set[str], threads: int) -> None:
     """Begin the C runs of the MCAP file ``path`` for the normalised topics ``want`` (as the
-    read will do them, with payloads and the default budgets) on another thread, when
-    :func:`plan_early` finds the log in the usual form; else do nothing."""
+    read will do them, with payloads) on another thread, when :func:`plan_early` finds the
+    log in the usual form; else do nothing."""
     with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
         plan = plan_early(mm, want)
     if plan is None:
         return
-    key = _key(path, *plan, True, MAX_CHUNK)
-    run = _Started(path, plan, threads)
-    _started[key] = run
-    run.thread.start()
+    args = (*plan, True, MAX_CHUNK)
+    _started.start(path, args, lambda mm: _read_runs(mm, plan, threads), "uwval-early-mcap")
 
 
 def discard_started() -> None:
@@ -229,15 +206,4 @@ def take_started(
     """The results of the runs :func:`start_scan` began of ``path`` (unchanged since) with
     exactly these arguments, waiting for them to end; None when there are none (or they
     failed). Every start not taken is then dropped: a read happened."""
-    if not _started:
-        return None
-    try:
-        key: tuple[object, ...] | None = _key(path, pos, end, maps, payloads, max_chunk)
-    except OSError:
-        key = None
-    run = _started.pop(key, None) if key is not None else None
-    _started.clear()
-    if run is None:
-        return None
-    run.thread.join()
-    return run.results
+    return _started.take(path, (pos, end, maps, payloads, max_chunk))
