@@ -5,7 +5,6 @@ way; a log in any unusual form starts nothing, and nothing in the early path loa
 
 from __future__ import annotations
 
-import json
 import os
 import subprocess
 import sys
@@ -14,9 +13,8 @@ from typing import Any
 
 import pytest
 
+from tests.early_helpers import G, U, compare_in_fresh_process, read, same_streams, spy_taken
 from uwval.io import early, mcap_runs
-
-G, U = "/gazebo/model_rov_pose", "/unity/model_rov_pose"
 
 
 @pytest.fixture(autouse=True)
@@ -53,37 +51,6 @@ def _log(tmp_path: Path, *, metadata_first: bool = False, name: str = "log.mcap"
     return path
 
 
-def _read(path: Path, topics: list[str]) -> dict[str, Any]:
-    from uwval.io import read_streams
-
-    return read_streams(path, topics)
-
-
-def _same(a: dict[str, Any], b: dict[str, Any]) -> None:
-    import numpy as np
-
-    assert list(a) == list(b)
-    for k in a:
-        for f in ("t", "position", "orientation"):
-            np.testing.assert_array_equal(getattr(a[k], f), getattr(b[k], f))
-        np.testing.assert_array_equal(a[k].applied_stamp, b[k].applied_stamp)
-        assert a[k].warnings == b[k].warnings
-
-
-def _taken(monkeypatch: pytest.MonkeyPatch) -> list[bool]:
-    """Record, per read, whether it took the early runs."""
-    got: list[bool] = []
-    real = mcap_runs.take_started
-
-    def spy(*args: Any) -> Any:
-        r = real(*args)
-        got.append(r is not None)
-        return r
-
-    monkeypatch.setattr(mcap_runs, "take_started", spy)
-    return got
-
-
 @pytest.mark.parametrize(
     ("case", "read_topics", "taken_expected"),
     [
@@ -100,15 +67,15 @@ def test_the_read_takes_the_early_runs_only_when_they_are_its_own(
     taken_expected: bool,
 ) -> None:
     log = _log(tmp_path)
-    plain = _read(log, read_topics)
-    taken = _taken(monkeypatch)
+    plain = read(log, read_topics)
+    taken = spy_taken(monkeypatch, mcap_runs)
     monkeypatch.setattr(mcap_runs, "EARLY_FILE_BYTES", 20_000)  # many runs
     early.start(log, [G, U])
     assert len(mcap_runs._started) == 1
     if case == "file touched":
         st = log.stat()
         os.utime(log, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000_000))
-    _same(_read(log, read_topics), plain)  # the same streams either way
+    same_streams(read(log, read_topics), plain)  # the same streams either way
     assert taken == [taken_expected] and not mcap_runs._started
 
 
@@ -124,11 +91,11 @@ def test_a_rosbag2_bag_of_one_mcap_file_is_started_and_taken(
     with open_writer(bag, "rosbag2-mcap") as w:
         write_stream(w, vehicle.topic, vehicle, "enu")
         write_stream(w, unity.topic, unity, unity.frame)
-    plain = _read(bag, [G, U])
-    taken = _taken(monkeypatch)
+    plain = read(bag, [G, U])
+    taken = spy_taken(monkeypatch, mcap_runs)
     early.start(bag, [G, U])
     assert len(mcap_runs._started) == 1
-    _same(_read(bag, [G, U]), plain)
+    same_streams(read(bag, [G, U]), plain)
     assert taken == [True]
 
 
@@ -149,11 +116,11 @@ def test_early_runs_stopped_by_a_damaged_chunk_are_taken_and_the_read_goes_on(
     data = bytearray(log.read_bytes())
     data[chunk + 9 + 60] ^= 0xFF  # inside its compressed records: it fails its check
     log.write_bytes(bytes(data))
-    plain = _read(log, [G, U])
+    plain = read(log, [G, U])
     assert any(f"MCAP chunk at byte {chunk}" in w for w in plain[G].warnings)
-    taken = _taken(monkeypatch)
+    taken = spy_taken(monkeypatch, mcap_runs)
     early.start(log, [G, U])
-    _same(_read(log, [G, U]), plain)
+    same_streams(read(log, [G, U]), plain)
     assert taken[0] is True  # the runs before the damaged chunk
 
 
@@ -185,38 +152,7 @@ def test_a_compare_through_the_command_line_takes_the_early_runs(tmp_path: Path)
     """The whole command, in a fresh process: the early runs are taken, and the JSON equals
     the one of a process where early reads are disabled."""
     log = _log(tmp_path)
-    code = (
-        "import sys, json\n"
-        "import uwval.cpus\n"
-        "uwval.cpus.second_cpu_free = lambda: True\n"
-        "import uwval.io.early as e\n"
-        "import uwval.io.mcap_runs as r\n"
-        "if sys.argv[1] == 'off':\n"
-        "    e.start = lambda *a: None\n"
-        "real = r.take_started\n"
-        "seen = []\n"
-        "def spy(*a):\n"
-        "    got = real(*a)\n"
-        "    seen.append(got is not None)\n"
-        "    return got\n"
-        "r.take_started = spy\n"
-        "from uwval.cli import main\n"
-        f"main(['compare', {str(log)!r}, '--gazebo-topic', {G!r}, '--unity-topic', {U!r},"
-        " '--output', sys.argv[2]])\n"
-        "print(seen)\n"
-    )
-    outs = {}
-    for mode in ("on", "off"):
-        out = tmp_path / f"{mode}.json"
-        res = subprocess.run(
-            [sys.executable, "-c", code, mode, str(out)],
-            capture_output=True,
-            text=True,
-            check=True,
-        )
-        outs[mode] = json.loads(out.read_text())
-        assert res.stdout.strip().splitlines()[-1] == ("[True]" if mode == "on" else "[False]")
-    assert outs["on"] == outs["off"]
+    compare_in_fresh_process(log, "uwval.io.mcap_runs", tmp_path)
 
 
 def test_the_early_runs_load_no_numpy(tmp_path: Path) -> None:

@@ -4,7 +4,6 @@ anything it cannot decide cheaply starts nothing."""
 
 from __future__ import annotations
 
-import json
 import os
 import subprocess
 import sys
@@ -14,11 +13,10 @@ from typing import Any
 import pytest
 
 from tests.accelerators import require_module
+from tests.early_helpers import G, U, compare_in_fresh_process, read, same_streams, spy_taken
 from uwval.io import db3_pages, early
 
 require_module(db3_pages._db3pages, "uwval.io._db3pages")
-
-G, U = "/gazebo/model_rov_pose", "/unity/model_rov_pose"
 
 
 @pytest.fixture(autouse=True)
@@ -52,36 +50,6 @@ def _bag(tmp_path: Path, fmt: str = "rosbag2", name: str = "bag") -> Path:
     return out
 
 
-def _read(bag: Path, topics: list[str]) -> dict[str, Any]:
-    from uwval.io import read_streams
-
-    return read_streams(bag, topics)
-
-
-def _same(a: dict[str, Any], b: dict[str, Any]) -> None:
-    import numpy as np
-
-    assert list(a) == list(b)
-    for k in a:
-        for f in ("t", "position", "orientation"):
-            np.testing.assert_array_equal(getattr(a[k], f), getattr(b[k], f))
-        np.testing.assert_array_equal(a[k].applied_stamp, b[k].applied_stamp)
-
-
-def _taken(monkeypatch: pytest.MonkeyPatch) -> list[bool]:
-    """Record, per read, whether it took an early scan's result."""
-    got: list[bool] = []
-    real = db3_pages.take_started
-
-    def spy(path: Path, args: Any) -> Any:
-        r = real(path, args)
-        got.append(r is not None)
-        return r
-
-    monkeypatch.setattr(db3_pages, "take_started", spy)
-    return got
-
-
 @pytest.mark.parametrize(
     ("case", "read_topics", "taken_expected"),
     [
@@ -98,15 +66,15 @@ def test_the_read_takes_the_early_scan_only_when_it_is_its_own(
     taken_expected: bool,
 ) -> None:
     bag = _bag(tmp_path)
-    plain = _read(bag, read_topics)
-    taken = _taken(monkeypatch)
+    plain = read(bag, read_topics)
+    taken = spy_taken(monkeypatch, db3_pages)
     early.start(bag, [G, U])
     assert len(db3_pages._started) == 1
     if case == "file touched":
         db3 = next(bag.glob("*.db3"))
         st = db3.stat()
         os.utime(db3, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000_000))
-    _same(_read(bag, read_topics), plain)  # the same streams either way
+    same_streams(read(bag, read_topics), plain)  # the same streams either way
     assert taken == [taken_expected] and not db3_pages._started
 
 
@@ -148,38 +116,7 @@ def test_a_compare_through_the_command_line_takes_the_early_scan(tmp_path: Path)
     """The whole command, in a fresh process: the early scan is taken, and the JSON equals
     the one of a process where early reads are disabled."""
     bag = _bag(tmp_path)
-    code = (
-        "import sys, json\n"
-        "import uwval.cpus\n"
-        "uwval.cpus.second_cpu_free = lambda: True\n"
-        "import uwval.io.early as e\n"
-        "import uwval.io.db3_pages as d\n"
-        "if sys.argv[1] == 'off':\n"
-        "    e.start = lambda *a: None\n"
-        "real = d.take_started\n"
-        "seen = []\n"
-        "def spy(*a):\n"
-        "    r = real(*a)\n"
-        "    seen.append(r is not None)\n"
-        "    return r\n"
-        "d.take_started = spy\n"
-        "from uwval.cli import main\n"
-        f"main(['compare', {str(bag)!r}, '--gazebo-topic', {G!r}, '--unity-topic', {U!r},"
-        " '--output', sys.argv[2]])\n"
-        "print(seen)\n"
-    )
-    outs = {}
-    for mode in ("on", "off"):
-        out = tmp_path / f"{mode}.json"
-        res = subprocess.run(
-            [sys.executable, "-c", code, mode, str(out)],
-            capture_output=True,
-            text=True,
-            check=True,
-        )
-        outs[mode] = json.loads(out.read_text())
-        assert res.stdout.strip().splitlines()[-1] == ("[True]" if mode == "on" else "[False]")
-    assert outs["on"] == outs["off"]
+    compare_in_fresh_process(bag, "uwval.io.db3_pages", tmp_path)
 
 
 def test_the_early_path_loads_no_numpy() -> None:
