@@ -50,6 +50,10 @@ static uint64_t le64(const unsigned char *p) {
 
 static uint16_t le16(const unsigned char *p) { return (uint16_t)(p[0] | (p[1] << 8)); }
 
+static uint32_t le32(const unsigned char *p) {
+    return (uint32_t)p[0] | ((uint32_t)p[1] << 8) | ((uint32_t)p[2] << 16) | ((uint32_t)p[3] << 24);
+}
+
 typedef struct {
     long cid;
     const uint64_t *ent; /* (log time, offset) pairs, little-endian uint64 */
@@ -508,17 +512,26 @@ static int cmp_long(const void *a, const void *b) {
     return (x > y) - (x < y);
 }
 
-static int grow(unsigned char **buf, int64_t *cap, int64_t need) {
-    if (*buf != NULL && *cap >= need)
-        return 0;
-    int64_t n = *cap > 0 ? *cap : (1 << 20);
+/* ``buf`` with room for ``need`` items of ``item`` bytes (its capacity ``*cap`` items,
+ * doubled from ``first`` as needed), or NULL when out of memory (``buf`` then unchanged). */
+static void *reserve(void *buf, int64_t *cap, int64_t need, size_t item, int64_t first) {
+    if (buf != NULL && *cap >= need)
+        return buf;
+    int64_t n = *cap > 0 ? *cap : first;
     while (n < need)
         n *= 2;
-    unsigned char *nb = realloc(*buf, (size_t)n);
+    void *nb = realloc(buf, (size_t)n * item);
+    if (nb != NULL)
+        *cap = n;
+    return nb;
+}
+
+/* A byte buffer of at least ``need`` bytes (1 MB at first): 0, or -1 out of memory. */
+static int grow(unsigned char **buf, int64_t *cap, int64_t need) {
+    unsigned char *nb = reserve(*buf, cap, need, 1, 1 << 20);
     if (nb == NULL)
         return -1;
     *buf = nb;
-    *cap = n;
     return 0;
 }
 
@@ -627,10 +640,8 @@ static int chunk_header(const unsigned char *mm, int64_t c, int64_t ln, chunk_t 
     if (ln < 8 + 8 + 8 + 4 + 4 + 8)
         return -1;
     ch->usize = as_i64(le64(mm + c + 16));
-    ch->crc = (uint32_t)(mm[c + 24] | (mm[c + 25] << 8) | (mm[c + 26] << 16) |
-                         ((uint32_t)mm[c + 27] << 24));
-    uint32_t sl = (uint32_t)(mm[c + 28] | (mm[c + 29] << 8) | (mm[c + 30] << 16) |
-                             ((uint32_t)mm[c + 31] << 24));
+    ch->crc = le32(mm + c + 24);
+    uint32_t sl = le32(mm + c + 28);
     if ((int64_t)sl > ln - 32 - 8)
         return -1;
     const unsigned char *name = mm + c + 32;
@@ -697,7 +708,8 @@ static void scan_run(const unsigned char *mm, Py_ssize_t mm_len, const unsigned 
     long *ucid = NULL;
     Py_ssize_t nu = 0;
     unsigned char *packed = NULL;
-    Py_ssize_t nc = 0, capc = 0, ngr = 0, capg = 0, nrows = 0, n_out = 0, done = 0;
+    Py_ssize_t nc = 0, ngr = 0, nrows = 0, n_out = 0, done = 0;
+    int64_t capc = 0, capg = 0;
     int64_t packed_size = 0;
     int stop = SCAN_END, oom = 0;
     long long next_pos = pos;
@@ -722,15 +734,12 @@ static void scan_run(const unsigned char *mm, Py_ssize_t mm_len, const unsigned 
             stop = SCAN_RECORD;
             break;
         }
-        if (nc == capc) {
-            capc = capc ? 2 * capc : 256;
-            chunk_t *nw = realloc(chunks, (size_t)capc * sizeof(chunk_t));
-            if (nw == NULL) {
-                oom = 1;
-                break;
-            }
-            chunks = nw;
+        chunk_t *nw = reserve(chunks, &capc, (int64_t)nc + 1, sizeof(chunk_t), 256);
+        if (nw == NULL) {
+            oom = 1;
+            break;
         }
+        chunks = nw;
         chunk_t *ch = chunks + nc;
         memset(ch, 0, sizeof(*ch));
         ch->rec = p;
@@ -755,8 +764,7 @@ static void scan_run(const unsigned char *mm, Py_ssize_t mm_len, const unsigned 
                 break;
             }
             long cid = le16(mm + ic);
-            uint32_t n = (uint32_t)(mm[ic + 2] | (mm[ic + 3] << 8) | (mm[ic + 4] << 16) |
-                                    ((uint32_t)mm[ic + 5] << 24));
+            uint32_t n = le32(mm + ic + 2);
             if ((uint64_t)n + 6 > il || n % 16) {
                 bad = 1;
                 break;
@@ -766,15 +774,12 @@ static void scan_run(const unsigned char *mm, Py_ssize_t mm_len, const unsigned 
                     bad = 1; /* a channel indexed twice: the reader's dict keeps the last */
             if (bad)
                 break;
-            if (ngr == capg) {
-                capg = capg ? 2 * capg : 1024;
-                group_t *nw = realloc(groups, (size_t)capg * sizeof(group_t));
-                if (nw == NULL) {
-                    oom = 1;
-                    break;
-                }
-                groups = nw;
+            group_t *nw = reserve(groups, &capg, (int64_t)ngr + 1, sizeof(group_t), 1024);
+            if (nw == NULL) {
+                oom = 1;
+                break;
             }
+            groups = nw;
             group_t *gr = groups + ngr++;
             memset(gr, 0, sizeof(*gr));
             gr->cid = cid;
@@ -1055,7 +1060,8 @@ static PyObject *scan_chunks(PyObject *self, PyObject *args) {
     }
     PyObject *result = NULL;
     run_t *runs = NULL;
-    Py_ssize_t nr = 0, capr = 0;
+    Py_ssize_t nr = 0;
+    int64_t capr = 0;
     int oom = 0;
     if (PyObject_GetBuffer(mm_obj, &mmb, PyBUF_C_CONTIGUOUS) != 0)
         goto fail;
@@ -1083,15 +1089,12 @@ static PyObject *scan_chunks(PyObject *self, PyObject *args) {
     long page = sysconf(_SC_PAGESIZE);
     long long released = drop_from;
     for (;;) {
-        if (nr == capr) {
-            capr = capr ? 2 * capr : 16;
-            run_t *nw = realloc(runs, (size_t)capr * sizeof(run_t));
-            if (nw == NULL) {
-                oom = 1;
-                break;
-            }
-            runs = nw;
+        run_t *nw = reserve(runs, &capr, (int64_t)nr + 1, sizeof(run_t), 16);
+        if (nw == NULL) {
+            oom = 1;
+            break;
         }
+        runs = nw;
         long long df = drop_from, dt = drop_to;
         if (whole) {
             df = page > 0 ? released - released % page : 0;
