@@ -38,16 +38,20 @@ def scan_ready() -> None:
 
 
 class Counted:
-    """``scan_chunks`` with a record of its calls: (stop reason, chunks read) each."""
+    """``scan_chunks`` with a record of the runs it read: (stop reason, chunks read) each
+    (``calls``), and of how many runs each call returned (``per_call``)."""
 
     def __init__(self, monkeypatch: pytest.MonkeyPatch) -> None:
         assert mcap_raw._mcapwalk is not None
         self.calls: list[tuple[int, int]] = []
+        self.per_call: list[int] = []
         real = mcap_raw._mcapwalk.scan_chunks
 
         def counted(*args: Any) -> Any:
             out = real(*args)
-            self.calls.append((out[0], out[2]))
+            runs = out[0] if isinstance(out[0], list) else [out]
+            self.calls += [(r[0], r[2]) for r in runs]
+            self.per_call.append(len(runs))
             return out
 
         monkeypatch.setattr(mcap_raw._mcapwalk, "scan_chunks", counted)
@@ -155,8 +159,30 @@ def test_runs_read_what_single_chunks_read(
     assert isinstance(got, RawLog) and not got.warnings
     assert len(counted.calls) > 5 and counted.chunks > 20
     assert all(stop in (1, 2) for stop, _n in counted.calls)  # budget, then DataEnd
+    assert counted.per_call == [len(counted.calls)]  # each run planned as the last was read
     _same(got, _read(log, monkeypatch, scan=False, **kw))
     assert len(got.raw["/gazebo/model_rov_pose"]) == 400
+
+
+@pytest.mark.parametrize("hold", [1, 30_000])
+def test_calls_that_return_every_few_runs_read_the_same(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, hold: int
+) -> None:
+    """Calls that return once ``hold`` bytes of results are held (the reader adds them, then
+    calls again from the next run) read what one call for the whole log reads."""
+    log = _write(tmp_path / "log.mcap")
+    monkeypatch.setattr(mcap_raw, "SCAN_FILE_BYTES", 16_000)  # many runs
+    whole = _read(log, monkeypatch, scan=True)
+    counted = Counted(monkeypatch)
+    monkeypatch.setattr(mcap_raw, "SCAN_HOLD_BYTES", hold)
+    got = _read(log, monkeypatch, scan=True)
+    assert len(counted.per_call) > 3 and counted.chunks > 20
+    if hold == 1:
+        assert set(counted.per_call) == {1}  # every run returned at once
+    else:
+        assert max(counted.per_call) > 1
+    _same(got, whole)
+    _same(got, _read(log, monkeypatch, scan=False))
 
 
 @pytest.mark.parametrize("threads", [1, 2, 5])

@@ -58,6 +58,7 @@ typedef struct {
     long cid;
     const uint64_t *ent; /* (log time, offset) pairs, little-endian uint64 */
     Py_ssize_t n, cursor, out_row, bytes;
+    Py_ssize_t chan; /* scan_chunks: its channel's place among the run's (ascending ids) */
     int64_t lo, hi, min_len, max_len, pay_at;
 } group_t;
 
@@ -459,6 +460,7 @@ typedef struct {
 #define SCAN_THREADS 8
 typedef struct {
     worker_t w[SCAN_THREADS];
+    int32_t *cidx; /* channel id -> its place in a run being planned; -1 between plans */
 } workspace_t;
 
 #define WORKSPACE "uwval.io._mcapwalk.workspace"
@@ -474,6 +476,7 @@ static void workspace_free(PyObject *cap) {
         if (ws->w[t].dctx != NULL && zstd_free != NULL)
             zstd_free(ws->w[t].dctx);
     }
+    free(ws->cidx);
     free(ws);
 }
 
@@ -664,7 +667,7 @@ static int chunk_header(const unsigned char *mm, int64_t c, int64_t ln, chunk_t 
 
 PyDoc_STRVAR(scan_chunks_doc,
 "scan_chunks(workspace, mm, pos, end, maps, file_budget, slot_budget, threads, payloads,\n"
-"            max_chunk[, drop_from, drop_to, whole])\n"
+"            max_chunk[, drop_from, drop_to, whole, hold])\n"
 "    -> (stop, next_pos, n_chunks, rows, packed, per_channel)\n\n"
 "Read the run of complete Chunk records (each with its MessageIndex records) that starts\n"
 "at byte ``pos`` of the MCAP file ``mm``, up to byte ``end`` (the summary), on ``threads``\n"
@@ -682,9 +685,11 @@ PyDoc_STRVAR(scan_chunks_doc,
 "length of its wanted records, first row, rows, first packed byte). With ``drop_from`` and\n"
 "``drop_to`` (page-aligned offsets), the map pages between them are dropped from the\n"
 "process's RSS (MADV_DONTNEED) while the other threads start. With ``whole``, run follows\n"
-"run until one stops for another reason than the budget, each dropping the pages read\n"
-"before it (``drop_from``: where the last drop ended), all with the GIL released; the\n"
-"result is then the list of the runs' tuples.");
+"run until one stops for another reason than the budget, or until ``hold`` bytes of rows\n"
+"and payloads are held (0: no limit; the last run's stop is then the budget), each run\n"
+"planned while the one before it is read and dropping the pages read before it\n"
+"(``drop_from``: where the last drop ended), all with the GIL released; the result is then\n"
+"(list of the runs' tuples, where the last drop ended).");
 
 typedef struct {
     int stop, oom;
@@ -695,24 +700,48 @@ typedef struct {
     int64_t packed_size;
 } run_t;
 
-/* One run of chunks from ``pos`` (see scan_chunks); called without the GIL. The caller
- * frees out->rows, out->packed and out->stats. */
-static void scan_run(const unsigned char *mm, Py_ssize_t mm_len, const unsigned char *maps,
-                     workspace_t *ws, long long pos, long long end, long long file_budget,
-                     long long slot_budget, int threads, int payloads, long long max_chunk,
-                     long long drop_from, long long drop_to, run_t *out) {
+/* Where a run may go: up to ``end`` (the summary), ``file_budget`` file bytes and
+ * ``slot_budget`` decompressed bytes of wanted chunks; no chunk larger than ``max_chunk``. */
+typedef struct {
+    long long end, file_budget, slot_budget, max_chunk;
+} limits_t;
+
+/* A planned run (steps 1 and 2 of scan_chunks): its chunks, their index groups, the run's
+ * channels (ascending ids) and the row each wanted group's records go to. */
+typedef struct {
+    chunk_t *chunks;
+    group_t *groups;
+    int64_t *rows, *acc;
+    long *ucid;
+    Py_ssize_t nc, ngr, nu, nrows;
+    int stop, oom;
+    long long next_pos;
+} plan_t;
+
+static void plan_free(plan_t *pl) {
+    free(pl->chunks);
+    free(pl->groups);
+    free(pl->rows);
+    free(pl->acc);
+    free(pl->ucid);
+    memset(pl, 0, sizeof(*pl));
+}
+
+/* Plan the run of chunks from ``pos`` (steps 1 and 2): reads only chunk headers and
+ * indexes; called without the GIL. */
+static void plan_run(const unsigned char *mm, const unsigned char *maps, workspace_t *ws,
+                     long long pos, const limits_t *lim, plan_t *pl) {
     chunk_t *chunks = NULL;
     group_t *groups = NULL;
-    int64_t *rows = NULL, *acc = NULL, *stats = NULL;
-    int32_t *cidx = NULL;
+    int64_t *rows = NULL, *acc = NULL;
+    int32_t *cidx = ws->cidx;
     long *ucid = NULL;
     Py_ssize_t nu = 0;
-    unsigned char *packed = NULL;
-    Py_ssize_t nc = 0, ngr = 0, nrows = 0, n_out = 0, done = 0;
+    Py_ssize_t nc = 0, ngr = 0, nrows = 0;
     int64_t capc = 0, capg = 0;
-    int64_t packed_size = 0;
     int stop = SCAN_END, oom = 0;
-    long long next_pos = pos;
+    long long next_pos = pos, end = lim->end, file_budget = lim->file_budget,
+              slot_budget = lim->slot_budget, max_chunk = lim->max_chunk;
     /* 1. the run of chunks, their headers and indexes (reads only headers and indexes) */
     int64_t p = pos, slot_fill = 0;
     for (;;) {
@@ -823,13 +852,16 @@ static void scan_run(const unsigned char *mm, Py_ssize_t mm_len, const unsigned 
     /* 2. the channels of the run (ascending ids) and their rows: channel after channel,
      *    each in chunk order */
     if (!oom && nc > 0) {
-        cidx = malloc(65536 * sizeof(int32_t));
+        if (cidx == NULL) { /* once per workspace: every entry -1, and -1 again after use */
+            cidx = ws->cidx = malloc(65536 * sizeof(int32_t));
+            if (cidx != NULL)
+                memset(cidx, 0xFF, 65536 * sizeof(int32_t));
+        }
         ucid = malloc((size_t)(ngr > 0 ? ngr : 1) * sizeof(long));
         if (cidx == NULL || ucid == NULL)
             oom = 1;
     }
     if (!oom && nc > 0) {
-        memset(cidx, 0xFF, 65536 * sizeof(int32_t));
         for (Py_ssize_t i = 0; i < ngr; i++)
             if (cidx[groups[i].cid] < 0) {
                 cidx[groups[i].cid] = 0;
@@ -838,6 +870,10 @@ static void scan_run(const unsigned char *mm, Py_ssize_t mm_len, const unsigned 
         qsort(ucid, (size_t)nu, sizeof(long), cmp_long);
         for (Py_ssize_t j = 0; j < nu; j++)
             cidx[ucid[j]] = (int32_t)j;
+        for (Py_ssize_t i = 0; i < ngr; i++)
+            groups[i].chan = cidx[groups[i].cid];
+        for (Py_ssize_t j = 0; j < nu; j++)
+            cidx[ucid[j]] = -1;
         acc = calloc((size_t)(nu > 0 ? nu : 1), 10 * sizeof(int64_t));
         if (acc == NULL)
             oom = 1;
@@ -849,7 +885,7 @@ static void scan_run(const unsigned char *mm, Py_ssize_t mm_len, const unsigned 
                 if (chunks[k].status == ST_SKIP)
                     groups[i].out_row = -1;
                 else if (groups[i].out_row >= 0)
-                    acc[10 * cidx[groups[i].cid] + 9] += groups[i].n;
+                    acc[10 * groups[i].chan + 9] += groups[i].n;
             }
         int64_t total = 0;
         for (Py_ssize_t j = 0; j < nu; j++) {
@@ -862,7 +898,7 @@ static void scan_run(const unsigned char *mm, Py_ssize_t mm_len, const unsigned 
             for (Py_ssize_t i = chunks[k].g0; i < chunks[k].g0 + chunks[k].ng; i++) {
                 if (groups[i].out_row < 0)
                     continue;
-                int64_t *r = acc + 10 * cidx[groups[i].cid] + 9;
+                int64_t *r = acc + 10 * groups[i].chan + 9;
                 groups[i].out_row = (Py_ssize_t)*r;
                 *r += groups[i].n;
             }
@@ -872,7 +908,42 @@ static void scan_run(const unsigned char *mm, Py_ssize_t mm_len, const unsigned 
             oom = 1;
     }
 
+    pl->chunks = chunks;
+    pl->groups = groups;
+    pl->rows = rows;
+    pl->acc = acc;
+    pl->ucid = ucid;
+    pl->nc = nc;
+    pl->ngr = ngr;
+    pl->nu = nu;
+    pl->nrows = nrows;
+    pl->stop = stop;
+    pl->oom = oom;
+    pl->next_pos = next_pos;
+}
+
+/* Read the planned run ``pl`` (steps 3 and 4) on ``threads`` threads; called without the
+ * GIL. Meanwhile the calling thread drops the map pages between ``drop_from`` and
+ * ``drop_to`` and, when ``next`` is not NULL, plans the run that follows this one (from
+ * pl->next_pos) into ``next``: that walk of headers and indexes then overlaps the
+ * decompression instead of preceding the next run's. ``pl`` is freed, its rows handed to
+ * ``out``; the caller frees out->rows, out->packed and out->stats. */
+static void read_run(plan_t *pl, const unsigned char *mm, Py_ssize_t mm_len,
+                     const unsigned char *maps, workspace_t *ws, int threads, int payloads,
+                     long long drop_from, long long drop_to, const limits_t *lim, plan_t *next,
+                     run_t *out) {
+    chunk_t *chunks = pl->chunks;
+    group_t *groups = pl->groups;
+    int64_t *rows = pl->rows, *acc = pl->acc, *stats = NULL;
+    long *ucid = pl->ucid;
+    Py_ssize_t nu = pl->nu, nc = pl->nc, nrows = pl->nrows, n_out = 0, done = 0;
+    unsigned char *packed = NULL;
+    int64_t packed_size = 0;
+    int stop = pl->stop, oom = pl->oom;
+    long long next_pos = pl->next_pos;
+
     /* 3. decompress, check and walk, on ``threads`` threads */
+    int planned = 0;
     if (!oom && nc > 0) {
         scan_t s = {mm, chunks, nc, groups, rows, payloads, maps, ws, 0, 0};
         pthread_t tid[SCAN_THREADS];
@@ -887,10 +958,16 @@ static void scan_run(const unsigned char *mm, Py_ssize_t mm_len, const unsigned 
         if (page > 0 && drop_from >= 0 && drop_to <= (long long)mm_len && drop_to > drop_from &&
             drop_from % page == 0 && drop_to % page == 0)
             madvise((void *)(mm + drop_from), (size_t)(drop_to - drop_from), MADV_DONTNEED);
+        if (next != NULL) {
+            plan_run(mm, maps, ws, next_pos, lim, next);
+            planned = 1;
+        }
         scan_worker(&s);
         for (int t = 0; t < started; t++)
             pthread_join(tid[t], NULL);
     }
+    if (next != NULL && !planned)
+        plan_run(mm, maps, ws, next_pos, lim, next);
 
     /* 4. the chunks read (up to the first left to the reader), per channel */
     if (!oom && nc > 0) {
@@ -921,7 +998,7 @@ static void scan_run(const unsigned char *mm, Py_ssize_t mm_len, const unsigned 
                     lo = g->lo;
                     hi = g->hi;
                 }
-                int64_t *a = acc + 10 * cidx[g->cid];
+                int64_t *a = acc + 10 * g->chan;
                 if (a[0] == 0) {
                     a[1] = lo;
                     a[2] = hi;
@@ -970,7 +1047,7 @@ static void scan_run(const unsigned char *mm, Py_ssize_t mm_len, const unsigned 
                 group_t *g = groups + i;
                 if (g->out_row < 0 || g->n == 0)
                     continue;
-                int64_t *a = acc + 10 * cidx[g->cid];
+                int64_t *a = acc + 10 * g->chan;
                 int64_t at = a[7] + a[9];
                 memcpy(packed + at, ws->w[chunks[k].arena].arena + g->pay_at, (size_t)g->bytes);
                 for (Py_ssize_t j = 0; j < g->n; j++) {
@@ -1002,8 +1079,8 @@ static void scan_run(const unsigned char *mm, Py_ssize_t mm_len, const unsigned 
     free(chunks);
     free(groups);
     free(acc);
-    free(cidx);
     free(ucid);
+    memset(pl, 0, sizeof(*pl));
     if (oom) {
         free(rows);
         free(packed);
@@ -1047,11 +1124,12 @@ static PyObject *scan_chunks(PyObject *self, PyObject *args) {
     (void)self;
     PyObject *ws_obj, *mm_obj;
     Py_buffer mmb = {0}, mapsb = {0};
-    long long pos, end, file_budget, slot_budget, max_chunk, drop_from = 0, drop_to = 0;
+    long long pos, end, file_budget, slot_budget, max_chunk, drop_from = 0, drop_to = 0,
+                                                             hold = 0;
     int threads, payloads, whole = 0;
-    if (!PyArg_ParseTuple(args, "OOLLy*LLipL|LLp:scan_chunks", &ws_obj, &mm_obj, &pos, &end,
+    if (!PyArg_ParseTuple(args, "OOLLy*LLipL|LLpL:scan_chunks", &ws_obj, &mm_obj, &pos, &end,
                           &mapsb, &file_budget, &slot_budget, &threads, &payloads, &max_chunk,
-                          &drop_from, &drop_to, &whole))
+                          &drop_from, &drop_to, &whole, &hold))
         return NULL;
     workspace_t *ws = PyCapsule_GetPointer(ws_obj, WORKSPACE);
     if (ws == NULL) {
@@ -1081,16 +1159,24 @@ static PyObject *scan_chunks(PyObject *self, PyObject *args) {
         threads = SCAN_THREADS;
     const unsigned char *mm = (const unsigned char *)mmb.buf;
     const unsigned char *maps = (const unsigned char *)mapsb.buf;
+    long long released = drop_from;
 
     Py_BEGIN_ALLOW_THREADS
-    /* whole: run after run up to the first stop that is not the budget, each dropping the
-     * map pages read before it (DROP_EVERY at least), ``drop_from`` being where the last
-     * drop ended; one GIL hand-over for all of them */
+    /* whole: run after run up to the first stop that is not the budget (or until ``hold``
+     * bytes of results are held), each dropping the map pages read before it (DROP_EVERY at
+     * least), ``drop_from`` being where the last drop ended, and each run planned while the
+     * one before it is read; one GIL hand-over for all of them */
     long page = sysconf(_SC_PAGESIZE);
-    long long released = drop_from;
+    limits_t lim = {end, file_budget, slot_budget, max_chunk};
+    plan_t cur, nxt;
+    memset(&cur, 0, sizeof(cur));
+    memset(&nxt, 0, sizeof(nxt));
+    plan_run(mm, maps, ws, pos, &lim, &cur);
+    int64_t held = 0;
     for (;;) {
         run_t *nw = reserve(runs, &capr, (int64_t)nr + 1, sizeof(run_t), 16);
         if (nw == NULL) {
+            plan_free(&cur);
             oom = 1;
             break;
         }
@@ -1104,16 +1190,20 @@ static PyObject *scan_chunks(PyObject *self, PyObject *args) {
             else
                 df = dt = 0;
         }
+        int plan_next = whole && cur.stop == SCAN_BUDGET && !cur.oom;
         run_t *r = runs + nr++;
-        scan_run(mm, mmb.len, maps, ws, pos, end, file_budget, slot_budget, threads, payloads,
-                 max_chunk, df, dt, r);
-        if (r->oom) {
+        read_run(&cur, mm, mmb.len, maps, ws, threads, payloads, df, dt, &lim,
+                 plan_next ? &nxt : NULL, r);
+        if (r->oom)
             oom = 1;
+        held += (int64_t)r->nrows * 24 + r->packed_size;
+        if (oom || !whole || r->stop != SCAN_BUDGET || (hold > 0 && held >= hold)) {
+            plan_free(&nxt);
             break;
         }
-        if (!whole || r->stop != SCAN_BUDGET)
-            break;
-        pos = r->next_pos;
+        pos = r->next_pos; /* where nxt was planned from */
+        cur = nxt;
+        memset(&nxt, 0, sizeof(nxt));
     }
     Py_END_ALLOW_THREADS
 
@@ -1125,8 +1215,8 @@ static PyObject *scan_chunks(PyObject *self, PyObject *args) {
         result = run_tuple(runs, payloads);
         goto fail;
     }
-    result = PyList_New(nr);
-    for (Py_ssize_t i = 0; result != NULL && i < nr; i++) {
+    PyObject *list = PyList_New(nr);
+    for (Py_ssize_t i = 0; list != NULL && i < nr; i++) {
         PyObject *t = run_tuple(runs + i, payloads);
         /* each run's buffers go as soon as they are copied: the copies reuse their memory */
         free(runs[i].rows);
@@ -1135,10 +1225,12 @@ static PyObject *scan_chunks(PyObject *self, PyObject *args) {
         runs[i].rows = runs[i].stats = NULL;
         runs[i].packed = NULL;
         if (t == NULL)
-            Py_CLEAR(result);
+            Py_CLEAR(list);
         else
-            PyList_SET_ITEM(result, i, t);
+            PyList_SET_ITEM(list, i, t);
     }
+    if (list != NULL)
+        result = Py_BuildValue("NL", list, released);
 fail:
     for (Py_ssize_t i = 0; i < nr; i++) {
         free(runs[i].rows);

@@ -47,8 +47,10 @@ def scan_chunks(
     drop_from: int = 0,
     drop_to: int = 0,
     whole: bool = False,
+    hold: int = 0,
     /,
 ) -> Any:
     """Read the run of chunks from byte ``pos`` (see _mcapwalk.c): (stop reason, where the
     reader goes on, chunks read, rows, packed payloads, per-channel table); with ``whole``,
-    the list of such tuples of the runs up to the first stop that is not the budget."""
+    (the list of such tuples of the runs up to the first stop that is not the budget, or
+    until ``hold`` bytes of results are held; where the last drop of map pages ended)."""

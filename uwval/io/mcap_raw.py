@@ -1,15 +1,16 @@
 """Fast MCAP scanner: whole chunks in, per-topic payload buffers out, nothing trusted blindly.
 
 The mcap library hands out one Python object per message; at a million messages that costs
-seconds. This scanner walks only the top-level records (one step per chunk), decompresses
-each chunk that holds a wanted channel once (zstd / lz4), checks it against its CRC, and
-locates the wanted channels' messages from the chunk's MessageIndex records. Two paths do
-that, with the same result: runs of chunks read by one C call each (``scan_chunks``, see
-:mod:`uwval.io.mcap_runs`: its own threads decompress, check and walk, with the GIL released
-for the whole run), which leaves whatever it would not read exactly as the batched path does
-(damaged or odd chunks, new Schema/Channel records, lz4, chunks without index, logs without
-summary) to the batched path: chunks decompressed on inflate threads and located by one C
-walk of each (``_mcapwalk``, optional), else with numpy, on the reading thread.
+seconds. This scanner walks only the top-level records (one step per chunk), decompresses each
+chunk that holds a wanted channel once (zstd / lz4), checks it against its CRC, and locates the
+wanted channels' messages from the chunk's MessageIndex records. Two paths do that, with the
+same result: runs of chunks read in C (``scan_chunks``, see :mod:`uwval.io.mcap_runs`: its own
+threads decompress, check and walk, with the GIL released; one call reads run after run,
+planning each while the one before is read), which leaves whatever it would not read exactly as
+the batched path does (damaged or odd chunks, new Schema/Channel records, lz4, chunks without
+index, logs without summary) to the batched path: chunks decompressed on inflate threads and
+located by one C walk of each (``_mcapwalk``, optional), else with numpy, on the reading
+thread.
 
 Nothing in the file is taken on faith (a damaged log must never give a silently wrong
 number): the index is checked against the records it points at (each entry a Message record
@@ -92,7 +93,7 @@ except ImportError:  # pragma: no cover - installs without a C compiler: the num
 USE_MATCH = _mcapwalk is not None and not os.environ.get("UWVAL_NO_ACCELERATOR")
 #: Schema/Channel records a chunk may hold for the C walk (more: the numpy check reads it)
 MATCH_TABLES = 256
-#: Whether runs of chunks are read by one C call each (``_mcapwalk.scan_chunks``, see
+#: Whether runs of chunks are read in C (``_mcapwalk.scan_chunks``, see
 #: :mod:`uwval.io.mcap_runs`: zstd and the CRC from C, on POSIX threads, no GIL hand-over per
 #: chunk); needs the C walk and libzstd (found at the first read). The batched path below
 #: reads the rest (lz4 chunks, chunks without index, logs without summary) and every chunk
@@ -100,6 +101,8 @@ MATCH_TABLES = 256
 USE_SCAN = USE_MATCH
 SCAN_FILE_BYTES = mcap_runs.SCAN_FILE_BYTES
 SCAN_SLOT_BYTES = mcap_runs.SCAN_SLOT_BYTES
+#: the rows and payloads one scan_chunks call holds at most before it returns them
+SCAN_HOLD_BYTES = mcap_runs.SCAN_HOLD_BYTES
 SCAN_BUDGET, SCAN_CHUNK, SCAN_OTHER = (
     mcap_runs.SCAN_BUDGET,
     mcap_runs.SCAN_CHUNK,
@@ -414,10 +417,10 @@ class _Scanner:
         return self.scan_maps[2]
 
     def _scan(self, pos: int, end: int) -> int | None:
-        """Read the run of chunks from ``pos`` on by ``_mcapwalk.scan_chunks`` (or take the
-        runs :mod:`uwval.io.early` began, when they are exactly these); where the reader goes
-        on, or None when nothing was read (the chunk at ``pos`` is then read by the batched
-        path)."""
+        """Read the runs of chunks from ``pos`` on by one ``_mcapwalk.scan_chunks`` call (or
+        take the runs :mod:`uwval.io.early` began, when they are exactly these); where the
+        reader goes on, or None when nothing was read (the chunk at ``pos`` is then read by
+        the batched path)."""
         assert _mcapwalk is not None
         if self.batch or self.sealed:
             self.flush()  # chunks are read in file order
@@ -433,26 +436,26 @@ class _Scanner:
                 self.scan_threads = 2 if second_cpu_free() else 1
             if self.scan_ws is None:
                 self.scan_ws = _mcapwalk.scan_workspace()
-            # the map pages read by earlier calls are dropped by this one while its other
-            # thread decompresses
-            drop = mcap_runs.drop_range(self.released, pos)
-            results = [
-                _mcapwalk.scan_chunks(
-                    self.scan_ws,
-                    self.mm,
-                    pos,
-                    end,
-                    maps,
-                    SCAN_FILE_BYTES,
-                    SCAN_SLOT_BYTES,
-                    self.scan_threads,
-                    not self.times_only,
-                    BATCH_MAX,
-                    *drop,
-                )
-            ]
-            if drop:
-                self.released = drop[1]
+            # run after run in one call, until SCAN_HOLD_BYTES of results are held (their
+            # memory is then reused by the next call's); each run drops the map pages read
+            # before it while its other thread decompresses
+            results, released = _mcapwalk.scan_chunks(
+                self.scan_ws,
+                self.mm,
+                pos,
+                end,
+                maps,
+                SCAN_FILE_BYTES,
+                SCAN_SLOT_BYTES,
+                self.scan_threads,
+                not self.times_only,
+                BATCH_MAX,
+                self.released,
+                0,
+                True,
+                SCAN_HOLD_BYTES,
+            )
+            self.released = max(self.released, released)
         n = 0
         stop, nxt = results[-1][:2]
         results.reverse()

@@ -1,15 +1,16 @@
-"""Runs of MCAP chunks read by one C call each, and such a read begun before numpy loads.
+"""Runs of MCAP chunks read in C, and such a read begun before numpy loads.
 
 :mod:`uwval.io.mcap_raw` reads a log's chunks by calls of ``_mcapwalk.scan_chunks`` (zstd and
-the CRC from C, on POSIX threads, the GIL released for the whole run). This module holds
-what that needs and does not need numpy: whether the C reader is there (:func:`scan_ready`),
-the per-id table the call is given (:func:`scan_maps`), and the early start
-(:func:`start_scan`): ``uwval compare`` of one MCAP file begins the same calls on another
-thread while numpy and the comparison code load (:mod:`uwval.io.early`), and the read takes
-their results (:func:`take_started`) only when it would make exactly the same calls: the
-same file, unchanged, the same first chunk, summary start, channel table and budgets.
-Anything else, or any doubt while starting, starts nothing; a started read that is not taken
-is dropped.
+the CRC from C, on POSIX threads, the GIL released; one call reads run after run, the calling
+thread planning the next run, from its chunk headers and indexes, while its threads decompress
+this one, and returns once :data:`SCAN_HOLD_BYTES` of results are held). This module holds what
+that needs and does not need numpy: whether the C reader is there (:func:`scan_ready`), the
+per-id table the call is given (:func:`scan_maps`), and the early start (:func:`start_scan`):
+``uwval compare`` of one MCAP file begins the same calls on another thread while numpy and the
+comparison code load (:mod:`uwval.io.early`), and the read takes their results
+(:func:`take_started`) only when it would make exactly the same calls: the same file,
+unchanged, the same first chunk, summary start, channel table and budgets. Anything else, or
+any doubt while starting, starts nothing; a started read that is not taken is dropped.
 """
 
 from __future__ import annotations
@@ -33,21 +34,24 @@ from uwval.io.mcap_records import (
 )
 from uwval.io.started import StartedReads
 
-#: file bytes a C call reads at most (their map pages are dropped from RSS by the next call)
+#: file bytes a run reads at most (their map pages are dropped from RSS by the next run)
 SCAN_FILE_BYTES = 8 << 20
 #: the early read's runs are smaller: it runs while numpy loads, and the two add up in RSS
 #: (4 MB: the image log's peak as without images; 8 MB: +7 %, measured)
 EARLY_FILE_BYTES = 4 << 20
-#: decompressed bytes of the chunks holding a wanted channel that a C call reads at most
+#: decompressed bytes of the chunks holding a wanted channel that a run reads at most
 #: (their wanted payloads go to the threads' arenas, then packed per channel)
 SCAN_SLOT_BYTES = 8 << 20
+#: the rows and payloads one in-process call holds at most before it returns (the reader adds
+#: them to its topics, then calls again: the results' memory is reused, not grown)
+SCAN_HOLD_BYTES = 8 << 20
 #: larger chunks (or a damaged size field claiming more) are never read by the C runs
 MAX_CHUNK = 64 << 20
-#: scan_chunks' reasons to stop (see _mcapwalk.c): the run is full (the next call goes on),
+#: scan_chunks' reasons to stop (see _mcapwalk.c): the run is full (the next run goes on),
 #: the chunk at next_pos is for the batched path (damaged, odd, new tables, too large), or
 #: of a kind the C call never reads (the rest of the file then goes to the batched path)
 SCAN_BUDGET, SCAN_CHUNK, SCAN_OTHER = 2, 3, 4
-#: drop the map pages of what was read once this many bytes have accumulated
+#: drop the map pages of what was read once this many bytes have accumulated (as _mcapwalk.c)
 DROP_EVERY = 2 << 20
 
 #: one scan_chunks result: (stop, next_pos, chunks read, rows, packed payloads, per channel)
@@ -98,14 +102,6 @@ def scan_maps(channels: Mapping[int, str], schemas: Iterable[int], want: set[str
     for sid in schemas:
         m[sid] |= 4
     return bytes(m)
-
-
-def drop_range(released: int, pos: int) -> tuple[int, int] | tuple[()]:
-    """The page-aligned map range a call starting at ``pos`` drops (the pages read since
-    ``released``), or () while less than :data:`DROP_EVERY` has accumulated."""
-    start = released - released % mmap.PAGESIZE
-    stop = pos - pos % mmap.PAGESIZE
-    return (start, stop) if stop - start >= DROP_EVERY else ()
 
 
 # ---------------------------------------------------------------------------- early start
@@ -159,7 +155,7 @@ def _read_runs(mm: mmap.mmap, plan: tuple[int, int, bytes], threads: int) -> lis
     start and end (between calls it would wait for the importing thread each time)."""
     pos, end, maps = plan
     mod = accelerator()
-    out: list[ScanResult] = mod.scan_chunks(
+    out: tuple[list[ScanResult], int] = mod.scan_chunks(
         mod.scan_workspace(),
         mm,
         pos,
@@ -174,7 +170,7 @@ def _read_runs(mm: mmap.mmap, plan: tuple[int, int, bytes], threads: int) -> lis
         0,
         True,
     )
-    return out
+    return out[0]
 
 
 #: the runs started and not taken yet. Their key holds no budget: runs of any size add up
