@@ -9,6 +9,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from uwval.errors import LogReadError
 from uwval.io.encode import encode_header
 from uwval.io.raw import RawTopic
 from uwval.io.reader import _applied, _match_applied
@@ -50,7 +51,11 @@ def test_the_shortcut_answers_as_the_general_match(
     got = _applied(Path("log.mcap"), comp, pose_times)
     from uwval.io.decode import decode_poses
 
-    hdr = decode_poses(comp, errors="drop")
+    try:
+        hdr = decode_poses(comp, errors="drop")
+    except LogReadError:  # not one stamp decodes: no stamps, and a warning saying so
+        assert got[0] is None and "no applied stamp could be decoded" in got[1]
+        return
     want = _match_applied(
         Path("log.mcap"), comp.name, comp.log_time, hdr.stamp, hdr.handled, pose_times
     )
@@ -66,3 +71,13 @@ def test_the_usual_log_takes_the_shortcut_with_each_pose_its_own_stamp() -> None
     got, warning = _applied(Path("log.mcap"), _topic(t, stamps, []), t)
     assert warning == "" and got is not None
     np.testing.assert_array_equal(got, stamps)
+
+
+def test_a_companion_whose_every_stamp_is_undecodable_is_a_warning_not_a_failed_read() -> None:
+    """The poses are read without latency, and the warning names the topic and why (found by
+    the property test above: one message, not decodable, raised from the whole read)."""
+    t = np.arange(3, dtype=np.int64) * 10
+    got, warning = _applied(Path("log.mcap"), _topic(t, np.array([7, 3, 9]), [0, 1, 2]), t)
+    assert got is None
+    assert "log.mcap [/unity/model_rov_pose/applied_stamp]: no applied stamp" in warning
+    assert "cannot be decoded as std_msgs/msg/Header" in warning

@@ -312,7 +312,12 @@ def _to_stream(
 def _applied(p: Path, comp: RawTopic, log_time: I64) -> tuple[I64 | None, str]:
     """Applied Gazebo stamps for each pose, matched on the log (receive) time; and a warning
     when they cannot be matched one to one (then no stamps: latency is not measured)."""
-    hdr = decode_poses(comp, errors="drop")
+    try:
+        hdr = decode_poses(comp, errors="drop")
+    except LogReadError as exc:
+        # not one stamp decodes: the poses are still read, without latency (as when none
+        # can be matched), and the warning says why
+        return None, f"{p} [{comp.name}]: no applied stamp could be decoded: {exc}"
     ok = hdr.handled
     if (
         comp.log_time.shape == log_time.shape
