@@ -137,6 +137,37 @@ def _write(
     return path
 
 
+def test_a_runs_buffers_are_its_own_memory_read_only(tmp_path: Path) -> None:
+    """The rows, payloads and table a run hands back are ``Held`` buffers over the C call's
+    memory (no copy into bytes): read-only, as long as their contents, and they outlive the
+    call; the rows point into the payloads, record by record."""
+    import mmap
+
+    log = _write(tmp_path / "log.mcap")
+    mod = mcap_raw._mcapwalk
+    assert mod is not None
+    with open(log, "rb") as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+        plan = mcap_runs.plan_early(mm, {"/gazebo/model_rov_pose"})
+        assert plan is not None
+        pos, end, maps = plan
+        runs, _released = mod.scan_chunks(
+            mod.scan_workspace(), mm, pos, end, maps, 1 << 20, 1 << 20, 2, True, 1 << 26,
+            0, 0, True,
+        )  # fmt: skip
+    _stop, _nxt, n, rows, packed, stats = runs[0]
+    assert n > 0 and all(isinstance(b, mod.Held) for b in (rows, packed, stats))
+    per = np.frombuffer(stats, np.int64).reshape(-1, 9)
+    recs = np.frombuffer(rows, np.int64).reshape(-1, 3)
+    assert len(rows) == recs.size * 8 and len(stats) == per.size * 8
+    assert len(packed) == int((recs[:, 2] - 22).sum())  # the wanted payloads, end to end
+    view = memoryview(packed)
+    assert view.readonly
+    with pytest.raises(TypeError):
+        view[0] = 1
+    # each record's payload starts where the one before it ended (one channel wanted)
+    assert np.array_equal(recs[1:, 0], recs[:-1, 0] + recs[:-1, 2] - 22)
+
+
 @given(st.binary(max_size=5000), st.integers(0, 64))
 @settings(max_examples=200, deadline=None)
 def test_its_crc32_is_zlibs(data: bytes, cut: int) -> None:

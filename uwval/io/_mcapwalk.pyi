@@ -30,6 +30,12 @@ def setup_codecs(crc_library: str | None, /) -> bool:
 def crc32(data: Any, /) -> int:
     """The CRC-32 :func:`scan_chunks` checks chunks with (equal to ``zlib.crc32``)."""
 
+class Held:
+    """Bytes :func:`scan_chunks` read: a read-only buffer over its memory, freed with it."""
+
+    def __buffer__(self, flags: int, /) -> memoryview: ...
+    def __len__(self) -> int: ...
+
 def scan_workspace() -> object:
     """The buffers :func:`scan_chunks`' threads keep from call to call (one per reader)."""
 

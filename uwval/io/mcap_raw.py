@@ -456,14 +456,11 @@ class _Scanner:
                 SCAN_HOLD_BYTES,
             )
             self.released = max(self.released, released)
-        n = 0
         stop, nxt = results[-1][:2]
-        results.reverse()
-        while results:  # each run's buffers go once its messages are added
-            _stop, _nxt, k, rows, packed, stats = results.pop()
-            if k:
-                self._from_scan(rows, packed, stats)
-            n += k
+        n = sum(r[2] for r in results)
+        if n:
+            self._from_scans(results)
+        del results  # the runs' buffers go: their messages were copied to the topics
         if stop != SCAN_BUDGET:  # the reader goes on from here: what was read may go
             self.released = release_pages(self.mm, self.released, nxt)
         if stop == SCAN_OTHER:
@@ -472,29 +469,52 @@ class _Scanner:
             self.scan_skip = nxt
         return nxt if n else None
 
-    def _from_scan(self, rows: bytes, packed: bytes | None, stats: bytes) -> None:
-        """Add what one ``scan_chunks`` call read: per channel (id, count, log-time span,
-        min and max record length, its rows; ``packed`` holds its payloads end to end)."""
-        per = np.frombuffer(stats, dtype=np.int64).reshape(-1, 9)
-        recs = np.frombuffer(rows, dtype=np.int64).reshape(-1, 3)
-        buf = np.frombuffer(packed, dtype=np.uint8) if packed is not None else None
-        for cid, count, lo, hi, len_lo, len_hi, r0, nr, at in per.tolist():
-            self.tables.seen_span(cid, count, lo, hi)
-            b = self.builder(cid) if nr else None
+    def _from_scans(self, runs: list[mcap_runs.ScanResult]) -> None:
+        """Add what the runs of ``scan_chunks`` calls read: per run and channel (id, count,
+        log-time span, min and max record length, its rows; the run's ``packed`` holds its
+        payloads end to end, channel after channel). Each channel's runs are added in file
+        order, all at once: a pose topic's (one payload length) blocks by one copy each into
+        its buffer, with one array of log times."""
+        recs: list[np.ndarray] = []
+        bufs: list[np.ndarray | None] = []
+        per: dict[int, list[tuple[int, list[int]]]] = {}  # cid -> (run, its stats row) each
+        for k, (_stop, _nxt, _n, rows, packed, stats) in enumerate(runs):
+            recs.append(np.frombuffer(rows, dtype=np.int64).reshape(-1, 3))
+            bufs.append(np.frombuffer(packed, dtype=np.uint8) if packed is not None else None)
+            for row in np.frombuffer(stats, dtype=np.int64).reshape(-1, 9).tolist():
+                per.setdefault(row[0], []).append((k, row))
+        for cid, entries in per.items():
+            self.tables.seen_span(
+                cid,
+                sum(r[1] for _k, r in entries),
+                min(r[2] for _k, r in entries),
+                max(r[3] for _k, r in entries),
+            )
+            wanted = [(k, r) for k, r in entries if r[7]]
+            b = self.builder(cid) if wanted else None
             if b is None:
                 continue
-            r = recs[r0 : r0 + nr]
-            log_time = r[:, 1].copy()  # not a view: it would keep every row alive
-            if buf is None:
-                z = np.zeros(nr, np.int64)
+            # the log times of all its runs, in order (a copy: a view would keep every
+            # run's rows alive)
+            times = [recs[k][r[6] : r[6] + r[7], 1] for k, r in wanted]
+            log_time = times[0].copy() if len(times) == 1 else np.concatenate(times)
+            if bufs[wanted[0][0]] is None:  # times only
+                z = np.zeros(len(log_time), np.int64)
                 b.add(np.empty(0, np.uint8), z, z, log_time, copy=False)
                 continue
-            width = len_lo - 22
-            if width > 0 and len_lo == len_hi:
-                # one payload length (a pose topic): the rows lie end to end
-                b.take_blocks(buf, [(at, nr)], width, log_time)
-            else:
-                b.add(buf, r[:, 0], r[:, 2] - 22, log_time)
+            len_lo = wanted[0][1][4]
+            if len_lo > 22 and all(r[4] == r[5] == len_lo for _k, r in wanted):
+                # one payload length (a pose topic): each run's rows lie end to end
+                pieces = [(buf, r[8], r[7]) for k, r in wanted if (buf := bufs[k]) is not None]
+                b.take_pieces(pieces, len_lo - 22, log_time)
+                continue
+            at = 0
+            for k, r in wanted:
+                rr = recs[k][r[6] : r[6] + r[7]]
+                buf = bufs[k]
+                assert buf is not None
+                b.add(buf, rr[:, 0], rr[:, 2] - 22, log_time[at : at + r[7]].copy())
+                at += r[7]
 
     # ------------------------------------------------------------------ chunks
     def _entries(self, indexes: dict[int, tuple[int, int]]) -> dict[int, np.ndarray] | None:

@@ -54,8 +54,9 @@ SCAN_BUDGET, SCAN_CHUNK, SCAN_OTHER = 2, 3, 4
 #: drop the map pages of what was read once this many bytes have accumulated (as _mcapwalk.c)
 DROP_EVERY = 2 << 20
 
-#: one scan_chunks result: (stop, next_pos, chunks read, rows, packed payloads, per channel)
-ScanResult = tuple[int, int, int, bytes, "bytes | None", bytes]
+#: one run's result: (stop, next_pos, chunks read, rows, packed payloads, per channel); the
+#: three buffers are ``_mcapwalk.Held`` objects (the C call's memory, read-only, no copy)
+ScanResult = tuple[int, int, int, Any, Any, Any]
 
 _codecs: list[bool] = []
 
