@@ -93,6 +93,28 @@ def test_shapes_read_identically_across_formats(tmp_path: Path) -> None:
             assert not b.warnings and not b.dropped
 
 
+def test_the_benchmark_settles_shapes_without_changing_a_byte(tmp_path: Path) -> None:
+    """The page-cache states the shape benchmark measures from (read from disk: evicted and
+    read again; as written: rewritten in 4 kB writes) keep every file, of a single-file log
+    and of a rosbag2 folder, byte for byte, and what uwval reads from it."""
+    from benchmarks.bench_shapes import AS_WRITTEN, READ_FROM_DISK, _files, settle
+    from benchmarks.shapes import GAZEBO_VEHICLE, Shape, generate
+
+    for fmt in ("mcap", "rosbag2-mcap"):
+        f = generate(Shape(f"s-{fmt}", fmt, 2.0), tmp_path)
+        files = _files(f.paths)
+        assert files and all(p.is_file() for p in files)
+        before = {p: p.read_bytes() for p in files}
+        want = read_streams(f.paths[0], [GAZEBO_VEHICLE])[GAZEBO_VEHICLE]
+        for state in (AS_WRITTEN, READ_FROM_DISK):
+            settle(f, state)
+            assert _files(f.paths) == files
+            assert {p: p.read_bytes() for p in files} == before, state
+            got = read_streams(f.paths[0], [GAZEBO_VEHICLE])[GAZEBO_VEHICLE]
+            np.testing.assert_array_equal(got.position, want.position)
+        assert not list(tmp_path.rglob("*.rewrite"))
+
+
 def test_shape_poses_equal_mcap_ros2(tmp_path: Path) -> None:
     """The MCAP shape's decoded poses equal mcap_ros2's per-message decode, bit for bit."""
     from mcap.reader import make_reader
