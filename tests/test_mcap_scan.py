@@ -137,10 +137,12 @@ def _write(
     return path
 
 
-def test_a_runs_buffers_are_its_own_memory_read_only(tmp_path: Path) -> None:
+@pytest.mark.parametrize("mapped", [False, True])
+def test_a_runs_buffers_are_its_own_memory_read_only(tmp_path: Path, mapped: bool) -> None:
     """The rows, payloads and table a run hands back are ``Held`` buffers over the C call's
-    memory (no copy into bytes): read-only, as long as their contents, and they outlive the
-    call; the rows point into the payloads, record by record."""
+    memory (no copy into bytes; page-mapped when large for a workspace made ``mapped``):
+    read-only, as long as their contents, and they outlive the call; the rows point into
+    the payloads, record by record."""
     import mmap
 
     log = _write(tmp_path / "log.mcap")
@@ -151,8 +153,8 @@ def test_a_runs_buffers_are_its_own_memory_read_only(tmp_path: Path) -> None:
         assert plan is not None
         pos, end, maps = plan
         runs, _released = mod.scan_chunks(
-            mod.scan_workspace(), mm, pos, end, maps, 1 << 20, 1 << 20, 2, True, 1 << 26,
-            0, 0, True,
+            mod.scan_workspace(mapped), mm, pos, end, maps, 1 << 20, 1 << 20, 2, True,
+            1 << 26, 0, 0, True,
         )  # fmt: skip
     _stop, _nxt, n, rows, packed, stats = runs[0]
     assert n > 0 and all(isinstance(b, mod.Held) for b in (rows, packed, stats))
@@ -160,6 +162,7 @@ def test_a_runs_buffers_are_its_own_memory_read_only(tmp_path: Path) -> None:
     recs = np.frombuffer(rows, np.int64).reshape(-1, 3)
     assert len(rows) == recs.size * 8 and len(stats) == per.size * 8
     assert len(packed) == int((recs[:, 2] - 22).sum())  # the wanted payloads, end to end
+    assert len(packed) > 16 << 10  # large enough to be page-mapped when asked
     view = memoryview(packed)
     assert view.readonly
     with pytest.raises(TypeError):

@@ -472,6 +472,7 @@ typedef struct {
     worker_t w[SCAN_THREADS];
     int32_t *cidx; /* channel id -> its place in a run being planned; -1 between plans */
     planbuf_t pb[2]; /* the run being read and the next one, being planned */
+    int mapped;      /* results another thread frees: large ones page-mapped (see out_alloc) */
 } workspace_t;
 
 #define WORKSPACE "uwval.io._mcapwalk.workspace"
@@ -497,15 +498,20 @@ static void workspace_free(PyObject *cap) {
     free(ws);
 }
 
-PyDoc_STRVAR(scan_workspace_doc, "scan_workspace() -> capsule\n\nThe buffers scan_chunks' "
-"threads keep from one call to the next (one workspace per reader; not for two calls at once).");
+PyDoc_STRVAR(scan_workspace_doc, "scan_workspace(mapped=False) -> capsule\n\nThe buffers "
+"scan_chunks' threads keep from one call to the next (one workspace per reader; not for two\n"
+"calls at once). ``mapped``: the calls' results are dropped by another thread than the one\n"
+"calling: their large buffers are then page-mapped, to leave the RSS when dropped.");
 
 static PyObject *scan_workspace(PyObject *self, PyObject *args) {
     (void)self;
-    (void)args;
+    int mapped = 0;
+    if (!PyArg_ParseTuple(args, "|p:scan_workspace", &mapped))
+        return NULL;
     workspace_t *ws = calloc(1, sizeof(workspace_t));
     if (ws == NULL)
         return PyErr_NoMemory();
+    ws->mapped = mapped;
     PyObject *cap = PyCapsule_New(ws, WORKSPACE, workspace_free);
     if (cap == NULL)
         free(ws);
@@ -724,28 +730,42 @@ typedef struct {
     long long end, file_budget, slot_budget, max_chunk;
 } limits_t;
 
-/* The buffers a run hands to Python (rows, payloads, per-channel table): page-mapped when
- * large, so that their memory leaves the RSS as soon as Python drops them. From malloc's
- * heap it stayed: with 3 MB early runs, whose ~100 kB payload buffers fall below malloc's
- * mmap threshold, the image log's whole command peaked 9 MiB higher than with 4 MB runs. */
+/* The buffers a run hands to Python (rows, payloads, per-channel table). A workspace made
+ * for results that another thread frees (the early start's: its thread allocates, the main
+ * thread drops them) has them page-mapped when large: freed into the early thread's malloc
+ * arena they stayed resident and useless to the main thread (3 MB early runs, whose ~100 kB
+ * payload buffers fall below malloc's mmap threshold: the image log's whole command peaked
+ * at 62.7 MiB instead of 52.2). Otherwise malloc's (fresh mappings cost the in-process read
+ * a page fault per page: 3 ms of the image log's). A 16-byte header says which. */
 #define MAPPED_MIN (16 << 10)
+#define OUT_HEAD 16
 
 static size_t out_size(int64_t n, size_t item) { return (size_t)(n > 0 ? n : 1) * item; }
 
-static void *out_alloc(size_t n) {
-    if (n < MAPPED_MIN)
-        return malloc(n);
-    void *p = mmap(NULL, n, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
-    return p == MAP_FAILED ? NULL : p;
+static void *out_alloc(size_t n, int mapped) {
+    size_t total = n + OUT_HEAD;
+    unsigned char *p;
+    if (mapped && n >= MAPPED_MIN) {
+        p = mmap(NULL, total, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+        if (p == MAP_FAILED)
+            return NULL;
+    } else if ((p = malloc(total)) == NULL)
+        return NULL;
+    size_t head[2] = {mapped && n >= MAPPED_MIN, total};
+    memcpy(p, head, sizeof(head));
+    return p + OUT_HEAD;
 }
 
-static void out_free(void *p, size_t n) {
-    if (p == NULL)
+static void out_free(void *q) {
+    if (q == NULL)
         return;
-    if (n < MAPPED_MIN)
-        free(p);
+    unsigned char *p = (unsigned char *)q - OUT_HEAD;
+    size_t head[2];
+    memcpy(head, p, sizeof(head));
+    if (head[0])
+        munmap(p, head[1]);
     else
-        munmap(p, n);
+        free(p);
 }
 
 /* A planned run (steps 1 and 2 of scan_chunks): its chunks, their index groups, the run's
@@ -762,7 +782,7 @@ typedef struct {
 
 /* Its arrays stay in the workspace (for the next plan to use again); its rows go. */
 static void plan_free(plan_t *pl) {
-    out_free(pl->rows, out_size(pl->nrows, 24));
+    out_free(pl->rows);
     memset(pl, 0, sizeof(*pl));
 }
 
@@ -949,7 +969,7 @@ static void plan_run(const unsigned char *mm, const unsigned char *maps, workspa
                 *r += groups[i].n;
             }
         memset(acc, 0, (size_t)nu * 10 * sizeof(int64_t));
-        rows = out_alloc(out_size(nrows, 24));
+        rows = out_alloc(out_size(nrows, 24), ws->mapped);
         if (rows == NULL)
             oom = 1;
     }
@@ -1084,9 +1104,9 @@ static void read_run(plan_t *pl, const unsigned char *mm, Py_ssize_t mm_len,
                 packed_size += a[8];
             }
         }
-        stats = out_alloc(out_size(n_out, 72));
+        stats = out_alloc(out_size(n_out, 72), ws->mapped);
         if (payloads)
-            packed = out_alloc(out_size(packed_size, 1));
+            packed = out_alloc(out_size(packed_size, 1), ws->mapped);
         if (stats == NULL || (payloads && packed == NULL))
             oom = 1;
         /* the payloads, channel after channel, in chunk order; the rows then point there */
@@ -1128,9 +1148,9 @@ static void read_run(plan_t *pl, const unsigned char *mm, Py_ssize_t mm_len,
     }
     memset(pl, 0, sizeof(*pl)); /* its arrays stay in the workspace; its rows went to out */
     if (oom) {
-        out_free(rows, out_size(nrows, 24));
-        out_free(packed, out_size(packed_size, 1));
-        out_free(stats, out_size(n_out, 72));
+        out_free(rows);
+        out_free(packed);
+        out_free(stats);
         rows = stats = NULL;
         packed = NULL;
     }
@@ -1153,11 +1173,10 @@ typedef struct {
     PyObject_HEAD
     unsigned char *buf;
     Py_ssize_t len;
-    size_t cap; /* as allocated by out_alloc */
 } held_t;
 
 static void held_dealloc(PyObject *o) {
-    out_free(((held_t *)o)->buf, ((held_t *)o)->cap);
+    out_free(((held_t *)o)->buf);
     Py_TYPE(o)->tp_free(o);
 }
 
@@ -1182,33 +1201,31 @@ static PyTypeObject HeldType = {
     .tp_doc = "Bytes scan_chunks read (a read-only buffer; freed with the object).",
 };
 
-/* A Held owning ``buf`` (``len`` bytes of the ``cap`` out_alloc gave, or NULL), or NULL
- * (then not owned). */
-static PyObject *held(void *buf, Py_ssize_t len, size_t cap) {
+/* A Held owning ``buf`` (``len`` bytes from out_alloc, or NULL), or NULL (then not owned). */
+static PyObject *held(void *buf, Py_ssize_t len) {
     held_t *h = PyObject_New(held_t, &HeldType);
     if (h == NULL)
         return NULL;
     h->buf = buf;
     h->len = buf != NULL ? len : 0;
-    h->cap = cap;
     return (PyObject *)h;
 }
 
 /* The run's tuple; its buffers go to Held objects (the run's pointers are then NULL). */
 static PyObject *run_tuple(run_t *r, int payloads) {
-    PyObject *rows_b = held(r->rows, (Py_ssize_t)r->nrows * 24, out_size(r->nrows, 24));
+    PyObject *rows_b = held(r->rows, (Py_ssize_t)r->nrows * 24);
     if (rows_b != NULL)
         r->rows = NULL;
     PyObject *packed_b = NULL;
     if (payloads) {
-        packed_b = held(r->packed, (Py_ssize_t)r->packed_size, out_size(r->packed_size, 1));
+        packed_b = held(r->packed, (Py_ssize_t)r->packed_size);
         if (packed_b != NULL)
             r->packed = NULL;
     } else {
         Py_INCREF(Py_None);
         packed_b = Py_None;
     }
-    PyObject *stats_b = held(r->stats, (Py_ssize_t)r->n_out * 72, out_size(r->n_out, 72));
+    PyObject *stats_b = held(r->stats, (Py_ssize_t)r->n_out * 72);
     if (stats_b != NULL)
         r->stats = NULL;
     if (rows_b && packed_b && stats_b)
@@ -1330,9 +1347,9 @@ static PyObject *scan_chunks(PyObject *self, PyObject *args) {
         result = Py_BuildValue("NL", list, released);
 fail:
     for (Py_ssize_t i = 0; i < nr; i++) {
-        out_free(runs[i].rows, out_size(runs[i].nrows, 24));
-        out_free(runs[i].packed, out_size(runs[i].packed_size, 1));
-        out_free(runs[i].stats, out_size(runs[i].n_out, 72));
+        out_free(runs[i].rows);
+        out_free(runs[i].packed);
+        out_free(runs[i].stats);
     }
     free(runs);
     if (mmb.obj)
@@ -1349,7 +1366,7 @@ static PyMethodDef methods[] = {
     {"setup_codecs", setup_codecs, METH_VARARGS, setup_codecs_doc},
     {"crc32", crc32_py, METH_VARARGS, crc32_doc},
     {"scan_chunks", scan_chunks, METH_VARARGS, scan_chunks_doc},
-    {"scan_workspace", scan_workspace, METH_NOARGS, scan_workspace_doc},
+    {"scan_workspace", scan_workspace, METH_VARARGS, scan_workspace_doc},
 #endif
     {NULL, NULL, 0, NULL},
 };

@@ -36,8 +36,9 @@ class Held:
     def __buffer__(self, flags: int, /) -> memoryview: ...
     def __len__(self) -> int: ...
 
-def scan_workspace() -> object:
-    """The buffers :func:`scan_chunks`' threads keep from call to call (one per reader)."""
+def scan_workspace(mapped: bool = False, /) -> object:
+    """The buffers :func:`scan_chunks`' threads keep from call to call (one per reader);
+    ``mapped``: its results are dropped by another thread (large ones then page-mapped)."""
 
 def scan_chunks(
     workspace: object,

@@ -158,7 +158,7 @@ def _read_runs(mm: mmap.mmap, plan: tuple[int, int, bytes], threads: int) -> lis
     pos, end, maps = plan
     mod = accelerator()
     out: tuple[list[ScanResult], int] = mod.scan_chunks(
-        mod.scan_workspace(),
+        mod.scan_workspace(True),  # the main thread drops the results: page-mapped
         mm,
         pos,
         end,
