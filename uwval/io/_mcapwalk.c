@@ -1073,8 +1073,9 @@ static void plan_run(const unsigned char *mm, const unsigned char *maps, workspa
  * the GIL. Meanwhile the calling thread drops the map pages between ``drop_from`` and
  * ``drop_to`` and, when ``next`` is not NULL, plans the run that follows this one (from
  * pl->next_pos) into ``next``: that walk of headers and indexes then overlaps the
- * decompression instead of preceding the next run's. ``pl`` is freed, its rows handed to
- * ``out``; the caller frees out->rows, out->packed and out->stats. */
+ * decompression instead of preceding the next run's. ``pl`` is cleared (its arrays stay in
+ * the workspace), its rows handed to ``out``; the caller frees out->rows, out->packed and
+ * out->stats (out_free). */
 static void read_run(plan_t *pl, const unsigned char *mm, Py_ssize_t mm_len,
                      const unsigned char *maps, workspace_t *ws, crew_t *crew, int payloads,
                      long long drop_from, long long drop_to, const limits_t *lim, plan_t *next,
