@@ -5,6 +5,7 @@ result, and a whole compare in a fresh process with the early start on or off.""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -45,6 +46,46 @@ def spy_taken(monkeypatch: pytest.MonkeyPatch, module: Any) -> list[bool]:
 
     monkeypatch.setattr(module, "take_started", spy)
     return got
+
+
+def write_pair(tmp_path: Path, fmt: str = "rosbag2", name: str = "bag") -> Path:
+    """The Gazebo vehicle and its Unity view, 30 s at 100 Hz, written by uwval's writer as
+    ``fmt`` (a rosbag2 storage, or any format open_writer takes) to ``tmp_path / name``."""
+    from uwval.comparison.synthetic import unity_view, vehicle_motion
+    from uwval.io.writers import open_writer, write_stream
+
+    vehicle = vehicle_motion(3000, 100.0)
+    unity = unity_view(vehicle)
+    out = tmp_path / name
+    with open_writer(out, fmt) as w:
+        write_stream(w, vehicle.topic, vehicle, "enu")
+        write_stream(w, unity.topic, unity, unity.frame)
+    return out
+
+
+def taken_only_when_own(
+    monkeypatch: pytest.MonkeyPatch,
+    module: Any,
+    log: Path,
+    touched: Path,
+    case: str,
+    read_topics: list[str],
+    taken_expected: bool,
+) -> None:
+    """Start ``module``'s early read of ``log`` for G and U, change ``touched`` (its mtime)
+    when ``case`` is "file touched", read ``read_topics``: the streams equal a plain read's,
+    and the early result was taken exactly when ``taken_expected``; none is left behind."""
+    from uwval.io import early
+
+    plain = read(log, read_topics)
+    taken = spy_taken(monkeypatch, module)
+    early.start(log, [G, U])
+    assert len(module._started) == 1
+    if case == "file touched":
+        st = touched.stat()
+        os.utime(touched, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000_000))
+    same_streams(read(log, read_topics), plain)  # the same streams either way
+    assert taken == [taken_expected] and not module._started
 
 
 def compare_in_fresh_process(log: Path, module: str, tmp_path: Path) -> None:

@@ -13,7 +13,16 @@ from typing import Any
 
 import pytest
 
-from tests.early_helpers import G, U, compare_in_fresh_process, read, same_streams, spy_taken
+from tests.early_helpers import (
+    G,
+    U,
+    compare_in_fresh_process,
+    read,
+    same_streams,
+    spy_taken,
+    taken_only_when_own,
+    write_pair,
+)
 from uwval.io import early, mcap_runs
 
 
@@ -67,30 +76,14 @@ def test_the_read_takes_the_early_runs_only_when_they_are_its_own(
     taken_expected: bool,
 ) -> None:
     log = _log(tmp_path)
-    plain = read(log, read_topics)
-    taken = spy_taken(monkeypatch, mcap_runs)
     monkeypatch.setattr(mcap_runs, "EARLY_FILE_BYTES", 20_000)  # many runs
-    early.start(log, [G, U])
-    assert len(mcap_runs._started) == 1
-    if case == "file touched":
-        st = log.stat()
-        os.utime(log, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000_000))
-    same_streams(read(log, read_topics), plain)  # the same streams either way
-    assert taken == [taken_expected] and not mcap_runs._started
+    taken_only_when_own(monkeypatch, mcap_runs, log, log, case, read_topics, taken_expected)
 
 
 def test_a_rosbag2_bag_of_one_mcap_file_is_started_and_taken(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from uwval.comparison.synthetic import unity_view, vehicle_motion
-    from uwval.io.writers import open_writer, write_stream
-
-    vehicle = vehicle_motion(3000, 100.0)
-    unity = unity_view(vehicle)
-    bag = tmp_path / "bag"
-    with open_writer(bag, "rosbag2-mcap") as w:
-        write_stream(w, vehicle.topic, vehicle, "enu")
-        write_stream(w, unity.topic, unity, unity.frame)
+    bag = write_pair(tmp_path, "rosbag2-mcap")
     plain = read(bag, [G, U])
     taken = spy_taken(monkeypatch, mcap_runs)
     early.start(bag, [G, U])

@@ -4,7 +4,6 @@ anything it cannot decide cheaply starts nothing."""
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -13,7 +12,13 @@ from typing import Any
 import pytest
 
 from tests.accelerators import require_module
-from tests.early_helpers import G, U, compare_in_fresh_process, read, same_streams, spy_taken
+from tests.early_helpers import (
+    G,
+    U,
+    compare_in_fresh_process,
+    taken_only_when_own,
+    write_pair,
+)
 from uwval.io import db3_pages, early
 
 require_module(db3_pages._db3pages, "uwval.io._db3pages")
@@ -37,19 +42,6 @@ def _second_cpu_and_no_leftovers(monkeypatch: pytest.MonkeyPatch) -> Any:
     mcap_runs._started.clear()
 
 
-def _bag(tmp_path: Path, fmt: str = "rosbag2", name: str = "bag") -> Path:
-    from uwval.comparison.synthetic import unity_view, vehicle_motion
-    from uwval.io.writers import open_writer, write_stream
-
-    vehicle = vehicle_motion(3000, 100.0)
-    unity = unity_view(vehicle)
-    out = tmp_path / name
-    with open_writer(out, fmt) as w:
-        write_stream(w, vehicle.topic, vehicle, "enu")
-        write_stream(w, unity.topic, unity, unity.frame)
-    return out
-
-
 @pytest.mark.parametrize(
     ("case", "read_topics", "taken_expected"),
     [
@@ -65,17 +57,9 @@ def test_the_read_takes_the_early_scan_only_when_it_is_its_own(
     read_topics: list[str],
     taken_expected: bool,
 ) -> None:
-    bag = _bag(tmp_path)
-    plain = read(bag, read_topics)
-    taken = spy_taken(monkeypatch, db3_pages)
-    early.start(bag, [G, U])
-    assert len(db3_pages._started) == 1
-    if case == "file touched":
-        db3 = next(bag.glob("*.db3"))
-        st = db3.stat()
-        os.utime(db3, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000_000))
-    same_streams(read(bag, read_topics), plain)  # the same streams either way
-    assert taken == [taken_expected] and not db3_pages._started
+    bag = write_pair(tmp_path)
+    db3 = next(bag.glob("*.db3"))
+    taken_only_when_own(monkeypatch, db3_pages, bag, db3, case, read_topics, taken_expected)
 
 
 @pytest.mark.parametrize("case", ["mcap-file", "rosbag2-mcap", "no-metadata", "compressed", "wal"])
@@ -86,9 +70,9 @@ def test_nothing_is_started_where_it_cannot_be_decided_cheaply(tmp_path: Path, c
         v = vehicle_motion(200)
         target = write_pair_log(tmp_path / "a.mcap", v, unity_view(v))
     elif case == "rosbag2-mcap":
-        target = _bag(tmp_path, "rosbag2-mcap")
+        target = write_pair(tmp_path, "rosbag2-mcap")
     else:
-        target = _bag(tmp_path)
+        target = write_pair(tmp_path)
         meta = target / "metadata.yaml"
         if case == "no-metadata":
             meta.unlink()
@@ -105,7 +89,7 @@ def test_nothing_is_started_where_it_cannot_be_decided_cheaply(tmp_path: Path, c
 
 
 def test_a_damaged_bag_starts_nothing_and_raises_nothing(tmp_path: Path) -> None:
-    bag = _bag(tmp_path)
+    bag = write_pair(tmp_path)
     db3 = next(bag.glob("*.db3"))
     db3.write_bytes(b"not a database" * 100)
     early.start(bag, [G, U])  # sqlite3 fails inside: swallowed, nothing pending
@@ -115,7 +99,7 @@ def test_a_damaged_bag_starts_nothing_and_raises_nothing(tmp_path: Path) -> None
 def test_a_compare_through_the_command_line_takes_the_early_scan(tmp_path: Path) -> None:
     """The whole command, in a fresh process: the early scan is taken, and the JSON equals
     the one of a process where early reads are disabled."""
-    bag = _bag(tmp_path)
+    bag = write_pair(tmp_path)
     compare_in_fresh_process(bag, "uwval.io.db3_pages", tmp_path)
 
 

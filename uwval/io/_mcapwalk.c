@@ -1309,7 +1309,7 @@ static PyObject *run_tuple(run_t *r, int payloads) {
     return NULL;
 }
 
-#define DROP_EVERY (2 << 20) /* as uwval.io.mcap_runs.DROP_EVERY */
+#define DROP_EVERY (2 << 20) /* the map pages read are dropped once this many accumulated */
 
 static PyObject *scan_chunks(PyObject *self, PyObject *args) {
     (void)self;

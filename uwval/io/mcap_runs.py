@@ -52,8 +52,6 @@ MAX_CHUNK = 64 << 20
 #: the chunk at next_pos is for the batched path (damaged, odd, new tables, too large), or
 #: of a kind the C call never reads (the rest of the file then goes to the batched path)
 SCAN_BUDGET, SCAN_CHUNK, SCAN_OTHER = 2, 3, 4
-#: drop the map pages of what was read once this many bytes have accumulated (as _mcapwalk.c)
-DROP_EVERY = 2 << 20
 
 #: one run's result: (stop, next_pos, chunks read, rows, packed payloads, per channel); the
 #: three buffers are ``_mcapwalk.Held`` objects (the C call's memory, read-only, no copy)
