@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 
 def run_uwval(
@@ -20,3 +22,11 @@ def run_uwval(
         cwd=cwd,
         stdin=subprocess.DEVNULL,
     )
+
+
+def compare_json(*args: str) -> dict[str, Any]:
+    """``uwval compare ARGS --json``, checked to succeed, parsed."""
+    res = run_uwval("compare", *args, "--json")
+    assert res.returncode == 0, res.stderr
+    out: dict[str, Any] = json.loads(res.stdout)
+    return out

@@ -19,3 +19,7 @@ def shared_data() -> Path:
     if not SHARED_DATA.exists():
         pytest.skip("shared data folder not present")
     return SHARED_DATA
+
+
+# The real ROS-TCP-Endpoint fixture (skips, saying why, where it cannot run).
+from ros_endpoint_peer import ros_endpoint  # noqa: E402, F401
