@@ -277,55 +277,6 @@ class Simulator:
                 if record is not None:
                     record.append(self.state)
 
-    def advance_ticks_compiled(self, n_ticks: int) -> F64 | None:
-        """Step ``n_ticks`` whole publish ticks with the C build of the kernel
-        (:mod:`uwval.simulator.ckernel`) and return the raw states at the ticks crossed, the
-        initial one first when it was not yet published: (m, N_STATE), the rows
-        :meth:`advance_steps` appends, bit for bit. None (nothing stepped) when there is no C
-        build, the simulator is not at a tick or an override is set (then use advance_steps).
-        A divergence raises :class:`SimulationError` as advance_steps does.
-        """
-        pe = self.publish_every
-        if (
-            self.step % pe
-            or self._force_override is not None
-            or self._torque_override is not None
-            or self._current_override is not None
-        ):
-            return None
-        from uwval.simulator.ckernel import compiled_kernel
-        from uwval.simulator.dynamics import generate_kernel_source
-
-        built = compiled_kernel(generate_kernel_source(self._params.structure))
-        if built is None:
-            return None
-        advance, names = built
-        first = self._published_step < 0
-        out = np.empty((int(n_ticks) + first, N_STATE))
-        if first:
-            out[0] = self.state
-            self._published_step = self.step
-        if n_ticks <= 0:
-            return out
-        m = int(n_ticks) * pe
-        # the inputs as _load_chunk evaluates them, step by step (elementwise the same t)
-        t = (self.step + np.arange(m)) * (self.dt_ns * 1e-9)
-        f, tq, c = self.inputs.evaluate(t)
-        c = c + self.vehicle.default_current
-        cols = np.ascontiguousarray(np.concatenate([f, tq, c], axis=1).T, dtype=np.float64)
-        state = np.array(self.state, dtype=np.float64)
-        params = np.array([self._params.values[k] for k in names], dtype=np.float64)
-        done = advance(
-            int(n_ticks), pe, 0, state, params, cols, out[int(first) :], DIVERGENCE_LIMIT
-        )
-        self.step += done * pe
-        self.state = tuple(out[int(first) + done - 1].tolist())
-        if done < n_ticks or not all(abs(x) < DIVERGENCE_LIMIT for x in self.state[7:13]):
-            self._check()  # raises, naming the twist, as advance_steps does
-        self._published_step = self.step
-        self._chunk_end = 0  # the Python path reloads its input chunk from here
-        return out
-
     def advance_to(self, t_ns: int) -> list[tuple[int, F64, F64, F64, F64]]:
         """Step up to sim time ``t_ns`` (floored to a step); return the publish ticks crossed as
         ``(t_ns, vehicle_pos, vehicle_quat, camera_pos, camera_quat)``."""
@@ -483,9 +434,7 @@ class SimulationStream:
     same camera and quaternion arithmetic, row by row), but only one chunk is held at a
     time, so an hour at 100 Hz costs a few MB instead of hundreds. ``info`` is filled as
     :func:`simulate` fills it (``steps``, ``wall_time_s`` of the physics, ``warnings``) once
-    the iteration has finished. Takes :func:`simulate`'s keyword arguments, and ``compiled``:
-    step with the C build of the kernel when one can be built (:mod:`uwval.simulator.ckernel`,
-    bit-identical; then no child process is started).
+    the iteration has finished. Takes :func:`simulate`'s keyword arguments.
     """
 
     def __init__(
@@ -507,7 +456,6 @@ class SimulationStream:
         initial_velocity: Sequence[float] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
         fossen_coriolis: bool = False,
         legacy_gz8: bool = False,
-        compiled: bool = True,
     ) -> None:
         if not (duration_s >= 0 and math.isfinite(duration_s)):
             raise SimulationError(f"duration must be >= 0 s, got {duration_s}")
@@ -528,8 +476,6 @@ class SimulationStream:
             legacy_gz8=legacy_gz8,
         )
         self.chunk_ticks = int(chunk_ticks)
-        #: Step with the C build of the kernel when there is one (the same numbers).
-        self.compiled = bool(compiled) and self._has_compiled_kernel()
         self.camera_offset = tuple(float(x) for x in camera_offset)
         self.period_ns = self.sim.dt_ns * self.sim.publish_every
         self.n_ticks = round(duration_s * 1e9) // self.period_ns
@@ -556,21 +502,11 @@ class SimulationStream:
             "initial_velocity": tuple(initial_velocity),
             "fossen_coriolis": fossen_coriolis,
             "legacy_gz8": legacy_gz8,
-            "compiled": compiled,
         }
         steps = self.n_ticks * self.sim.publish_every
-        # the compiled kernel steps an hour in ~0.2 s: no child process is worth starting
         self.background = _can_step_elsewhere() and (
-            background
-            if background is not None
-            else steps >= BACKGROUND_MIN_STEPS and not self.compiled
+            background if background is not None else steps >= BACKGROUND_MIN_STEPS
         )
-
-    def _has_compiled_kernel(self) -> bool:
-        from uwval.simulator.ckernel import compiled_kernel
-        from uwval.simulator.dynamics import generate_kernel_source
-
-        return compiled_kernel(generate_kernel_source(self.sim._params.structure)) is not None
 
     def __iter__(self) -> Iterator[TickChunk]:
         if self._started:
@@ -629,11 +565,7 @@ class SimulationStream:
                 self.chunk_ticks - (1 if done == 0 and first_tick == 0 else 0), self.n_ticks - done
             )
             t0 = time.perf_counter()
-            fast = sim.advance_ticks_compiled(k) if self.compiled else None
-            if fast is not None:
-                records = fast
-            else:
-                sim.advance_steps(k * pe, records)
+            sim.advance_steps(k * pe, records)
             wall += time.perf_counter() - t0
             done += k
             if len(records):
