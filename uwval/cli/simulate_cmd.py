@@ -183,9 +183,19 @@ def simulate(
         bool,
         typer.Option(
             "--legacy-gz8",
-            help="One run: the complete gz-sim 8.0-8.11 Hydrodynamics: its Coriolis entries, "
-            "zero initial prevState (added-mass kick with a current), int abs() in the "
-            "quadratic damping.",
+            help="One run: gz-sim 8.0-8.11's Hydrodynamics: its Coriolis entries and its zero "
+            "initial prevState (added-mass kick with a current); not the int abs() (see "
+            "--int-abs-damping).",
+        ),
+    ] = False,
+    int_abs_damping: Annotated[
+        bool,
+        typer.Option(
+            "--int-abs-damping",
+            help="One run: truncate |v| in the quadratic damping to an integer (C's int "
+            "abs()). An emulation only: gz-sim 8.0-8.11's Hydrodynamics.cc includes Eigen and "
+            "protobuf headers that bring the double overload, so real builds very likely never "
+            "truncated.",
         ),
     ] = False,
     wrench_frame: Annotated[
@@ -370,6 +380,15 @@ def simulate(
         parse_vector(torque, "torque"),
         parse_vector(current, "current"),
     )
+    from uwval.simulator import AddedMass, CoriolisEntries, GazeboModel
+
+    _model = GazeboModel(
+        added_mass=AddedMass(added_mass),
+        coriolis=CoriolisEntries.LEGACY if legacy_coriolis else CoriolisEntries.FIXED,
+        int_abs_damping=int_abs_damping,
+    )
+    if legacy_gz8:
+        _model = _model.as_legacy_gz8()
     spec = RunSpec(
         name=output.stem,
         factors={"force": factor_level(f), "torque": factor_level(tq), "current": factor_level(c)},
@@ -378,9 +397,7 @@ def simulate(
         duration_s=duration,
         seed=seed,
         publish_rate=publish_rate,
-        implicit_added_mass=added_mass == "implicit",
-        legacy_coriolis=legacy_coriolis,
-        legacy_gz8=legacy_gz8,
+        model=_model,
     )
     if endpoint is not None:
         _publish_to_endpoint(
