@@ -31,7 +31,7 @@ from numpy.typing import ArrayLike, NDArray
 from uwval.posestream import PoseStream
 from uwval.rotations import quat_from_rpy
 from uwval.simulator.dynamics import N_STATE, build_params, get_kernel, initial_state
-from uwval.simulator.errors import SimulationError
+from uwval.simulator.errors import DivergenceError, SimulationError
 from uwval.simulator.inputs import Constant, InputProfile, constant_inputs
 from uwval.simulator.model import PLUGIN_ADDED_MASS, GazeboModel
 from uwval.simulator.vehicle import Vehicle
@@ -248,9 +248,10 @@ class Simulator:
         if not all(abs(x) < DIVERGENCE_LIMIT for x in vel):  # also catches NaN
             hint = ("; " + " ".join(self.warnings)) if self.warnings else ""
             twist = ", ".join(f"{n}={x:.3g}" for n, x in zip("uvwpqr", vel, strict=True))
-            raise SimulationError(
+            raise DivergenceError(
                 f"simulation of {self.vehicle.name} diverged by t = {self.t_ns * 1e-9:.3f} s "
-                f"(body twist {twist}; limit {DIVERGENCE_LIMIT:g}){hint}"
+                f"(body twist {twist}; limit {DIVERGENCE_LIMIT:g}){hint}",
+                self.t_ns * 1e-9,
             )
 
     def advance_steps(self, n_steps: int, record: list[tuple[Any, ...]] | None = None) -> None:
@@ -699,10 +700,11 @@ def simulate_batch(
                 bad = ~(np.abs(vel) < DIVERGENCE_LIMIT)
                 if bad.any():
                     i_run = int(np.flatnonzero(bad.any(axis=0))[0])
-                    raise SimulationError(
+                    raise DivergenceError(
                         f"batched run {i_run} ({vs[i_run].name}) diverged at "
                         f"t = {tick * pe * dt_ns * 1e-9:.3f} s; "
-                        + " ".join(_warnings_for([vs[i_run]], model.implicit))
+                        + " ".join(_warnings_for([vs[i_run]], model.implicit)),
+                        tick * pe * dt_ns * 1e-9,
                     )
             step += m
             if progress is not None:

@@ -7,3 +7,11 @@ from uwval.errors import UwvalError
 
 class SimulationError(UwvalError):
     """The simulator cannot run (bad parameters, divergence)."""
+
+
+class DivergenceError(SimulationError):
+    """A run diverged: its body twist left the finite range at ``at_s`` s of sim time."""
+
+    def __init__(self, message: str, at_s: float) -> None:
+        super().__init__(message)
+        self.at_s = at_s
