@@ -15,3 +15,7 @@ class DivergenceError(SimulationError):
     def __init__(self, message: str, at_s: float) -> None:
         super().__init__(message)
         self.at_s = at_s
+
+    def __reduce__(self) -> tuple[type[DivergenceError], tuple[str, float]]:
+        # rebuilt with both arguments when it crosses a process boundary (physics workers)
+        return (DivergenceError, (str(self), self.at_s))

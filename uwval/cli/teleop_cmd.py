@@ -25,7 +25,8 @@ import typer
 from rich.console import Console
 
 from uwval.cli import app
-from uwval.cli.simulate_cmd import endpoint_topics, parse_endpoint, parse_vector
+from uwval.cli.simulate_cmd import parse_vector
+from uwval.cli.simulate_endpoint import endpoint_topics, parse_endpoint
 from uwval.errors import ConfigError
 
 console = Console()
