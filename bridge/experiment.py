@@ -270,11 +270,15 @@ def run_experiment(options: SimulateOptions) -> ExperimentResult:
         "failed": failed,
     }
     manifest_path = out_dir / "manifest.json"
+    text = json.dumps(manifest, indent=2)
     try:
-        manifest_path.write_text(json.dumps(manifest, indent=2))
+        manifest_path.write_text(text)
     except OSError as exc:
         raise ConfigError(f"{manifest_path}: cannot write: {exc.strerror or exc}") from None
-    return ExperimentResult(out_dir, manifest_path, manifest, tuple(runs), tuple(failed), wall)
+    written = json.loads(text)  # the manifest as a reader of the file sees it (lists, not tuples)
+    return ExperimentResult(
+        out_dir, manifest_path, written, tuple(written["runs"]), tuple(written["failed"]), wall
+    )
 
 
 def run_single(options: SimulateOptions) -> dict[str, Any]:
