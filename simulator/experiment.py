@@ -246,7 +246,7 @@ def _safe(name: str) -> str:
 def _load_vehicle_rel(name: str, base: Path) -> Vehicle:
     p = Path(name)
     if not p.is_absolute() and (base / p).exists():
-        return load_vehicle(base / p)
+        return load_vehicle((base / p).resolve())  # no "../" in the recorded source
     return load_vehicle(name)
 
 

@@ -235,7 +235,11 @@ def model_sensitivity(
         dt_s=float(dt),
         reference_input=ref,
         baseline=base_model,
-        baseline_label="the default experiment's model" if baseline is None else "the model given",
+        baseline_label=(
+            "the default experiment's model"
+            if base_model == FLUID_ADDED_MASS
+            else "the model given"
+        ),
         variants=tuple(shifts),
     )
 

@@ -114,6 +114,17 @@ def test_written_json_follows_the_documented_schema(tmp_path: Path) -> None:
         assert all(f'"{k}"' in text for k in DOC_KEYS | VARIANT_KEYS)
 
 
+def test_the_demos_call_labels_the_default_model() -> None:
+    """The demo passes the experiment's own vehicle and model: still the default's label."""
+    from uwval.resources import data_path
+    from uwval.simulator import load_experiment
+
+    exp = load_experiment(data_path("experiments", "default.toml"))
+    rep = model_sensitivity(exp.vehicle, duration_s=0.5, baseline=exp.model)
+    assert rep.baseline_label == "the default experiment's model"
+    assert ".." not in rep.vehicle_source and rep.vehicle_source.endswith("model.sdf")
+
+
 def test_bad_arguments_are_refused_in_one_line() -> None:
     with pytest.raises(ConfigError, match="duration_s must be > 0"):
         model_sensitivity(duration_s=-1.0)
