@@ -18,20 +18,22 @@ integrated with semi-implicit (symplectic) Euler as gz-physics' DART does: veloc
 then the pose with the new velocities; the quaternion is advanced by ``q (x) [w dt / 2, 1]``
 and renormalised.
 
-``legacy_coriolis`` reproduces gz-sim 8.0-8.11 / 9.x / 10.0-10.1, where ``Cmat(0, 5)`` had the
-wrong sign and ``Cmat(5, 0)`` the wrong index and sign (``+Ma(2,2) w`` instead of ``-Ma(1,1) v``).
+``GazeboModel(coriolis=LEGACY)`` reproduces gz-sim 8.0-8.11 / 9.x / 10.0-10.1, where
+``Cmat(0, 5)`` had the wrong sign and ``Cmat(5, 0)`` the wrong index and sign (``+Ma(2,2) w``
+instead of ``-Ma(1,1) v``).
 
 Sign note: gz-sim applies ``+Cmat nu_r`` (``kCmatVec = -Cmat * state`` is negated again when
 the wrench is applied) and its ``Cmat`` equals Fossen's C_A (eq. 6.43) entry for entry, so the
 added-mass Coriolis wrench gz applies is ``+C_A nu_r`` where Fossen's equations (and Kirchhoff's
 momentum conservation) have ``-C_A nu_r``: gz's Munk moment on a slender body is stabilising.
-This module reproduces gz by default; ``fossen_coriolis=True`` applies Fossen's sign. Both
+This module reproduces gz by default; ``GazeboModel(ca_sign=FOSSEN)`` applies Fossen's sign. Both
 conserve energy (C_A is skew-symmetric); only Fossen's sign conserves the Kirchhoff impulse.
 
-``implicit_added_mass`` moves ``-Ma`` into the mass matrix, ``(M_RB - Ma) nu_dot = ...``, which
-is stable for any added mass; only the (small) change of the current seen in the body frame
-keeps gz's backward difference. Gazebo's explicit form feeds the last step's acceleration back
-with gain ``-|Ma_ii| / M_RB_ii`` and diverges when that reaches 1 (BlueROV2 Heavy's heave).
+``GazeboModel(added_mass=IMPLICIT)`` moves ``-Ma`` into the mass matrix,
+``(M_RB - Ma) nu_dot = ...``, which is stable for any added mass; only the (small) change of
+the current seen in the body frame keeps gz's backward difference. Gazebo's explicit form
+feeds the last step's acceleration back with gain ``-|Ma_ii| / M_RB_ii`` and diverges when
+that reaches 1 (BlueROV2 Heavy's heave).
 
 Speed: the kernel is generated Python source specialised to the vehicle's non-zero
 coefficients (like ``sympy.lambdify``): straight-line float arithmetic with no allocation, so
