@@ -1,4 +1,5 @@
-"""Wall time of ``uwval demo`` as a user runs it (whole command, fresh process). Target <= 60 s."""
+"""Wall time of ``uwval demo`` as a user runs it (whole command, fresh process). Target (issue 30):
+<= 30 s on an idle 2-core machine, the best of the runs (load only ever adds time)."""
 
 from __future__ import annotations
 
@@ -17,15 +18,16 @@ def run(quick: bool = False) -> list[BenchRow]:
             )
             walls.append(wall)
             rss.append(mem)
-    w = median(walls)
+    w = min(walls)
     return [
         BenchRow(
-            "uwval demo, whole command",
+            "uwval demo, whole command, best wall",
             w,
             "s",
-            target="<= 60 s",
-            met=w <= 60,
-            notes=f"peak RSS of the parent {max(rss):.0f} MiB",
+            target="<= 30 s (idle 2-core)",
+            met=w <= 30,
+            notes=f"runs {', '.join(f'{x:.1f}' for x in walls)} s (median {median(walls):.1f}); "
+            f"peak RSS of the parent {max(rss):.0f} MiB",
         )
     ]
 

@@ -17,21 +17,17 @@ from benchmarks.common import BenchRow, median
 
 
 def _sweep(executor: str, out: Path, workers: int) -> float:
-    from uwval.cli.pipeline import SessionOptions
-    from uwval.cli.simulate_cmd import run_experiment
-    from uwval.resources import data_path
+    from uwval.batch import Executor
+    from uwval.bridge.experiment import SimulateOptions, run_experiment
 
     t0 = time.perf_counter()
-    manifest = run_experiment(
-        data_path("experiments", "default.toml"),
-        out,
-        SessionOptions(),
-        executor=executor,
-        workers=workers,
-        progress=False,
+    result = run_experiment(
+        SimulateOptions(
+            output=out, experiment="default", executor=Executor(executor), workers=workers
+        )
     )
-    if manifest["failed"]:
-        raise RuntimeError(f"sweep failed: {manifest['failed']}")
+    if result.failed:
+        raise RuntimeError(f"sweep failed: {result.failed}")
     return time.perf_counter() - t0
 
 

@@ -8,8 +8,10 @@ default) and :mod:`uwval.simulator.experiment` for the experiment TOML format.
 
 from uwval.simulator.dynamics import coriolis_matrix, damping_matrix, hydro_wrench_reference
 from uwval.simulator.engine import (
+    AT_REST,
     CAMERA_TOPIC,
     VEHICLE_TOPIC,
+    InitialState,
     SimResult,
     SimulationStream,
     Simulator,
@@ -31,18 +33,34 @@ from uwval.simulator.inputs import (
     Step,
     constant_inputs,
 )
+from uwval.simulator.model import (
+    FLUID_ADDED_MASS,
+    PLUGIN_ADDED_MASS,
+    AddedMass,
+    CaSign,
+    CoriolisEntries,
+    GazeboModel,
+)
 from uwval.simulator.presets import load_vehicle, preset_names
 from uwval.simulator.sdf import load_vehicle_sdf
 from uwval.simulator.thrusters import Thrusters
 from uwval.simulator.vehicle import Vehicle
 
 __all__ = [
+    "AT_REST",
     "CAMERA_TOPIC",
+    "FLUID_ADDED_MASS",
+    "PLUGIN_ADDED_MASS",
     "TELEOP_KEYS",
     "VEHICLE_TOPIC",
+    "AddedMass",
+    "CaSign",
     "Constant",
+    "CoriolisEntries",
     "Experiment",
     "Factor",
+    "GazeboModel",
+    "InitialState",
     "InputProfile",
     "KeyPress",
     "KeyScript",

@@ -18,20 +18,22 @@ integrated with semi-implicit (symplectic) Euler as gz-physics' DART does: veloc
 then the pose with the new velocities; the quaternion is advanced by ``q (x) [w dt / 2, 1]``
 and renormalised.
 
-``legacy_coriolis`` reproduces gz-sim 8.0-8.11 / 9.x / 10.0-10.1, where ``Cmat(0, 5)`` had the
-wrong sign and ``Cmat(5, 0)`` the wrong index and sign (``+Ma(2,2) w`` instead of ``-Ma(1,1) v``).
+``GazeboModel(coriolis=LEGACY)`` reproduces gz-sim 8.0-8.11 / 9.x / 10.0-10.1, where
+``Cmat(0, 5)`` had the wrong sign and ``Cmat(5, 0)`` the wrong index and sign (``+Ma(2,2) w``
+instead of ``-Ma(1,1) v``).
 
 Sign note: gz-sim applies ``+Cmat nu_r`` (``kCmatVec = -Cmat * state`` is negated again when
 the wrench is applied) and its ``Cmat`` equals Fossen's C_A (eq. 6.43) entry for entry, so the
 added-mass Coriolis wrench gz applies is ``+C_A nu_r`` where Fossen's equations (and Kirchhoff's
 momentum conservation) have ``-C_A nu_r``: gz's Munk moment on a slender body is stabilising.
-This module reproduces gz by default; ``fossen_coriolis=True`` applies Fossen's sign. Both
+This module reproduces gz by default; ``GazeboModel(ca_sign=FOSSEN)`` applies Fossen's sign. Both
 conserve energy (C_A is skew-symmetric); only Fossen's sign conserves the Kirchhoff impulse.
 
-``implicit_added_mass`` moves ``-Ma`` into the mass matrix, ``(M_RB - Ma) nu_dot = ...``, which
-is stable for any added mass; only the (small) change of the current seen in the body frame
-keeps gz's backward difference. Gazebo's explicit form feeds the last step's acceleration back
-with gain ``-|Ma_ii| / M_RB_ii`` and diverges when that reaches 1 (BlueROV2 Heavy's heave).
+``GazeboModel(added_mass=IMPLICIT)`` moves ``-Ma`` into the mass matrix,
+``(M_RB - Ma) nu_dot = ...``, which is stable for any added mass; only the (small) change of
+the current seen in the body frame keeps gz's backward difference. Gazebo's explicit form
+feeds the last step's acceleration back with gain ``-|Ma_ii| / M_RB_ii`` and diverges when
+that reaches 1 (BlueROV2 Heavy's heave).
 
 Speed: the kernel is generated Python source specialised to the vehicle's non-zero
 coefficients (like ``sympy.lambdify``): straight-line float arithmetic with no allocation, so
@@ -48,6 +50,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from uwval.simulator.model import GazeboModel
 from uwval.simulator.vehicle import Vehicle
 
 F64 = NDArray[np.float64]
@@ -150,7 +153,7 @@ class KernelStructure(NamedTuple):
     has_current: bool
     wrench_frame: str
     fossen: bool
-    legacy_abs: bool = False  # gz-sim 8.0-8.11: unqualified abs() truncates |v| to an int
+    int_abs: bool = False  # emulated int abs() of |v| (GazeboModel.int_abs_damping)
 
 
 @dataclass
@@ -164,15 +167,13 @@ class KernelParams:
 def build_params(
     vehicles: Sequence[Vehicle],
     dt: float,
+    model: GazeboModel,
     *,
-    implicit_added_mass: bool,
-    legacy_coriolis: bool,
     has_current: bool,
     wrench_frame: str,
-    fossen_coriolis: bool = False,
-    legacy_abs: bool = False,
 ) -> KernelParams:
-    """Kernel coefficients for one vehicle (floats) or several ((N,) arrays)."""
+    """Kernel coefficients for one vehicle (floats) or several ((N,) arrays), for ``model``."""
+    implicit_added_mass = model.implicit
     n = len(vehicles)
     ma = np.stack([v.added_mass_matrix() for v in vehicles])  # (N, 6, 6)
     damp = [v.damping_terms() for v in vehicles]
@@ -234,12 +235,12 @@ def build_params(
         has_cob,
         has_net,
         has_added_mass,
-        bool(implicit_added_mass),
-        bool(legacy_coriolis),
+        model.implicit,
+        model.legacy_coriolis,
         bool(has_current),
         wrench_frame,
-        bool(fossen_coriolis),
-        bool(legacy_abs),
+        model.fossen,
+        model.int_abs_damping,
     )
     return KernelParams(vals, structure)
 
@@ -282,7 +283,7 @@ def generate_kernel_source(structure: KernelStructure) -> str:
         has_current,
         wrench_frame,
         fossen,
-        legacy_abs,
+        int_abs,
     ) = structure
     names: set[str] = {"dt", "hdt", "mass", "net_up", "buoy", "rbx", "rby", "rbz"}
     names |= {f"mad_{i}{j}" for i, j in ma_terms}
@@ -336,9 +337,8 @@ def generate_kernel_source(structure: KernelStructure) -> str:
             terms += [f"mad_{i}{j}*d{j}" for (ii, j) in ma_terms if ii == i and j in used_d]
         # damping: -(D s)_i with D(i,j) = -lin - qabs|s_k| - quad s_k
         terms += [f"dl_{i}{j}*s{j}" for (ii, j) in lin_terms if ii == i]
-        # gz-sim 8.0-8.11 called an unqualified abs() on the double state; with only
-        # <cmath>/<cstdlib> in its include chain that is C's int abs(int): |trunc(v)|
-        absk = "(abs(s{k}) // 1.0)" if legacy_abs else "abs(s{k})"
+        # GazeboModel.int_abs_damping: C's int abs(int) on the double speed, |trunc(v)|
+        absk = "(abs(s{k}) // 1.0)" if int_abs else "abs(s{k})"
         terms += [
             f"dqa_{i}{j}{k}*" + absk.format(k=k) + f"*s{j}" for (ii, j, k) in qabs_terms if ii == i
         ]

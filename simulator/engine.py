@@ -31,8 +31,9 @@ from numpy.typing import ArrayLike, NDArray
 from uwval.posestream import PoseStream
 from uwval.rotations import quat_from_rpy
 from uwval.simulator.dynamics import N_STATE, build_params, get_kernel, initial_state
-from uwval.simulator.errors import SimulationError
+from uwval.simulator.errors import DivergenceError, SimulationError
 from uwval.simulator.inputs import Constant, InputProfile, constant_inputs
+from uwval.simulator.model import PLUGIN_ADDED_MASS, GazeboModel
 from uwval.simulator.vehicle import Vehicle
 
 F64 = NDArray[np.float64]
@@ -44,6 +45,19 @@ DEFAULT_CAMERA_OFFSET = (-3.0, 0.0, 1.0)
 DIVERGENCE_LIMIT = 1.0e4
 #: Steps per input chunk: inputs are evaluated vectorised over this many step times at once.
 CHUNK_STEPS = 2000
+
+
+@dataclass(frozen=True)
+class InitialState:
+    """Where a run starts: position (m, world ENU), orientation (x y z w, body FLU -> world
+    ENU) and body twist (u v w m/s, p q r rad/s, FLU)."""
+
+    position: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    orientation: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
+    velocity: tuple[float, float, float, float, float, float] = (0.0,) * 6
+
+
+AT_REST = InitialState()
 
 
 @dataclass
@@ -117,8 +131,9 @@ def _warnings_for(vehicles: Sequence[Vehicle], implicit: bool) -> list[str]:
             out.append(
                 f"explicit added mass unstable for {v.name}: {'; '.join(axes)}. Gazebo's "
                 "backward-difference added mass diverges when |X_dot| >= m per axis; use "
-                "implicit_added_mass=True (uwval simulate --added-mass implicit; an experiment's "
-                "implicit_added_mass = true) or a Gazebo-stable variant"
+                "the implicit added mass (uwval simulate --added-mass implicit; an experiment's "
+                'added_mass = "implicit"; GazeboModel(added_mass=AddedMass.IMPLICIT)) or a '
+                "Gazebo-stable variant"
             )
     return out
 
@@ -138,30 +153,21 @@ class Simulator:
         *,
         dt: float = 1e-3,
         publish_rate: float = 50.0,
-        implicit_added_mass: bool = False,
-        legacy_coriolis: bool = False,
+        model: GazeboModel = PLUGIN_ADDED_MASS,
         camera_offset: Sequence[float] = DEFAULT_CAMERA_OFFSET,
-        initial_position: Sequence[float] = (0.0, 0.0, 0.0),
-        initial_orientation: Sequence[float] = (0.0, 0.0, 0.0, 1.0),
-        initial_velocity: Sequence[float] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
-        fossen_coriolis: bool = False,
-        legacy_gz8: bool = False,
+        initial: InitialState = AT_REST,
     ) -> None:
         self.vehicle = vehicle
         self.inputs = inputs if inputs is not None else constant_inputs()
         self.dt = dt
         self.publish_rate = publish_rate
         self.dt_ns, self.publish_every = _check_timing(dt, publish_rate)
-        self.implicit_added_mass = implicit_added_mass
-        # the complete gz-sim 8.0-8.11 mode includes its Coriolis entries
-        self.legacy_gz8 = bool(legacy_gz8)
-        self.legacy_coriolis = legacy_coriolis or self.legacy_gz8
-        self.fossen_coriolis = fossen_coriolis
+        self.model = model
         self.camera_offset = tuple(float(x) for x in camera_offset)
-        q0 = np.asarray(initial_orientation, dtype=np.float64)
+        q0 = np.asarray(initial.orientation, dtype=np.float64)
         q0 = q0 / np.linalg.norm(q0)
         self.state: tuple[Any, ...] = initial_state(
-            1, initial_position, q0.tolist(), initial_velocity
+            1, initial.position, q0.tolist(), initial.velocity
         )
         self.step = 0
         self._published_step = -1
@@ -175,9 +181,9 @@ class Simulator:
         self._kernel_for_current(
             not (self.inputs.current.is_zero() and not np.any(vehicle.default_current))
         )
-        self.warnings = _warnings_for([vehicle], implicit_added_mass)
-        self.state = _with_history(self.state, self._current_at(0.0), implicit_added_mass)
-        if self.legacy_gz8 and not implicit_added_mass:
+        self.warnings = _warnings_for([vehicle], model.implicit)
+        self.state = _with_history(self.state, self._current_at(0.0), model.implicit)
+        if model.zero_prev_state and not model.implicit:
             self.state = _zero_history(self.state)
 
     # ------------------------------------------------------------------ control
@@ -204,12 +210,9 @@ class Simulator:
         self._params = build_params(
             [self.vehicle],
             self.dt,
-            implicit_added_mass=self.implicit_added_mass,
-            legacy_coriolis=self.legacy_coriolis,
+            self.model,
             has_current=has_current,
             wrench_frame=self.inputs.wrench_frame,
-            fossen_coriolis=self.fossen_coriolis,
-            legacy_abs=self.legacy_gz8,
         )
         self._kernel = get_kernel(self._params.structure)
 
@@ -245,9 +248,10 @@ class Simulator:
         if not all(abs(x) < DIVERGENCE_LIMIT for x in vel):  # also catches NaN
             hint = ("; " + " ".join(self.warnings)) if self.warnings else ""
             twist = ", ".join(f"{n}={x:.3g}" for n, x in zip("uvwpqr", vel, strict=True))
-            raise SimulationError(
+            raise DivergenceError(
                 f"simulation of {self.vehicle.name} diverged by t = {self.t_ns * 1e-9:.3f} s "
-                f"(body twist {twist}; limit {DIVERGENCE_LIMIT:g}){hint}"
+                f"(body twist {twist}; limit {DIVERGENCE_LIMIT:g}){hint}",
+                self.t_ns * 1e-9,
             )
 
     def advance_steps(self, n_steps: int, record: list[tuple[Any, ...]] | None = None) -> None:
@@ -276,55 +280,6 @@ class Simulator:
                 self._published_step = end
                 if record is not None:
                     record.append(self.state)
-
-    def advance_ticks_compiled(self, n_ticks: int) -> F64 | None:
-        """Step ``n_ticks`` whole publish ticks with the C build of the kernel
-        (:mod:`uwval.simulator.ckernel`) and return the raw states at the ticks crossed, the
-        initial one first when it was not yet published: (m, N_STATE), the rows
-        :meth:`advance_steps` appends, bit for bit. None (nothing stepped) when there is no C
-        build, the simulator is not at a tick or an override is set (then use advance_steps).
-        A divergence raises :class:`SimulationError` as advance_steps does.
-        """
-        pe = self.publish_every
-        if (
-            self.step % pe
-            or self._force_override is not None
-            or self._torque_override is not None
-            or self._current_override is not None
-        ):
-            return None
-        from uwval.simulator.ckernel import compiled_kernel
-        from uwval.simulator.dynamics import generate_kernel_source
-
-        built = compiled_kernel(generate_kernel_source(self._params.structure))
-        if built is None:
-            return None
-        advance, names = built
-        first = self._published_step < 0
-        out = np.empty((int(n_ticks) + first, N_STATE))
-        if first:
-            out[0] = self.state
-            self._published_step = self.step
-        if n_ticks <= 0:
-            return out
-        m = int(n_ticks) * pe
-        # the inputs as _load_chunk evaluates them, step by step (elementwise the same t)
-        t = (self.step + np.arange(m)) * (self.dt_ns * 1e-9)
-        f, tq, c = self.inputs.evaluate(t)
-        c = c + self.vehicle.default_current
-        cols = np.ascontiguousarray(np.concatenate([f, tq, c], axis=1).T, dtype=np.float64)
-        state = np.array(self.state, dtype=np.float64)
-        params = np.array([self._params.values[k] for k in names], dtype=np.float64)
-        done = advance(
-            int(n_ticks), pe, 0, state, params, cols, out[int(first) :], DIVERGENCE_LIMIT
-        )
-        self.step += done * pe
-        self.state = tuple(out[int(first) + done - 1].tolist())
-        if done < n_ticks or not all(abs(x) < DIVERGENCE_LIMIT for x in self.state[7:13]):
-            self._check()  # raises, naming the twist, as advance_steps does
-        self._published_step = self.step
-        self._chunk_end = 0  # the Python path reloads its input chunk from here
-        return out
 
     def advance_to(self, t_ns: int) -> list[tuple[int, F64, F64, F64, F64]]:
         """Step up to sim time ``t_ns`` (floored to a step); return the publish ticks crossed as
@@ -409,14 +364,9 @@ def simulate(
     dt: float = 1e-3,
     publish_rate: float = 50.0,
     seed: int = 0,
-    implicit_added_mass: bool = False,
-    legacy_coriolis: bool = False,
+    model: GazeboModel = PLUGIN_ADDED_MASS,
     camera_offset: Sequence[float] = DEFAULT_CAMERA_OFFSET,
-    initial_position: Sequence[float] = (0.0, 0.0, 0.0),
-    initial_orientation: Sequence[float] = (0.0, 0.0, 0.0, 1.0),
-    initial_velocity: Sequence[float] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
-    fossen_coriolis: bool = False,
-    legacy_gz8: bool = False,
+    initial: InitialState = AT_REST,
 ) -> SimResult:
     """Run one vehicle for ``duration_s`` seconds of sim time; poses at ``publish_rate`` Hz.
 
@@ -431,24 +381,16 @@ def simulate(
         inputs,
         dt=dt,
         publish_rate=publish_rate,
-        implicit_added_mass=implicit_added_mass,
-        legacy_coriolis=legacy_coriolis,
+        model=model,
         camera_offset=camera_offset,
-        initial_position=initial_position,
-        initial_orientation=initial_orientation,
-        initial_velocity=initial_velocity,
-        fossen_coriolis=fossen_coriolis,
-        legacy_gz8=legacy_gz8,
+        initial=initial,
     )
     n_ticks = round(duration_s * 1e9) // (sim.dt_ns * sim.publish_every)
     records: list[tuple[Any, ...]] = []
     t0 = time.perf_counter()
     sim.advance_steps(n_ticks * sim.publish_every, records)
     wall = time.perf_counter() - t0
-    info = _info(vehicle, sim.dt, publish_rate, seed, implicit_added_mass, legacy_coriolis)
-    info["fossen_coriolis"] = fossen_coriolis
-    info["legacy_gz8"] = sim.legacy_gz8
-    info["legacy_coriolis"] = sim.legacy_coriolis
+    info = _info(vehicle, sim.dt, publish_rate, seed, model)
     info["wrench_frame"] = sim.inputs.wrench_frame
     info.update(steps=sim.step, wall_time_s=wall, warnings=list(sim.warnings))
     return _result_from_records(records, sim.dt_ns * sim.publish_every, camera_offset, info)
@@ -483,9 +425,7 @@ class SimulationStream:
     same camera and quaternion arithmetic, row by row), but only one chunk is held at a
     time, so an hour at 100 Hz costs a few MB instead of hundreds. ``info`` is filled as
     :func:`simulate` fills it (``steps``, ``wall_time_s`` of the physics, ``warnings``) once
-    the iteration has finished. Takes :func:`simulate`'s keyword arguments, and ``compiled``:
-    step with the C build of the kernel when one can be built (:mod:`uwval.simulator.ckernel`,
-    bit-identical; then no child process is started).
+    the iteration has finished. Takes :func:`simulate`'s keyword arguments.
     """
 
     def __init__(
@@ -499,15 +439,9 @@ class SimulationStream:
         dt: float = 1e-3,
         publish_rate: float = 50.0,
         seed: int = 0,
-        implicit_added_mass: bool = False,
-        legacy_coriolis: bool = False,
+        model: GazeboModel = PLUGIN_ADDED_MASS,
         camera_offset: Sequence[float] = DEFAULT_CAMERA_OFFSET,
-        initial_position: Sequence[float] = (0.0, 0.0, 0.0),
-        initial_orientation: Sequence[float] = (0.0, 0.0, 0.0, 1.0),
-        initial_velocity: Sequence[float] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
-        fossen_coriolis: bool = False,
-        legacy_gz8: bool = False,
-        compiled: bool = True,
+        initial: InitialState = AT_REST,
     ) -> None:
         if not (duration_s >= 0 and math.isfinite(duration_s)):
             raise SimulationError(f"duration must be >= 0 s, got {duration_s}")
@@ -518,27 +452,15 @@ class SimulationStream:
             inputs,
             dt=dt,
             publish_rate=publish_rate,
-            implicit_added_mass=implicit_added_mass,
-            legacy_coriolis=legacy_coriolis,
+            model=model,
             camera_offset=camera_offset,
-            initial_position=initial_position,
-            initial_orientation=initial_orientation,
-            initial_velocity=initial_velocity,
-            fossen_coriolis=fossen_coriolis,
-            legacy_gz8=legacy_gz8,
+            initial=initial,
         )
         self.chunk_ticks = int(chunk_ticks)
-        #: Step with the C build of the kernel when there is one (the same numbers).
-        self.compiled = bool(compiled) and self._has_compiled_kernel()
         self.camera_offset = tuple(float(x) for x in camera_offset)
         self.period_ns = self.sim.dt_ns * self.sim.publish_every
         self.n_ticks = round(duration_s * 1e9) // self.period_ns
-        self.info = _info(
-            vehicle, self.sim.dt, publish_rate, seed, implicit_added_mass, legacy_coriolis
-        )
-        self.info["fossen_coriolis"] = fossen_coriolis
-        self.info["legacy_gz8"] = self.sim.legacy_gz8
-        self.info["legacy_coriolis"] = self.sim.legacy_coriolis
+        self.info = _info(vehicle, self.sim.dt, publish_rate, seed, model)
         self.info["wrench_frame"] = self.sim.inputs.wrench_frame
         self.info["warnings"] = list(self.sim.warnings)
         self._started = False
@@ -548,29 +470,14 @@ class SimulationStream:
             "dt": dt,
             "publish_rate": publish_rate,
             "seed": seed,
-            "implicit_added_mass": implicit_added_mass,
-            "legacy_coriolis": legacy_coriolis,
+            "model": model,
             "camera_offset": tuple(camera_offset),
-            "initial_position": tuple(initial_position),
-            "initial_orientation": tuple(initial_orientation),
-            "initial_velocity": tuple(initial_velocity),
-            "fossen_coriolis": fossen_coriolis,
-            "legacy_gz8": legacy_gz8,
-            "compiled": compiled,
+            "initial": initial,
         }
         steps = self.n_ticks * self.sim.publish_every
-        # the compiled kernel steps an hour in ~0.2 s: no child process is worth starting
         self.background = _can_step_elsewhere() and (
-            background
-            if background is not None
-            else steps >= BACKGROUND_MIN_STEPS and not self.compiled
+            background if background is not None else steps >= BACKGROUND_MIN_STEPS
         )
-
-    def _has_compiled_kernel(self) -> bool:
-        from uwval.simulator.ckernel import compiled_kernel
-        from uwval.simulator.dynamics import generate_kernel_source
-
-        return compiled_kernel(generate_kernel_source(self.sim._params.structure)) is not None
 
     def __iter__(self) -> Iterator[TickChunk]:
         if self._started:
@@ -629,11 +536,7 @@ class SimulationStream:
                 self.chunk_ticks - (1 if done == 0 and first_tick == 0 else 0), self.n_ticks - done
             )
             t0 = time.perf_counter()
-            fast = sim.advance_ticks_compiled(k) if self.compiled else None
-            if fast is not None:
-                records = fast
-            else:
-                sim.advance_steps(k * pe, records)
+            sim.advance_steps(k * pe, records)
             wall += time.perf_counter() - t0
             done += k
             if len(records):
@@ -691,13 +594,11 @@ def _unit_rows(quat: F64) -> F64:
 
 
 def _info(
-    vehicle: Vehicle,
-    dt: float,
-    publish_rate: float,
-    seed: int,
-    implicit: bool,
-    legacy: bool,
+    vehicle: Vehicle, dt: float, publish_rate: float, seed: int, model: GazeboModel
 ) -> dict[str, Any]:
+    """A run's description (the log's and the manifest's ``sim`` record). The flat switches
+    (``implicit_added_mass``, ``legacy_coriolis``, ``fossen_coriolis``, ``legacy_gz8``) stay
+    for readers of earlier manifests; ``model`` holds the whole :class:`GazeboModel`."""
     return {
         "vehicle": vehicle.name,
         "vehicle_source": vehicle.source,
@@ -705,8 +606,11 @@ def _info(
         "dt": dt,
         "publish_rate": publish_rate,
         "seed": seed,
-        "implicit_added_mass": implicit,
-        "legacy_coriolis": legacy,
+        "implicit_added_mass": model.implicit,
+        "legacy_coriolis": model.legacy_coriolis,
+        "fossen_coriolis": model.fossen,
+        "legacy_gz8": model.legacy_gz8,
+        "model": model.to_dict(),
     }
 
 
@@ -718,11 +622,8 @@ def simulate_batch(
     dt: float = 1e-3,
     publish_rate: float = 50.0,
     seed: int = 0,
-    implicit_added_mass: bool = False,
-    legacy_coriolis: bool = False,
+    model: GazeboModel = PLUGIN_ADDED_MASS,
     camera_offset: Sequence[float] = DEFAULT_CAMERA_OFFSET,
-    fossen_coriolis: bool = False,
-    legacy_gz8: bool = False,
     progress: Callable[[float], None] | None = None,
 ) -> list[SimResult]:
     """Run N vehicles in one vectorised state (each state variable an (N,) array).
@@ -756,32 +657,20 @@ def simulate_batch(
                 dt=dt,
                 publish_rate=publish_rate,
                 seed=seed,
-                implicit_added_mass=implicit_added_mass,
-                legacy_coriolis=legacy_coriolis,
+                model=model,
                 camera_offset=camera_offset,
-                fossen_coriolis=fossen_coriolis,
-                legacy_gz8=legacy_gz8,
             )
         ]
     dt_ns, pe = _check_timing(dt, publish_rate)
     has_current = any(not p.current.is_zero() for p in ins) or any(
         bool(np.any(v.default_current)) for v in vs
     )
-    params = build_params(
-        vs,
-        dt,
-        implicit_added_mass=implicit_added_mass,
-        legacy_coriolis=legacy_coriolis or legacy_gz8,
-        has_current=has_current,
-        wrench_frame=frames.pop(),
-        fossen_coriolis=fossen_coriolis,
-        legacy_abs=legacy_gz8,
-    )
+    params = build_params(vs, dt, model, has_current=has_current, wrench_frame=frames.pop())
     kernel = get_kernel(params.structure)
     default_cur = np.stack([v.default_current for v in vs])  # (N, 3)
     cur0 = np.stack([p.current(np.array([0.0]))[0] for p in ins]) + default_cur
-    state = _with_history(initial_state(n), cur0, implicit_added_mass)
-    if legacy_gz8 and not implicit_added_mass:
+    state = _with_history(initial_state(n), cur0, model.implicit)
+    if model.zero_prev_state and not model.implicit:
         state = _zero_history(state)
     n_ticks = round(duration_s * 1e9) // (dt_ns * pe)
     total = n_ticks * pe
@@ -811,10 +700,11 @@ def simulate_batch(
                 bad = ~(np.abs(vel) < DIVERGENCE_LIMIT)
                 if bad.any():
                     i_run = int(np.flatnonzero(bad.any(axis=0))[0])
-                    raise SimulationError(
+                    raise DivergenceError(
                         f"batched run {i_run} ({vs[i_run].name}) diverged at "
                         f"t = {tick * pe * dt_ns * 1e-9:.3f} s; "
-                        + " ".join(_warnings_for([vs[i_run]], implicit_added_mass))
+                        + " ".join(_warnings_for([vs[i_run]], model.implicit)),
+                        tick * pe * dt_ns * 1e-9,
                     )
             step += m
             if progress is not None:
@@ -822,15 +712,13 @@ def simulate_batch(
     wall = time.perf_counter() - t0
     out = []
     for i, v in enumerate(vs):
-        info = _info(v, dt, publish_rate, seed, implicit_added_mass, legacy_coriolis or legacy_gz8)
-        info["fossen_coriolis"] = fossen_coriolis
-        info["legacy_gz8"] = legacy_gz8
+        info = _info(v, dt, publish_rate, seed, model)
         info["wrench_frame"] = ins[i].wrench_frame
         info.update(
             steps=total,
             wall_time_s=wall,
             batch_size=n,
-            warnings=_warnings_for([v], implicit_added_mass),
+            warnings=_warnings_for([v], model.implicit),
         )
         out.append(_result_from_records(rec[:, :, i], dt_ns * pe, camera_offset, info))
     return out

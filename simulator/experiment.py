@@ -9,9 +9,12 @@ An experiment TOML file::
     repeats = 1                   # runs per factor combination
     publish_rate = 50.0           # Hz (optional)
     dt = 0.001                    # s (optional)
-    implicit_added_mass = false   # optional
-    legacy_coriolis = false       # optional
-    legacy_gz8 = false            # optional: all of gz-sim 8.0-8.11 (Coriolis, prevState, abs)
+    added_mass = "explicit"       # optional: "explicit" (plugin) or "implicit" (mass matrix)
+    coriolis = "fixed"            # optional: "fixed" (gz-sim 8.12+) or "legacy" (8.0-8.11)
+    ca_sign = "gazebo"            # optional: "gazebo" (+C_A, the plugin) or "fossen" (-C_A)
+    legacy_gz8 = false            # optional: gz-sim 8.0-8.11 (legacy Coriolis, zero prevState)
+    int_abs_damping = false       # optional: emulated int abs() (docs/simulator.md: unlikely)
+    # (implicit_added_mass = true / legacy_coriolis = true: the older spellings, still read)
     wrench_frame = "body"         # optional: "body" (FLU) or "world" (ENU)
 
     [baseline]                    # optional inputs every run gets (added to the factors')
@@ -69,6 +72,13 @@ from uwval.simulator.inputs import (
     Sum,
     signal_from_spec,
 )
+from uwval.simulator.model import (
+    PLUGIN_ADDED_MASS,
+    AddedMass,
+    CaSign,
+    CoriolisEntries,
+    GazeboModel,
+)
 from uwval.simulator.presets import load_vehicle
 from uwval.simulator.vehicle import (
     SCALAR_PARAMETERS,
@@ -92,7 +102,7 @@ class RunSpec:
         vehicle: the vehicle with any parameter factors applied.
         inputs: force/torque (wrench frame) and world current profiles.
         duration_s, seed, publish_rate, dt: run settings.
-        implicit_added_mass, legacy_coriolis: physics switches.
+        model: which gz-sim configuration the physics reproduces.
         repeat: repeat index (0-based).
     """
 
@@ -104,10 +114,8 @@ class RunSpec:
     seed: int
     publish_rate: float = 50.0
     dt: float = 1e-3
-    implicit_added_mass: bool = False
-    legacy_coriolis: bool = False
+    model: GazeboModel = PLUGIN_ADDED_MASS
     repeat: int = 0
-    legacy_gz8: bool = False
 
     def simulate_kwargs(self) -> dict[str, Any]:
         """Keyword arguments of :func:`uwval.simulator.simulate` but vehicle, inputs, duration."""
@@ -115,9 +123,7 @@ class RunSpec:
             "dt": self.dt,
             "publish_rate": self.publish_rate,
             "seed": self.seed,
-            "implicit_added_mass": self.implicit_added_mass,
-            "legacy_coriolis": self.legacy_coriolis,
-            "legacy_gz8": self.legacy_gz8,
+            "model": self.model,
         }
 
 
@@ -145,9 +151,7 @@ class Experiment:
     repeats: int = 1
     publish_rate: float = 50.0
     dt: float = 1e-3
-    implicit_added_mass: bool = False
-    legacy_coriolis: bool = False
-    legacy_gz8: bool = False
+    model: GazeboModel = PLUGIN_ADDED_MASS
     wrench_frame: str = "body"
     baseline: dict[str, Signal] = field(default_factory=dict)
     unity: dict[str, Any] = field(default_factory=dict)
@@ -224,10 +228,8 @@ class Experiment:
             seed=self.seed + idx,
             publish_rate=self.publish_rate,
             dt=self.dt,
-            implicit_added_mass=self.implicit_added_mass,
-            legacy_coriolis=self.legacy_coriolis,
+            model=self.model,
             repeat=rep,
-            legacy_gz8=self.legacy_gz8,
         )
 
 
@@ -244,7 +246,7 @@ def _safe(name: str) -> str:
 def _load_vehicle_rel(name: str, base: Path) -> Vehicle:
     p = Path(name)
     if not p.is_absolute() and (base / p).exists():
-        return load_vehicle(base / p)
+        return load_vehicle((base / p).resolve())  # no "../" in the recorded source
     return load_vehicle(name)
 
 
@@ -262,6 +264,37 @@ def _bool(doc: dict[str, Any], key: str, where: str) -> bool:
     if not isinstance(val, bool):
         raise ConfigError(f"{where}: {key!r} must be true or false, got {val!r}")
     return val
+
+
+def _choice(doc: dict[str, Any], key: str, enum: type[Any], where: str) -> Any:
+    """An enum-valued key of the experiment table, or None when absent."""
+    if key not in doc:
+        return None
+    try:
+        return enum(doc[key])
+    except ValueError:
+        options = ", ".join(f'"{m.value}"' for m in enum)
+        raise ConfigError(f"{where}: {key!r} must be one of {options}, got {doc[key]!r}") from None
+
+
+def _model(doc: dict[str, Any], where: str) -> GazeboModel:
+    """The experiment's :class:`GazeboModel` from its keys (new spellings win over old)."""
+    added = _choice(doc, "added_mass", AddedMass, where)
+    if added is None:
+        added = AddedMass.IMPLICIT if _bool(doc, "implicit_added_mass", where) else None
+    coriolis = _choice(doc, "coriolis", CoriolisEntries, where)
+    if coriolis is None and _bool(doc, "legacy_coriolis", where):
+        coriolis = CoriolisEntries.LEGACY
+    sign = _choice(doc, "ca_sign", CaSign, where)
+    if sign is None and _bool(doc, "fossen_coriolis", where):
+        sign = CaSign.FOSSEN
+    model = GazeboModel(
+        coriolis=coriolis or CoriolisEntries.FIXED,
+        added_mass=added or AddedMass.EXPLICIT,
+        ca_sign=sign or CaSign.GAZEBO,
+        int_abs_damping=_bool(doc, "int_abs_damping", where),
+    )
+    return model.as_legacy_gz8() if _bool(doc, "legacy_gz8", where) else model
 
 
 def _factor(name: str, spec: Any, where: str) -> Factor:
@@ -345,7 +378,8 @@ def experiment_from_mapping(
     known = {
         "name", "description", "vehicle", "duration_s", "seed", "repeats", "publish_rate", "dt",
         "implicit_added_mass", "legacy_coriolis", "wrench_frame", "baseline", "factors",
-        "unity", "legacy_gz8",
+        "unity", "legacy_gz8", "added_mass", "coriolis", "ca_sign", "int_abs_damping",
+        "fossen_coriolis",
     }  # fmt: skip
     extra = set(doc) - known
     if extra:
@@ -405,9 +439,7 @@ def experiment_from_mapping(
         repeats=int(repeats),
         publish_rate=_num(doc, "publish_rate", 50.0, where),
         dt=_num(doc, "dt", 1e-3, where),
-        implicit_added_mass=_bool(doc, "implicit_added_mass", where),
-        legacy_coriolis=_bool(doc, "legacy_coriolis", where),
-        legacy_gz8=_bool(doc, "legacy_gz8", where),
+        model=_model(doc, where),
         wrench_frame=wf,
         baseline=baseline,
         unity=unity,

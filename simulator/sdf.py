@@ -100,6 +100,42 @@ def _shape_volume(geom: ET.Element, where: str) -> float | None:
     return None
 
 
+#: SDFormat <fluid_added_mass> element name -> (row, column) of the 6x6 added mass
+#: (x y z linear, p q r angular; symmetric: ``xy`` sets both (0, 1) and (1, 0)).
+_FLUID_AXES = "xyzpqr"
+
+
+def _read_fluid_added_mass(
+    inertial: ET.Element, hydro: dict[str, float], notes: list[str], where: str
+) -> None:
+    """Add SDFormat 1.10+'s ``<inertial><fluid_added_mass>`` to ``hydro`` as gz-sim parameter
+    names (``xx`` -> ``xDotU``, ``xq`` -> ``xDotQ`` and ``mDotU``...; magnitudes in SDF, SNAME
+    sign here) and say in ``notes`` that DART applies it in the mass matrix, i.e. that the
+    vehicle is simulated as gz-sim runs it with ``FLUID_ADDED_MASS``."""
+    fam = inertial.find("fluid_added_mass")
+    if fam is None:
+        return
+    if any("Dot" in k for k in hydro):
+        raise ConfigError(
+            f"{where}: added mass given twice, as <fluid_added_mass> and as Hydrodynamics "
+            "xDotU... parameters (gz-sim would apply both); keep one"
+        )
+    forces, velocities = "xyzkmn", "UVWPQR"
+    for child in fam:
+        tag = child.tag
+        if len(tag) != 2 or any(c not in _FLUID_AXES for c in tag):
+            raise ConfigError(f"{where} <fluid_added_mass><{tag}>: expected xx, xy, ... rr")
+        i, j = _FLUID_AXES.index(tag[0]), _FLUID_AXES.index(tag[1])
+        val = -_floats(child.text, 1, f"{where} <fluid_added_mass><{tag}>")[0]
+        if val != 0.0:
+            hydro[f"{forces[i]}Dot{velocities[j]}"] = val
+            hydro[f"{forces[j]}Dot{velocities[i]}"] = val
+    notes.append(
+        "<fluid_added_mass>: gz-physics' DART applies it in the mass matrix; simulate with "
+        "model=FLUID_ADDED_MASS (--added-mass implicit --ca-sign fossen)"
+    )
+
+
 def load_vehicle_sdf(path: str | Path) -> Vehicle:
     """Read a Gazebo ``model.sdf`` (or a world SDF holding one model) into a vehicle."""
     p = Path(path)
@@ -195,6 +231,8 @@ def load_vehicle_sdf(path: str | Path) -> Vehicle:
         except ConfigError as exc:
             raise ConfigError(f"{where} Hydrodynamics <{tag}>: {exc}") from None
         hydro[tag] = _floats(child.text, 1, f"{where} Hydrodynamics <{tag}>")[0]
+
+    _read_fluid_added_mass(inertial, hydro, notes, lwhere)
 
     volume = 0.0
     moment = np.zeros(3)

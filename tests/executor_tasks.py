@@ -45,7 +45,7 @@ def flaky_once(args: tuple[int, str]) -> int:
 def run_one_dying_once(args: tuple[object, str, str]) -> dict[str, object]:
     """A real sweep task (simulate -> bridge -> log) whose worker process is killed the first
     time it runs the run named ``victim``."""
-    from uwval.cli.pipeline import RunJob, run_one
+    from uwval.bridge.experiment import RunJob, run_one
 
     job, victim, marker_dir = args
     assert isinstance(job, RunJob)

@@ -8,8 +8,8 @@ import socket
 from pathlib import Path
 
 import pytest
-
 from cli_runner import run_uwval
+
 from uwval.batch import BatchItem, allowed_protocols, compare_batch, compare_item, items_from
 from uwval.errors import ConfigError
 

@@ -21,7 +21,7 @@ import signal, sys
 # stands for a foreground run, where Ctrl-C raises KeyboardInterrupt
 signal.signal(signal.SIGINT, signal.default_int_handler)
 from executor_tasks import spin_forever
-from uwval.executors import run_tasks
+from uwval.batch.executors import run_tasks
 pid_dir = sys.argv[1]
 run_tasks(spin_forever, [(i, pid_dir) for i in range(4)], [str(i) for i in range(4)],
           executor="local", workers=2, progress=False)

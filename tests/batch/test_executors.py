@@ -8,7 +8,7 @@ from pathlib import Path
 import executor_tasks as tasks
 import pytest
 
-from uwval.executors import run_tasks
+from uwval.batch.executors import run_tasks
 
 HAS_DASK = importlib.util.find_spec("distributed") is not None
 

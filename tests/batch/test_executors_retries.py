@@ -18,7 +18,7 @@ def test_dask_does_not_retry_deterministic_errors(tmp_path: Path) -> None:
     import cloudpickle
     import executor_tasks
 
-    from uwval.executors import run_tasks
+    from uwval.batch.executors import run_tasks
 
     cloudpickle.register_pickle_by_value(executor_tasks)
     out = run_tasks(

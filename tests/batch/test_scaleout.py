@@ -11,13 +11,24 @@ from pathlib import Path
 
 import pytest
 
-from uwval.batch import compare_batch, items_from
-from uwval.cli.pipeline import SessionOptions
-from uwval.cli.simulate_cmd import run_experiment
+from uwval.batch import Executor, compare_batch, items_from
+from uwval.bridge.experiment import SimulateOptions, run_experiment
 from uwval.errors import ConfigError
 from uwval.resources import data_path
 
 HAS_DASK = importlib.util.find_spec("distributed") is not None
+
+
+def sweep(out: Path, executor: str, workers: int | None = None, batched: bool = False) -> dict:  # type: ignore[type-arg]
+    """The quick experiment (8 runs) simulated into ``out``; its manifest."""
+    opts = SimulateOptions(
+        output=out,
+        experiment="quick",
+        executor=Executor(executor),
+        workers=workers,
+        batch_physics=batched,
+    )
+    return run_experiment(opts).manifest
 
 
 def _numbers(runs: list[dict]) -> dict[str, dict]:  # type: ignore[type-arg]
@@ -36,13 +47,8 @@ def _numbers(runs: list[dict]) -> dict[str, dict]:  # type: ignore[type-arg]
 
 @pytest.mark.skipif(not HAS_DASK, reason="dask.distributed not installed")
 def test_dask_sweep_and_batch_identical_to_local(tmp_path: Path) -> None:
-    exp = data_path("experiments", "quick.toml")
-    local = run_experiment(
-        exp, tmp_path / "local", SessionOptions(), executor="local", workers=2, progress=False
-    )
-    dask = run_experiment(
-        exp, tmp_path / "dask", SessionOptions(), executor="dask", workers=2, progress=False
-    )
+    local = sweep(tmp_path / "local", "local", workers=2)
+    dask = sweep(tmp_path / "dask", "dask", workers=2)
     assert not local["failed"] and not dask["failed"]
     assert [r["name"] for r in dask["runs"]] == [r["name"] for r in local["runs"]]
     assert len(local["runs"]) == 8
@@ -55,8 +61,7 @@ def test_dask_sweep_and_batch_identical_to_local(tmp_path: Path) -> None:
 
 
 def test_batch_reports_failing_log_and_completes_others(tmp_path: Path) -> None:
-    exp = data_path("experiments", "quick.toml")
-    m = run_experiment(exp, tmp_path / "sweep", SessionOptions(), executor="inline", progress=False)
+    m = sweep(tmp_path / "sweep", "inline")
     bad = tmp_path / "sweep" / m["runs"][3]["log"]
     bad.write_bytes(b"not an mcap at all")
     batch = compare_batch(tmp_path / "sweep", executor="local", workers=2, progress=False)
@@ -114,8 +119,7 @@ def test_simulate_experiment_cli_writes_manifest(tmp_path: Path) -> None:
 
 def test_logs_on_an_object_store_url_are_fetched(tmp_path: Path) -> None:
     fsspec = pytest.importorskip("fsspec")
-    exp = data_path("experiments", "quick.toml")
-    m = run_experiment(exp, tmp_path / "sweep", SessionOptions(), executor="inline", progress=False)
+    m = sweep(tmp_path / "sweep", "inline")
     fs = fsspec.filesystem("memory")
     runs = []
     for r in m["runs"][:2]:
@@ -137,8 +141,7 @@ def test_logs_on_an_object_store_url_are_fetched(tmp_path: Path) -> None:
 
 
 def test_compare_batch_cli(tmp_path: Path) -> None:
-    exp = data_path("experiments", "quick.toml")
-    run_experiment(exp, tmp_path / "sweep", SessionOptions(), executor="inline", progress=False)
+    sweep(tmp_path / "sweep", "inline")
     res = subprocess.run(
         [
             sys.executable,
@@ -169,19 +172,8 @@ def test_compare_batch_cli(tmp_path: Path) -> None:
 
 
 def test_batched_physics_sweep_matches_per_run_physics(tmp_path: Path) -> None:
-    exp = data_path("experiments", "quick.toml")
-    per_run = run_experiment(
-        exp, tmp_path / "a", SessionOptions(), executor="inline", progress=False
-    )
-    batched = run_experiment(
-        exp,
-        tmp_path / "b",
-        SessionOptions(),
-        executor="local",
-        workers=2,
-        progress=False,
-        batched=True,
-    )
+    per_run = sweep(tmp_path / "a", "inline")
+    batched = sweep(tmp_path / "b", "local", workers=2, batched=True)
     assert [r["name"] for r in batched["runs"]] == [r["name"] for r in per_run["runs"]]
     a = compare_batch(tmp_path / "a", executor="inline", progress=False)
     b = compare_batch(tmp_path / "b", executor="inline", progress=False)
@@ -205,8 +197,8 @@ def test_worker_killed_mid_sweep_every_run_present_once(tmp_path: Path, executor
     import cloudpickle
     import executor_tasks
 
-    from uwval.cli.pipeline import RunJob, log_path_for
-    from uwval.executors import run_tasks
+    from uwval.batch.executors import run_tasks
+    from uwval.bridge.experiment import RunJob, log_path_for
     from uwval.simulator import load_experiment
 
     cloudpickle.register_pickle_by_value(executor_tasks)

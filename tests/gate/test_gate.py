@@ -651,17 +651,13 @@ def test_a_log_warning_reaches_the_command_line_gate_and_the_report(
 
 
 def test_check_on_a_manifest_with_one_bad_log_checks_the_rest(tmp_path: Path) -> None:
-    from uwval.cli.pipeline import SessionOptions
-    from uwval.cli.simulate_cmd import run_experiment
+    from uwval.batch import Executor
+    from uwval.bridge.experiment import SimulateOptions, run_experiment
     from uwval.resources import data_path
 
-    m = run_experiment(
-        data_path("experiments", "quick.toml"),  # a small sweep: 8 runs
-        tmp_path / "exp",
-        SessionOptions(),
-        executor="inline",
-        progress=False,
-    )
+    m = run_experiment(  # a small sweep: 8 runs
+        SimulateOptions(output=tmp_path / "exp", experiment="quick", executor=Executor.INLINE)
+    ).manifest
     bad = m["runs"][2]
     (tmp_path / "exp" / bad["log"]).write_bytes(b"garbage")
     res = _uwval(

@@ -193,8 +193,8 @@ def test_report_of_a_log_named_with_dollars(tmp_path: Path) -> None:
 
 # ------------------------------------------------------------------ options as enums
 def test_options_are_enums_and_their_strings_still_work() -> None:
+    from uwval.batch.executors import EXECUTORS, Executor
     from uwval.comparison import AlignMode, SyncMethod
-    from uwval.executors import EXECUTORS, Executor
 
     g = vehicle_motion(300)
     u = unity_view(g, latency=0.02)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from uwval.errors import ConfigError
-from uwval.simulator import load_experiment, simulate, simulate_batch
+from uwval.simulator import FLUID_ADDED_MASS, load_experiment, simulate, simulate_batch
 
 EXPERIMENTS = Path(__file__).resolve().parents[2] / "data" / "experiments"
 
@@ -33,7 +33,7 @@ def test_default_experiment_is_the_papers_study() -> None:
     assert all(r.duration_s <= 4 for r in runs)
     assert len({r.seed for r in runs}) == 54
     json.dumps([r.factors for r in runs])  # JSON scalars
-    assert runs[0].vehicle.name == "bluerov2_heavy" and exp.implicit_added_mass
+    assert runs[0].vehicle.name == "bluerov2_heavy" and exp.model == FLUID_ADDED_MASS
     assert exp.unity["transport"] == "real-endpoint" and exp.unity["float32"] is True
     # the levels are the held keys' force and torque: surge, heave, sway; yaw, roll, pitch
     r = runs[-1]
@@ -78,7 +78,7 @@ def test_second_example_exercises_profiles_keys_params_repeats() -> None:
     exp = load_experiment(EXPERIMENTS / "bluerov2_sweep.toml")
     runs = exp.runs()
     assert len(runs) == 2 * 1 * 2 * 2
-    assert exp.implicit_added_mass
+    assert exp.model.implicit
     assert {r.repeat for r in runs} == {0, 1}
     assert {r.vehicle.hydro["xUabsU"] for r in runs} == {-141.0, -200.0}
     r = runs[0]
@@ -87,7 +87,7 @@ def test_second_example_exercises_profiles_keys_params_repeats() -> None:
     np.testing.assert_allclose(f[:, 0], [10, 10, 0])  # key 'i' held 0-2 s
     np.testing.assert_allclose(tq[:, 2], [0, 0.2, 1.0])  # pulse on, then key 'j' (pulse off)
     np.testing.assert_allclose(c[:, 0], [0.0125, 0.0375, 0.1])  # ramp to 0.1 m/s over 4 s
-    assert r.simulate_kwargs()["implicit_added_mass"] is True
+    assert r.simulate_kwargs()["model"].implicit
 
 
 def _exp(tmp_path: Path, text: str) -> Path:

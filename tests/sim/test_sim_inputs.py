@@ -15,6 +15,7 @@ from uwval.simulator import (
     CAMERA_TOPIC,
     VEHICLE_TOPIC,
     Constant,
+    InitialState,
     InputProfile,
     KeyScript,
     PulseTrain,
@@ -129,9 +130,14 @@ def test_signal_specs_from_toml_values() -> None:
 
 def test_world_wrench_frame_rotates_into_the_body() -> None:
     q = quat_from_rpy(np.array([[0.0, 0.0, math.pi / 2]]))[0]  # facing north
-    body = simulate(TETHYS, constant_inputs(force=(10, 0, 0)), 5.0, initial_orientation=q)
+    body = simulate(
+        TETHYS, constant_inputs(force=(10, 0, 0)), 5.0, initial=InitialState(orientation=tuple(q))
+    )
     world = simulate(
-        TETHYS, constant_inputs(force=(10, 0, 0), wrench_frame="world"), 5.0, initial_orientation=q
+        TETHYS,
+        constant_inputs(force=(10, 0, 0), wrench_frame="world"),
+        5.0,
+        initial=InitialState(orientation=tuple(q)),
     )
     assert body.vehicle.position[-1, 1] > 0.5  # body x = north
     assert world.vehicle.position[-1, 0] > 0.05  # world x = east = body -y: sway

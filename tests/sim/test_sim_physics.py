@@ -19,7 +19,13 @@ from uwval.simulator import (
     simulate_batch,
 )
 from uwval.simulator.dynamics import build_params, get_kernel, initial_state
+from uwval.simulator.engine import InitialState
 from uwval.simulator.errors import SimulationError
+from uwval.simulator.model import AddedMass, CaSign, CoriolisEntries, GazeboModel
+
+IMPLICIT = GazeboModel(added_mass=AddedMass.IMPLICIT)
+IMPLICIT_FOSSEN = GazeboModel(added_mass=AddedMass.IMPLICIT, ca_sign=CaSign.FOSSEN)
+LEGACY = GazeboModel(coriolis=CoriolisEntries.LEGACY)
 
 TETHYS = load_vehicle("tethys")
 
@@ -77,7 +83,7 @@ def test_coast_down_distance() -> None:
     d1, d2, u0 = 20.0, 6.2282, 1.0
     v = one_axis_vehicle(xDotU=-4.876161, xU=-d1, xUabsU=-d2)
     m_eff = v.mass + 4.876161
-    r = simulate(v, None, 80.0, initial_velocity=(u0, 0, 0, 0, 0, 0))
+    r = simulate(v, None, 80.0, initial=InitialState(velocity=(u0, 0, 0, 0, 0, 0)))
     # M du/dt = -d1 u - d2 u^2  =>  x_inf = (M / d2) ln(1 + d2 u0 / d1)
     x_inf = m_eff / d2 * math.log(1 + d2 * u0 / d1)
     assert r.vehicle.position[-1, 0] == pytest.approx(x_inf, rel=2e-3)
@@ -116,7 +122,12 @@ def test_drift_towards_the_current() -> None:
 def test_current_is_a_world_vector() -> None:
     # a vehicle yawed by 90 deg (facing north) in an eastward current drifts east
     q = quat_from_rpy(np.array([[0.0, 0.0, math.pi / 2]]))[0]
-    r = simulate(TETHYS, constant_inputs(current=(0.2, 0, 0)), 20.0, initial_orientation=q)
+    r = simulate(
+        TETHYS,
+        constant_inputs(current=(0.2, 0, 0)),
+        20.0,
+        initial=InitialState(orientation=tuple(q)),
+    )
     assert r.vehicle.position[-1, 0] > 1.0
     assert abs(r.vehicle.position[-1, 1]) < 1e-6
     # in the body frame that is a drift to the right (negative sway)
@@ -133,7 +144,7 @@ def test_neutral_buoyancy_at_rest_stays_at_rest() -> None:
 def test_negative_buoyancy_sinks_at_closed_form_speed() -> None:
     v = load_vehicle("bluerov2_heavy")
     assert v.buoyancy - v.weight == pytest.approx(1000 * 0.0134 * 9.8 - 13.5 * 9.8)
-    r = simulate(v, None, 20.0, implicit_added_mass=True)
+    r = simulate(v, None, 20.0, model=IMPLICIT)
     f = v.weight - v.buoyancy
     w_ss = (-33 + math.sqrt(33**2 + 4 * 190 * f)) / (2 * 190)
     assert r.velocity[-1, 2] == pytest.approx(-w_ss, rel=5e-3)
@@ -143,7 +154,7 @@ def test_negative_buoyancy_sinks_at_closed_form_speed() -> None:
 def test_buoyancy_moment_rights_the_vehicle() -> None:
     v = load_vehicle("bluerov2_heavy_stable")  # CoB 1 cm above CoG
     q0 = quat_from_rpy(np.array([[0.3, 0.0, 0.0]]))[0]
-    r = simulate(v, None, 30.0, initial_orientation=q0)
+    r = simulate(v, None, 30.0, initial=InitialState(orientation=tuple(q0)))
     roll = rpy_from_quat(r.vehicle.orientation)[:, 0]
     assert roll[0] == pytest.approx(0.3)
     assert r.velocity[1, 3] < 0  # the restoring moment turns it back first
@@ -157,7 +168,7 @@ def test_heave_terminal_velocity_independent_of_added_mass_treatment() -> None:
         load_vehicle("bluerov2_heavy"),
         constant_inputs(force=(0, 0, f)),
         10.0,
-        implicit_added_mass=True,
+        model=IMPLICIT,
     )
     stable = simulate(load_vehicle("bluerov2_heavy_stable"), constant_inputs(force=(0, 0, f)), 10.0)
     net = f + 1000 * 0.0134 * 9.8 - 13.5 * 9.8
@@ -199,7 +210,14 @@ def world_impulse(v: Vehicle, r) -> tuple[np.ndarray, np.ndarray]:  # type: igno
 def test_energy_conserved_without_damping_and_current(implicit: bool, fossen: bool) -> None:
     v = added_mass_only()
     r = simulate(
-        v, None, 20.0, initial_velocity=NU0, implicit_added_mass=implicit, fossen_coriolis=fossen
+        v,
+        None,
+        20.0,
+        initial=InitialState(velocity=tuple(NU0)),
+        model=GazeboModel(
+            added_mass=AddedMass.IMPLICIT if implicit else AddedMass.EXPLICIT,
+            ca_sign=CaSign.FOSSEN if fossen else CaSign.GAZEBO,
+        ),
     )
     e = kinetic_energy(v, r.velocity)
     assert np.abs(e / e[0] - 1).max() < 5e-3
@@ -208,7 +226,7 @@ def test_energy_conserved_without_damping_and_current(implicit: bool, fossen: bo
 
 def test_momentum_conserved_rigid_body() -> None:
     v = Vehicle("rigid", TETHYS.mass, np.diag([3.0, 20.0, 41.98]))
-    r = simulate(v, None, 20.0, initial_velocity=NU0)
+    r = simulate(v, None, 20.0, initial=InitialState(velocity=tuple(NU0)))
     lin, ang = world_impulse(v, r)
     assert np.abs(lin - lin[0]).max() < 1e-3 * np.linalg.norm(lin[0])
     assert np.abs(ang - ang[0]).max() < 1e-3 * np.linalg.norm(ang[0])
@@ -221,11 +239,11 @@ def test_kirchhoff_impulse_conserved_with_fossen_sign_only() -> None:
     with Fossen's -C_A nu. This pins down which sign each switch uses."""
     v = added_mass_only()
     fossen = simulate(
-        v, None, 20.0, initial_velocity=NU0, implicit_added_mass=True, fossen_coriolis=True
+        v, None, 20.0, initial=InitialState(velocity=tuple(NU0)), model=IMPLICIT_FOSSEN
     )
     lin, _ = world_impulse(v, fossen)
     assert np.abs(lin - lin[0]).max() < 2e-3 * np.linalg.norm(lin[0])
-    gz = simulate(v, None, 20.0, initial_velocity=NU0, implicit_added_mass=True)
+    gz = simulate(v, None, 20.0, initial=InitialState(velocity=tuple(NU0)), model=IMPLICIT)
     lin_gz, _ = world_impulse(v, gz)
     assert np.abs(lin_gz - lin_gz[0]).max() > 0.03 * np.linalg.norm(lin_gz[0])
 
@@ -393,8 +411,10 @@ def test_kernel_matches_gz_matrix_form(legacy: bool, implicit: bool) -> None:
     params = build_params(
         [v],
         dt,
-        implicit_added_mass=implicit,
-        legacy_coriolis=legacy,
+        GazeboModel(
+            coriolis=CoriolisEntries.LEGACY if legacy else CoriolisEntries.FIXED,
+            added_mass=AddedMass.IMPLICIT if implicit else AddedMass.EXPLICIT,
+        ),
         has_current=True,
         wrench_frame="body",
     )
@@ -416,14 +436,14 @@ def test_kernel_matches_gz_matrix_form(legacy: bool, implicit: bool) -> None:
 def test_legacy_coriolis_changes_a_turning_run() -> None:
     inputs = constant_inputs(force=(10, 0, 0), torque=(0, 0, 1.0))
     fixed = simulate(TETHYS, inputs, 20.0)
-    legacy = simulate(TETHYS, inputs, 20.0, legacy_coriolis=True)
+    legacy = simulate(TETHYS, inputs, 20.0, model=LEGACY)
     gap = np.linalg.norm(fixed.vehicle.position - legacy.vehicle.position, axis=1).max()
     assert gap > 0.05
     straight = constant_inputs(force=(10, 0, 0))
     # surge only: v = r = 0, the two differing entries see zeros: identical runs
     np.testing.assert_array_equal(
         simulate(TETHYS, straight, 5.0).vehicle.position,
-        simulate(TETHYS, straight, 5.0, legacy_coriolis=True).vehicle.position,
+        simulate(TETHYS, straight, 5.0, model=LEGACY).vehicle.position,
     )
 
 
@@ -432,7 +452,7 @@ def test_explicit_added_mass_diverges_for_published_bluerov2() -> None:
     v = load_vehicle("bluerov2_heavy")
     assert v.explicit_added_mass_unstable_axes() == ["zDotW = -18.68 (|.| >= 13.5 kg)"]
     short = simulate(v, constant_inputs(force=(0, 0, 10)), 0.012, publish_rate=1000)
-    assert any("zDotW" in w and "implicit_added_mass" in w for w in short.info["warnings"])
+    assert any("zDotW" in w and "implicit added mass" in w for w in short.info["warnings"])
     acc = np.diff(short.velocity[:, 2])
     # the lagged feedback alternates the acceleration's sign with gain 18.68 / 13.5 > 1
     assert np.all(np.sign(acc[2:]) != np.sign(acc[1:-1]))
@@ -443,9 +463,7 @@ def test_explicit_added_mass_diverges_for_published_bluerov2() -> None:
 
 def test_implicit_added_mass_is_stable_and_quiet() -> None:
     v = load_vehicle("bluerov2_heavy")
-    r = simulate(
-        v, constant_inputs(force=(5, 0, 10), torque=(0, 0, 0.5)), 20.0, implicit_added_mass=True
-    )
+    r = simulate(v, constant_inputs(force=(5, 0, 10), torque=(0, 0, 0.5)), 20.0, model=IMPLICIT)
     assert r.info["warnings"] == []
     assert np.all(np.isfinite(r.velocity))
     assert np.abs(r.velocity).max() < 2.0
@@ -494,3 +512,28 @@ def test_batch_reports_the_diverging_run() -> None:
 def test_initial_state_helper_shapes() -> None:
     assert len(initial_state(1)) == 19
     assert initial_state(4)[6].shape == (4,)
+
+
+def test_fluid_added_mass_model_is_a_rigid_body_with_the_added_inertia() -> None:
+    """FLUID_ADDED_MASS (the default experiment's model) steps a body whose spatial inertia is
+    M = M_RB - Ma, as DART does with SDFormat's <fluid_added_mass>: one step of the kernel is
+    Newton-Euler with Kirchhoff's velocity terms, F = -w x (M11 v), T = -w x (M22 w) - v x
+    (M11 v) (Fossen 2011 eq. 6.43's -C_A plus C_RB), not the plugin's +C_A."""
+    from uwval.simulator import FLUID_ADDED_MASS
+
+    v = added_mass_only()
+    dt = 1e-3
+    m_total = v.rigid_body_mass_matrix() - v.added_mass_matrix()
+    nu = np.array(NU0)
+    lin, ang = nu[:3], nu[3:]
+    p = m_total[:3, :3] @ lin
+    h = m_total[3:, 3:] @ ang
+    wrench = np.concatenate([-np.cross(ang, p), -np.cross(ang, h) - np.cross(lin, p)])
+    expected = nu + dt * np.linalg.solve(m_total, wrench)
+    r = simulate(v, None, 0.02, dt=dt, publish_rate=1000, initial=InitialState(velocity=NU0))
+    fluid = simulate(
+        v, None, 0.02, dt=dt, publish_rate=1000, initial=InitialState(velocity=NU0),
+        model=FLUID_ADDED_MASS,
+    )  # fmt: skip
+    np.testing.assert_allclose(fluid.velocity[1], expected, rtol=1e-12, atol=1e-15)
+    assert np.abs(r.velocity[1] - expected).max() > 1e-6  # the plugin's model is another one

@@ -90,9 +90,9 @@ def test_compare_gives_the_same_metrics_on_the_block_and_per_message_logs(tmp_pa
     compare`` (both pairs) reports the same numbers on both."""
     from per_message import PerMessage
 
+    from uwval.bridge.experiment import RunJob, SessionOptions, run_one, ticks_of
     from uwval.bridge.recorder import open_log_writer
     from uwval.bridge.session import BridgeSession
-    from uwval.cli.pipeline import RunJob, SessionOptions, _ticks_of, run_one
     from uwval.simulator import RunSpec, SimulationStream, constant_inputs, load_vehicle
 
     spec = RunSpec(
@@ -112,7 +112,7 @@ def test_compare_gives_the_same_metrics_on_the_block_and_per_message_logs(tmp_pa
     per_message = tmp_path / "messages.mcap"
     stream = SimulationStream(spec.vehicle, spec.inputs, spec.duration_s, **spec.simulate_kwargs())
     with open_log_writer(per_message, "mcap") as writer:
-        BridgeSession(PerMessage(writer), opts, seed=spec.seed).run(_ticks_of(stream))
+        BridgeSession(PerMessage(writer), opts, seed=spec.seed).run(ticks_of(stream))
     a, b = messages(blocks, 2**62), messages(per_message, 2**62)
     assert a == b
     assert len(a["/unity/model_rov_pose"]) > 300

@@ -12,20 +12,23 @@ quits. A held key (terminal auto-repeat) keeps its wrench increment applied; rel
 from __future__ import annotations
 
 import contextlib
+import inspect
 import math
 import os
 import select
 import sys
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Optional
 
 import numpy as np
 import typer
 from rich.console import Console
 
 from uwval.cli import app
-from uwval.cli.simulate_cmd import endpoint_topics, parse_endpoint, parse_vector
+from uwval.cli.simulate_cmd import parse_vector
+from uwval.cli.simulate_endpoint import endpoint_topics, parse_endpoint
 from uwval.errors import ConfigError
 
 console = Console()
@@ -60,68 +63,140 @@ def _read_keys() -> str:
     return out
 
 
-@app.command()
-def teleop(
-    vehicle: Annotated[
-        str, typer.Option(help="Preset name, MODEL.sdf or VEHICLE.toml.")
-    ] = "tethys",
-    host: Annotated[str, typer.Option(help="Address the endpoint binds.")] = "127.0.0.1",
-    port: Annotated[int, typer.Option(help="Endpoint port (0: a free port).")] = 10000,
-    keys: Annotated[str | None, typer.Option(help="Scripted keys, e.g. 'i@0:5;j@2:3'.")] = None,
-    duration: Annotated[float, typer.Option(help="Stop after S seconds (0: until q).")] = 0.0,
-    current: Annotated[str, typer.Option(help="Initial current CX,CY,CZ, m/s (ENU).")] = "0,0,0",
-    force_step: Annotated[float, typer.Option(help="Force per held key, N.")] = 10.0,
-    torque_step: Annotated[float, typer.Option(help="Torque per held key, N m.")] = 1.0,
-    hold: Annotated[
-        float, typer.Option(help="A key counts as held this long after it was last seen, s.")
-    ] = 0.6,
-    publish_rate: Annotated[float, typer.Option(help="Pose publish rate, Hz.")] = 50.0,
-    speed: Annotated[
-        float,
-        typer.Option(help="Sim time per wall second (0: as fast as possible, scripted runs only)."),
-    ] = 1.0,
-    record: Annotated[
-        Path | None, typer.Option(help="Also record the Gazebo side here (MCAP).")
-    ] = None,
-    endpoint: Annotated[
-        str | None,
-        typer.Option(
-            help="Publish INTO a running ROS-TCP endpoint at HOST:PORT (Unity's "
-            "ROS-TCP-Endpoint) as a ROS publisher, instead of serving on --host/--port.",
-        ),
-    ] = None,
-    endpoint_namespace: Annotated[
-        str,
-        typer.Option(help="With --endpoint: ROS namespace of the topics (e.g. /gazebo)."),
-    ] = "",
-) -> None:
+@dataclass(frozen=True)
+class TeleopOptions:
+    """What ``uwval teleop`` does, as one value (units: s, Hz, N, N m, m/s world ENU).
+
+    ``keys`` is a scripted key session (None: the keyboard); ``record`` an MCAP of the
+    Gazebo side; ``endpoint`` HOST:PORT of a running ROS-TCP endpoint to publish into
+    (None: serve on ``host``:``port``)."""
+
+    vehicle: str = "tethys"
+    host: str = "127.0.0.1"
+    port: int = 10000
+    keys: str | None = None
+    duration_s: float = 0.0
+    current: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    force_step: float = 10.0
+    torque_step: float = 1.0
+    hold_s: float = 0.6
+    publish_rate: float = 50.0
+    speed: float = 1.0
+    record: Path | None = None
+    endpoint: str | None = None
+    endpoint_namespace: str = ""
+
+    def check(self) -> None:
+        """One clear error before anything starts (``not (x >= 0)`` is also true for NaN)."""
+        interactive = self.keys is None
+        for option, value in (
+            ("--duration", self.duration_s),
+            ("--speed", self.speed),
+            ("--hold", self.hold_s),
+        ):
+            if not (0 <= value < math.inf):
+                raise ConfigError(f"{option} must be a finite number >= 0, got {value}")
+        for option, value in (
+            ("--force-step", self.force_step),
+            ("--torque-step", self.torque_step),
+        ):
+            if not math.isfinite(value):
+                raise ConfigError(f"{option} must be a finite number, got {value}")
+        if interactive and not sys.stdin.isatty():
+            raise ConfigError("uwval teleop needs a terminal for keys; use --keys for a script")
+        if not interactive and self.duration_s <= 0:
+            raise ConfigError("--keys needs --duration (seconds)")
+        if self.speed <= 0 and interactive:
+            raise ConfigError("--speed 0 (as fast as possible) works only with --keys")
+
+
+#: Every option of ``uwval teleop``: (keyword, flags, kind, default, help).
+TELEOP_OPTIONS: tuple[tuple[str, tuple[str, ...], Any, Any, str], ...] = (
+    ("vehicle", ("--vehicle",), str, "tethys", "Preset name, MODEL.sdf or VEHICLE.toml."),
+    ("host", ("--host",), str, "127.0.0.1", "Address the endpoint binds."),
+    ("port", ("--port",), int, 10000, "Endpoint port (0: a free port)."),
+    ("keys", ("--keys",), str, None, "Scripted keys, e.g. 'i@0:5;j@2:3'."),
+    ("duration", ("--duration",), float, 0.0, "Stop after S seconds (0: until q)."),
+    ("current", ("--current",), str, "0,0,0", "Initial current CX,CY,CZ, m/s (ENU)."),
+    ("force_step", ("--force-step",), float, 10.0, "Force per held key, N."),
+    ("torque_step", ("--torque-step",), float, 1.0, "Torque per held key, N m."),
+    ("hold", ("--hold",), float, 0.6, "A key counts as held this long after it was last seen, s."),
+    ("publish_rate", ("--publish-rate",), float, 50.0, "Pose publish rate, Hz."),
+    ("speed", ("--speed",), float, 1.0,
+     "Sim time per wall second (0: as fast as possible, scripted runs only)."),
+    ("record", ("--record",), Path, None, "Also record the Gazebo side here (MCAP)."),
+    ("endpoint", ("--endpoint",), str, None, "Publish INTO a running ROS-TCP endpoint at "
+     "HOST:PORT (Unity's ROS-TCP-Endpoint) as a ROS publisher, instead of serving on "
+     "--host/--port."),
+    ("endpoint_namespace", ("--endpoint-namespace",), str, "",
+     "With --endpoint: ROS namespace of the topics (e.g. /gazebo)."),
+)  # fmt: skip
+
+
+def teleop(**kw: Any) -> None:
     """Drive the simulated vehicle live from the keyboard through the TCP bridge."""
+    options = TeleopOptions(
+        vehicle=kw["vehicle"],
+        host=kw["host"],
+        port=kw["port"],
+        keys=kw["keys"],
+        duration_s=kw["duration"],
+        current=parse_vector(kw["current"], "current"),
+        force_step=kw["force_step"],
+        torque_step=kw["torque_step"],
+        hold_s=kw["hold"],
+        publish_rate=kw["publish_rate"],
+        speed=kw["speed"],
+        record=kw["record"],
+        endpoint=kw["endpoint"],
+        endpoint_namespace=kw["endpoint_namespace"],
+    )
+    run_teleop(options)
+
+
+def _parameters() -> list[inspect.Parameter]:
+    """The typer signature of ``teleop``, from :data:`TELEOP_OPTIONS`."""
+    params = []
+    for dest, flags, kind, default, help_text in TELEOP_OPTIONS:
+        typ: Any = kind if default is not None else Optional[kind]  # noqa: UP045
+        params.append(
+            inspect.Parameter(
+                dest,
+                inspect.Parameter.KEYWORD_ONLY,
+                default=default,
+                annotation=Annotated[typ, typer.Option(*flags, help=help_text)],
+            )
+        )
+    return params
+
+
+teleop.__signature__ = inspect.Signature(_parameters())  # type: ignore[attr-defined]
+app.command(name="teleop")(teleop)
+
+
+def run_teleop(options: TeleopOptions) -> None:
+    """Run the live session of ``options`` until its duration, ``q`` or Ctrl-C."""
     from uwval.bridge.gazebo import EndpointPublisher, GazeboPublisher, run_live
     from uwval.bridge.server import BridgeServer
     from uwval.simulator import InputProfile, Simulator, constant_inputs, load_vehicle
     from uwval.simulator.inputs import KeyboardTeleop
 
+    options.check()
+    keys, duration, speed, hold = options.keys, options.duration_s, options.speed, options.hold_s
+    force_step, torque_step, publish_rate = (
+        options.force_step,
+        options.torque_step,
+        options.publish_rate,
+    )
+    record, endpoint = options.record, options.endpoint
     interactive = keys is None
-    # Checked before anything starts: ``not (x >= 0)`` is also true for NaN.
-    for option, value in (("--duration", duration), ("--speed", speed), ("--hold", hold)):
-        if not (0 <= value < math.inf):
-            raise ConfigError(f"{option} must be a finite number >= 0, got {value}")
-    for option, value in (("--force-step", force_step), ("--torque-step", torque_step)):
-        if not math.isfinite(value):
-            raise ConfigError(f"{option} must be a finite number, got {value}")
-    if interactive and not sys.stdin.isatty():
-        raise ConfigError("uwval teleop needs a terminal for keys; use --keys for a script")
-    if not interactive and duration <= 0:
-        raise ConfigError("--keys needs --duration (seconds)")
-    if speed <= 0 and interactive:
-        raise ConfigError("--speed 0 (as fast as possible) works only with --keys")
-    cur = np.array(parse_vector(current, "current"))
+    cur = np.array(options.current)
     inputs = (
         InputProfile.from_keys(keys, cur, force_step, torque_step)
         if keys is not None
         else constant_inputs((0, 0, 0), (0, 0, 0), cur)
     )
-    sim = Simulator(load_vehicle(vehicle), inputs, publish_rate=publish_rate)
+    sim = Simulator(load_vehicle(options.vehicle), inputs, publish_rate=publish_rate)
     keyboard = KeyboardTeleop(force_step, torque_step, hold, cur)
     server: BridgeServer | None = None
     publisher: GazeboPublisher | EndpointPublisher
@@ -131,7 +206,7 @@ def teleop(
         publisher = EndpointPublisher(
             h,
             p,
-            topics=endpoint_topics(endpoint_namespace),
+            topics=endpoint_topics(options.endpoint_namespace),
             on_message=lambda kind, text: console.print(
                 f"endpoint {kind}: {text}", highlight=False, markup=False
             ),
@@ -141,7 +216,7 @@ def teleop(
             f"{', '.join(publisher.topics.values())}"
         )
     else:
-        server = BridgeServer(host, port).start()
+        server = BridgeServer(options.host, options.port).start()
         publisher = GazeboPublisher(server)
         h, p = server.address
         console.print(f"endpoint listening on {h}:{p} (connect Unity's ROS-TCP-Connector here)")
