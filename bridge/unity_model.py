@@ -152,6 +152,9 @@ class FrameClock:
                 yield max(start_ns, nominal + round(jit * 1e9))
                 k += 1
         elif self.kind == "vsync":
+            # The display's vsync grid does not know Gazebo's publish grid: its phase is
+            # drawn per seed (a real replicate differs there first).
+            start_ns += int(self._rng.integers(0, round(period * 1e9)))
             vsync = 0  # index of the vsync the frame is shown at
             while True:
                 t = start_ns + round(vsync * period * 1e9)
