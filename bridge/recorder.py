@@ -164,6 +164,20 @@ class BridgeRecorder:
         # per (prefix, name, frame_id): the topic's pending buffer (and applied-stamp buffer)
         self._gz: dict[tuple[str, str], _Pending] = {}
         self._un: dict[str, tuple[_Pending, _Pending]] = {}
+        self._warm_up()
+
+    def _warm_up(self) -> None:
+        """Set up now what the first flush would (rosbags' type store and message
+        definitions, the chunk compressor: ~0.3-0.5 s), so that it does not happen on a live
+        render loop's thread and hold up the frames of the first second."""
+        import zstandard
+
+        from uwval.io.ros import typestore
+
+        ros = 1 if self.encoding == "ros1" else 2
+        for msgtype in (POSE_STAMPED, HEADER):
+            typestore(ros).generate_msgdef(msgtype, ros_version=ros)
+        zstandard.ZstdCompressor()
 
     @property
     def written(self) -> dict[str, int]:

@@ -498,3 +498,30 @@ def test_compare_uses_the_recorded_clock_of_a_monotonic_unity_log(tmp_path: Path
     assert any("uwval.clock metadata" in w for w in doc["warnings"])
     assert abs(doc["offset"]["applied_s"]) > 1e3  # epoch minus monotonic: days at least
     assert 0 <= doc["latency"]["mean_ms"] < 200, doc["latency"]
+
+
+def test_bridge_unity_latency_only_while_the_publisher_runs_and_no_start_stall(
+    tmp_path: Path,
+) -> None:
+    """A recording that outlives its publisher by 3 s: compare's latency counts the frames
+    while poses came (p95 < 60 ms, the frames after the last pose reported as outside), and
+    the recorder's set-up does not stall the render loop: no pose is shown late."""
+    import numpy as np
+
+    from uwval.io import read_stream
+
+    def pose_at(k: int) -> tuple[int, Any, Any]:
+        return time.monotonic_ns(), np.array([0.01 * k, 0.0, 0.0]), np.array([0, 0, 0, 1.0])
+
+    res, log, sent = _record_from_uwval_serve(tmp_path, pose_at, 50, "4")
+    assert res.returncode == 0, res.stderr
+    doc = json.loads(run_uwval("compare", log, "--json", "--offset", "0", timeout=60).stdout)
+    lat = doc["latency"]
+    assert lat["p95_ms"] < 60 and lat["mean_ms"] < 40, lat
+    assert lat["n_outside"] > 100  # ~3 s of frames at 60 Hz after the last pose
+    unity = read_stream(log, "/unity/model_rov_pose")
+    inside = unity.t <= int(sent[-1][0])
+    age_ms = (unity.t[inside] - unity.applied_stamp[inside]) * 1e-6
+    # was up to 315-387 ms: the recorder's first flush set up its type store on the render
+    # thread and the frames waited
+    assert age_ms.max() < 150, age_ms.round(1).tolist()
