@@ -221,7 +221,9 @@ def tick_latencies_ms(topics: int, seconds: float = 100.0, seed: int = 1) -> lis
 
 
 @pytest.mark.parametrize("measured", [MEASURED_ONE_TOPIC, MEASURED_TWO_TOPICS])
-def test_transport_is_calibrated_for_one_and_two_topics(measured: list[tuple[float, float]]) -> None:
+def test_transport_is_calibrated_for_one_and_two_topics(
+    measured: list[tuple[float, float]],
+) -> None:
     """The model's per-topic p50 within 30 % and p99 within 10 % of the real endpoint's: the
     second pose of a tick waits for the first one's delayed ACK (p99 ~41 ms, not ~21)."""
     for lat, (p50, p99) in zip(tick_latencies_ms(len(measured)), measured, strict=True):
@@ -237,7 +239,7 @@ def test_connector_reader_polls_every_10_ms_when_idle_and_drains_when_busy() -> 
     from uwval.bridge.connector_reader import ConnectorReader, VirtualPort
 
     got: list[tuple[str, int]] = []
-    port: VirtualPort[str] = VirtualPort(lambda items, at: got.extend(zip(items, at)))
+    port: VirtualPort[str] = VirtualPort(lambda items, at: got.extend(zip(items, at, strict=True)))
     reader = ConnectorReader(seed=0)
     port.start(3_000_000)  # first look at 3 ms
     port.add(["a", "b", "c"], [1_000_000, 2_000_000, 25_500_000])
