@@ -440,6 +440,7 @@ def test_bridge_unity_mismatch_against_uwval_serve(tmp_path: Path) -> None:
     err = " ".join(res.stderr.split())
     assert res.returncode == 2 and "protocol mismatch" in err and "speaks ROS1" in err, err
     assert "never connected" not in err
+    assert "no log written" in err and not (tmp_path / "u.mcap").exists()
 
 
 def test_bridge_unity_never_connected_says_why(tmp_path: Path) -> None:

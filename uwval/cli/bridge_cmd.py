@@ -87,7 +87,13 @@ def _compat(name: str) -> str:
 def serve(
     host: HostOpt = "127.0.0.1",
     port: PortOpt = 10000,
-    protocol: ProtocolOpt = "ROS2",
+    protocol: Annotated[
+        str | None,
+        typer.Option(
+            help="ROS2 (CDR bodies) or ROS1. Default: ROS2, or ROS1 with --compat real-endpoint "
+            "(the ROS 1 release of ROS-TCP-Endpoint 0.7.0)."
+        ),
+    ] = None,
     queue_size: Annotated[int, typer.Option(help="Per-client outgoing queue bound.")] = 1024,
     max_frame: Annotated[int, typer.Option(help="Largest accepted frame payload, bytes.")] = 16
     * 1024
@@ -97,7 +103,8 @@ def serve(
         typer.Option(
             help="Simultaneous connections (one I/O thread serves all). When all are taken, a "
             "connection that registered nothing and was silent 2 s gives its slot to the new "
-            "one; otherwise the new one is closed at once."
+            "one, else the one that sent nothing but keepalives for longest (at least 2 s); "
+            "otherwise the new one is closed at once."
         ),
     ] = 64,
     unused_timeout: Annotated[
@@ -113,7 +120,7 @@ def serve(
             help="Close a connection silent (no frame, no keepalive; ROS-TCP-Connector sends "
             "one every second) for this many seconds (0: never)."
         ),
-    ] = 0.0,
+    ] = 5.0,
     compat: Annotated[
         str,
         typer.Option(
@@ -123,6 +130,14 @@ def serve(
             "echoed), so an app tested here does not break on the real one."
         ),
     ] = "uwval",
+    route: Annotated[
+        str | None,
+        typer.Option(
+            help="Where outgoing frames go: subscribers (each subscribed client) or newest "
+            "(everything to the newest connection, as ROS-TCP-Endpoint 0.7.0 does; only with "
+            "--compat real-endpoint, its default there)."
+        ),
+    ] = None,
     known_package: Annotated[
         list[str] | None,
         typer.Option(
@@ -156,7 +171,7 @@ def serve(
     server = BridgeServer(
         host,
         port,
-        protocol=_protocol(protocol),
+        protocol=_protocol(protocol) if protocol is not None else None,
         queue_size=queue_size,
         max_frame=max_frame,
         max_clients=max_clients,
@@ -164,10 +179,12 @@ def serve(
         idle_timeout=idle_timeout or None,
         compat=_compat(compat),
         known_packages=frozenset(known_package or ()),
+        route=route,
     ).start()
     console.print(
         f"[green]ROS-TCP endpoint[/] listening on {host}:{server.port} "
-        f"({server.protocol}{', as ROS-TCP-Endpoint 0.7.0' if compat != 'uwval' else ''}); "
+        f"({server.protocol}"
+        f"{', as ROS-TCP-Endpoint 0.7.0, to ' + server.route if compat != 'uwval' else ''}); "
         "Ctrl-C to stop"
     )
     t_end = time.monotonic() + duration if duration > 0 else float("inf")
@@ -422,7 +439,9 @@ def unity(
         )
         recorder.close()
     if mismatch is not None:
-        raise BridgeError(f"{mismatch} ({output} holds no Unity transforms)")
+        # nothing was recorded: an empty log left behind would read as a recording
+        output.unlink(missing_ok=True)
+        raise BridgeError(f"{mismatch}; no log written")
     conn = client.connection
     counts = conn.message_counts
     console.print(
