@@ -526,3 +526,32 @@ def test_bridge_unity_latency_only_while_the_publisher_runs_and_no_start_stall(
     # was up to 315-387 ms: the recorder's first flush set up its type store on the render
     # thread and the frames waited
     assert age_ms.max() < 150, age_ms.round(1).tolist()
+
+
+def test_simulate_endpoint_matches_the_transport_model(
+    ros_endpoint: RosEndpoint, tmp_path: Path
+) -> None:
+    """The same run through the real endpoint (a live Connector-like client on the wall clock)
+    and simulated with the real-endpoint transport model and the Connector's reader (mean of
+    three seeds: the reader's and the display's phases move a run by up to ~40 %): latency
+    and x MAE agree within 1.3x."""
+    run = ("--duration", "8", "--force", "10,0,5", "--torque", "0,0,1", "--current", "0.25,0,0")
+    live = tmp_path / "live.mcap"
+    res = run_uwval(
+        "simulate", "--endpoint", f"127.0.0.1:{ros_endpoint.port}", *run, "-o", live, timeout=90
+    )
+    assert res.returncode == 0, res.stderr
+    got = json.loads(run_uwval("compare", live, "--json", timeout=60).stdout)
+    modelled = []
+    for seed in (0, 1, 2):
+        log = tmp_path / f"model{seed}.mcap"
+        res = run_uwval("simulate", *run, "--seed", seed, "-o", log, timeout=90)
+        assert res.returncode == 0, res.stderr
+        modelled.append(json.loads(run_uwval("compare", log, "--json", timeout=60).stdout))
+    for name, value in (
+        ("latency ms", lambda d: d["latency"]["mean_ms"]),
+        ("x MAE", lambda d: d["axes"]["x"]["mae"]),
+    ):
+        real = value(got)
+        model = sum(value(d) for d in modelled) / len(modelled)
+        assert 1 / 1.3 <= real / model <= 1.3, (name, real, model)
