@@ -15,8 +15,9 @@ Robustness rules (issue 6):
 One I/O thread serves every connection (issue 14): non-blocking sockets on a selector
 (epoll on Linux), so a connection costs a socket, a parser buffer and a queue, never a
 thread. Thread-per-client servers (this one before, and ROS-TCP-Endpoint) keep glibc arenas
-and thread stacks after their clients leave; after 10,000 hostile connections this one's
-RSS is back where it started (``benchmarks/bridge_hostile.py``). A publisher thread sends a
+and thread stacks after their clients leave; this one holds no per-client thread
+(``benchmarks/bridge_hostile.py`` measures its RSS across 10,000 hostile connections; glibc's
+malloc_trim is no longer called, nothing native is loaded). A publisher thread sends a
 frame itself with a non-blocking send when nothing is queued for that client (no hand-off,
 which keeps one-way latency low); what the socket does not take is finished by the I/O
 thread. Callbacks (:meth:`BridgeServer.on_topic`) and service handlers run on the I/O thread:
@@ -293,42 +294,6 @@ _SWEEP_S = 0.25
 def _short(text: str, limit: int) -> str:
     """``text`` cut to ``limit`` characters, saying how long it was."""
     return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
-
-
-def _load_malloc_trim() -> Callable[[int], int] | None:
-    """glibc's ``malloc_trim`` (returns freed heap pages to the system), or None elsewhere."""
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL("libc.so.6")
-        trim: Callable[[int], int] = libc.malloc_trim
-    except (OSError, AttributeError):
-        return None
-    return trim
-
-
-_MALLOC_TRIM = _load_malloc_trim()
-
-#: glibc's mallopt parameter number of M_MMAP_THRESHOLD.
-_M_MMAP_THRESHOLD = -3
-
-
-def use_mmap_for_large_buffers(threshold: int = 64 * 1024) -> bool:
-    """Make glibc serve allocations of ``threshold`` bytes or more with mmap (process-wide).
-
-    For a long-running endpoint process: glibc otherwise raises its mmap threshold after the
-    first large buffer is freed and then takes large buffers (a hostile client's 256 KiB
-    topic name) from the heap, where they leave fragments that keep RSS up after every
-    client left. ``uwval bridge serve`` calls it; a library user decides for their process.
-    Returns False where glibc is not the allocator.
-    """
-    try:
-        import ctypes
-
-        mallopt = ctypes.CDLL("libc.so.6").mallopt
-    except (OSError, AttributeError):
-        return False
-    return bool(mallopt(_M_MMAP_THRESHOLD, int(threshold)))
 
 
 #: SO_LINGER (on, 0 s): close with a reset, leaving no TIME_WAIT for a refused connection.
@@ -947,11 +912,9 @@ class BridgeServer:
         now = time.monotonic()
         if idle and now - self._last_trim >= 1.0:  # at most once a second (a flood comes and
             # goes): the last client left: free what only the cyclic GC frees (an exception
-            # with its frames), then give the freed pages back (glibc keeps them otherwise)
+            # with its frames)
             self._last_trim = now
             gc.collect()
-            if _MALLOC_TRIM is not None:
-                _MALLOC_TRIM(0)
 
     def _reply(self, c: _Client, command: str, params: dict[str, Any]) -> None:
         to = self._route_to(c)

@@ -591,8 +591,10 @@ class ReaderThread:
 class UnityClient:
     """A Unity-like client on the wall clock: connect, render at a frame rate, reconnect.
 
-    Used against a live endpoint (``uwval bridge serve`` or ``replay``). Each frame it
-    drains the socket, applies the latest pose per topic and hands every
+    Used against a live endpoint (``uwval bridge serve`` or ``replay``). A background reader
+    drains the socket as ROS-TCP-Connector's does (10 ms idle sleep,
+    :mod:`uwval.bridge.connector_reader`); each frame ``Update`` takes what it queued,
+    applies the latest pose per topic and hands every
     :class:`AppliedTransform` to ``on_frame``; on a lost connection it waits
     ``reconnect_delay_s`` and reconnects, re-registering its subscriptions as Unity does.
     Latency, drops and link drops (``faults.disconnects``, seconds after the start) come
@@ -607,14 +609,12 @@ class UnityClient:
         topics: Sequence[str] = ("model_rov_pose", "gui_camera_pose"),
         unity_map: str = "unity-flu",
         frame_rate: float = 60.0,
-        frame_jitter_s: float = 0.0,
         clock_offset_s: float = 0.0,
         protocol: wire.Protocol | Literal["auto"] = "ROS2",
         faults: FaultModel | None = None,
         reconnect_delay_s: float = RECONNECT_DELAY_S,
         seed: int = 0,
         clock: Literal["monotonic", "epoch"] = "monotonic",
-        on_receive: Callable[[ReceivedPose], None] | None = None,
         on_message: Callable[[str, str], None] | None = None,
     ) -> None:
         if clock not in ("monotonic", "epoch"):
@@ -630,7 +630,6 @@ class UnityClient:
             topics,
             unity_map=unity_map,
             frame_rate=frame_rate,
-            frame_jitter_s=frame_jitter_s,
             clock_offset_s=clock_offset_s,
             seed=seed,
         )
@@ -645,7 +644,8 @@ class UnityClient:
         self.clock = clock
         if clock == "epoch":
             self.scene.offset_ns += self.epoch_minus_monotonic_ns
-        self.on_receive = on_receive
+        #: Called with each pose as it is handed to Update (e.g. to record the Gazebo side).
+        self.on_receive: Callable[[ReceivedPose], None] | None = None
         #: The Connector's background reader (10 ms idle sleep), one thread per connection.
         self.reader = ConnectorReader(seed=seed)
         self._reader: ReaderThread | None = None

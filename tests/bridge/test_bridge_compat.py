@@ -17,6 +17,7 @@ from typing import Any
 import pytest
 from cli_runner import run_uwval
 
+from uwval.bridge.errors import BridgeError
 from uwval.bridge.server import BridgeServer
 
 STRING = "std_msgs/String"
@@ -189,7 +190,8 @@ def test_uwval_mode_stays_forgiving() -> None:
 def test_bridge_serve_compat_option_is_checked() -> None:
     result = run_uwval("bridge", "serve", "--compat", "nope", "--port", "0")
     assert result.returncode == 2
-    assert "--compat must be one of uwval, real-endpoint" in result.stdout + result.stderr
+    want = "--compat must be one of uwval, real-endpoint, real-endpoint-subscribers"
+    assert want in result.stdout + result.stderr
     assert "Traceback" not in result.stderr
 
 
@@ -282,5 +284,10 @@ def test_compat_real_endpoint_announces_ros1_itself() -> None:
     )
     assert res.returncode == 0, res.stderr
     assert "(ROS1, as ROS-TCP-Endpoint 0.7.0, to newest)" in " ".join(res.stderr.split())
-    bad = run_uwval("bridge", "serve", "--route", "newest", "--port", "0", "--duration", "0.3")
-    assert bad.returncode == 2 and "newest only with compat real-endpoint" in bad.stderr
+    res = run_uwval(
+        "bridge", "serve", "--compat", "real-endpoint-subscribers", "--port", "0",
+        "--duration", "0.3",
+    )  # fmt: skip
+    assert "(ROS1, as ROS-TCP-Endpoint 0.7.0, to subscribers)" in " ".join(res.stderr.split())
+    with pytest.raises(BridgeError, match="newest only with compat real-endpoint"):
+        BridgeServer(port=0, route="newest")
