@@ -16,7 +16,6 @@ carries batches instead of one round trip per frame (never across a disconnect).
 
 from __future__ import annotations
 
-import struct
 import time
 from array import array
 from bisect import bisect_right
@@ -31,7 +30,6 @@ from uwval.bridge.connector_reader import VirtualPort
 from uwval.bridge.errors import BridgeError
 from uwval.bridge.gazebo import (
     GazeboPublisher,
-    PoseEncoder,
     Tick,
     ticks_from_streams,
 )
@@ -41,7 +39,7 @@ from uwval.bridge.server import BridgeServer
 from uwval.bridge.unity_client import ReceivedPose, UnityConnection, decode_pose_frame
 
 if TYPE_CHECKING:
-    from uwval.io.writers import PoseLogWriter
+    pass
 
 __all__ = [
     "LOG_SUFFIX",
@@ -128,63 +126,6 @@ class _Flight:
         """How many of the sent messages have a stamp <= t_ns (stamps are sorted)."""
         lo = self.received - self._base
         return bisect_right(self._stamps, t_ns, lo) + self._base
-
-
-_HEADER_CDR = struct.Struct("<4siII")  # encapsulation, sec, nanosec, len(frame_id + NUL)
-_HEADER_ROS1 = struct.Struct("<IIII")  # seq, secs, nsecs, len(frame_id)
-
-
-class _StructEncoding:
-    """A log writer whose ``write_pose``/``write_header`` encode with ``struct`` templates.
-
-    The recorder calls these per message; the writers' own versions build a rosbags
-    message object and serialize it (~10x slower). The bytes are the same (the bridge's
-    wire encoder is byte-identical to rosbags' serializers, and the tests compare logs),
-    and everything else is the wrapped writer's.
-    """
-
-    def __init__(self, writer: PoseLogWriter) -> None:
-        self.writer = writer
-        enc = getattr(writer, "encoding", "cdr")
-        self.protocol: wire.Protocol = "ROS1" if enc == "ros1" else "ROS2"
-        self._raw = writer.write_raw
-        self._encoders: dict[str, PoseEncoder] = {}
-
-    def write_pose(
-        self,
-        topic: str,
-        t_ns: int,
-        position: Any,
-        quat: Any,
-        frame_id: str,
-        log_time: int | None = None,
-    ) -> None:
-        enc = self._encoders.get(frame_id)
-        if enc is None:
-            enc = self._encoders[frame_id] = PoseEncoder(frame_id, self.protocol)
-        data = enc.encode(t_ns, position, quat)
-        self._raw(topic, POSE_STAMPED_ROS2, data, t_ns if log_time is None else log_time)
-
-    def write_header(self, topic: str, stamp_ns: int, log_time: int, frame_id: str = "") -> None:
-        sec, nsec = divmod(int(stamp_ns), 1_000_000_000)
-        fid = frame_id.encode("utf-8")
-        if self.protocol == "ROS2":
-            data = _HEADER_CDR.pack(wire.CDR_HEADER, sec, nsec, len(fid) + 1) + fid + b"\x00"
-        else:
-            data = _HEADER_ROS1.pack(0, sec, nsec, len(fid)) + fid
-        self._raw(topic, HEADER_ROS2, data, log_time)
-
-    def flush(self) -> None:
-        flush = getattr(self.writer, "flush", None)
-        if flush is not None:
-            flush()
-
-    def close(self) -> None:
-        self.writer.close()
-
-
-POSE_STAMPED_ROS2 = "geometry_msgs/msg/PoseStamped"
-HEADER_ROS2 = "std_msgs/msg/Header"
 
 
 class BridgeSession:
