@@ -80,13 +80,14 @@ class _RosbagsWriter(OneMessageWrites):
         for b, k in in_rank_order(blocks):
             conn = self._conns.get(b.topic)
             if conn is None:
-                ts = typestore(self._ros)
-                conn = self._writer.add_connection(b.topic, b.msgtype, typestore=ts)
-                self._conns[b.topic] = conn
+                conn = self._conns[b.topic] = self._add_connection(b.topic, b.msgtype)
             try:
                 self._writer.write(conn, int(b.log_times[k]), b.rows[k].tobytes())
             except Exception as exc:
                 raise LogWriteError(f"{self.path}: cannot write to {b.topic}: {exc}") from exc
+
+    def _add_connection(self, topic: str, msgtype: str) -> Any:
+        return self._writer.add_connection(topic, msgtype, typestore=typestore(self._ros))
 
     def flush(self) -> None:
         """rosbag2 with sqlite3 storage: commit what was written (a recorder killed later
