@@ -21,7 +21,7 @@ from array import array
 from bisect import bisect_right
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field, replace
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -37,9 +37,6 @@ from uwval.bridge.options import LOG_SUFFIX, SessionOptions
 from uwval.bridge.recorder import BridgeRecorder, PoseWriter
 from uwval.bridge.server import BridgeServer
 from uwval.bridge.unity_client import ReceivedPose, UnityConnection, decode_pose_frame
-
-if TYPE_CHECKING:
-    pass
 
 __all__ = [
     "LOG_SUFFIX",
@@ -149,7 +146,7 @@ class BridgeSession:
         #: what reaches the socket is in the scene at once.
         self.reader = opts.connector_reader(self.seed)
         self._port: VirtualPort[ReceivedPose] = VirtualPort(self._read)
-        # the recorder encodes blocks of messages for writers that take raw bytes (uwval's)
+        # the recorder hands uwval's writers blocks of messages encoded at once
         self.recorder = BridgeRecorder(
             writer, unity_map=self.scene.unity_map, flush_every=opts.flush_every
         )
