@@ -13,7 +13,13 @@ from typing import TYPE_CHECKING
 from uwval.errors import ConfigError
 
 if TYPE_CHECKING:
+    from uwval.bridge.connector_reader import ConnectorReader
     from uwval.bridge.unity_client import FaultModel, RenderLoop
+
+#: How Unity takes messages off the socket (``SessionOptions.reader``): ``connector``
+#: (ROS-TCP-Connector's background reader: 10 ms idle sleeps), ``immediate`` (at arrival),
+#: ``auto`` (the Connector's whenever the transport models a real link, i.e. not ``ideal``).
+READERS = ("auto", "connector", "immediate")
 
 #: Topics of uwval's Gazebo side (``/gazebo/<name>``) and of the Unity client's scene.
 VEHICLE_TOPIC = "model_rov_pose"
@@ -93,6 +99,7 @@ class SessionOptions:
         frame_trace: ``trace``: file of frame durations (s), one per line.
         float32: Unity's Transform stores float32.
         clock_drift_ppm: Unity's clock rate error, parts per million.
+        reader: how Unity takes messages off the socket, one of :data:`READERS`.
 
     These defaults are the exact building block (no link delay, fixed frames, float64);
     :data:`REAL_UNITY` holds the values of a real setup, the defaults of ``uwval simulate``
@@ -122,6 +129,7 @@ class SessionOptions:
     frame_trace: str | None = None
     float32: bool = False
     clock_drift_ppm: float = 0.0
+    reader: str = "auto"
 
     def __post_init__(self) -> None:
         from uwval.bridge import protocol as wire
@@ -133,8 +141,17 @@ class SessionOptions:
                 f"--format {self.log_format!r}: choose one of {', '.join(LOG_SUFFIX)}"
             )
         wire.check_protocol(self.protocol)
+        if self.reader not in READERS:
+            raise ConfigError(f"reader {self.reader!r}: choose one of {', '.join(READERS)}")
         self.fault_model(0)
         self.render_loop(0)
+
+    def connector_reader(self, seed: int) -> ConnectorReader | None:
+        """ROS-TCP-Connector's reader for a run seeded ``seed``, or None (``immediate``)."""
+        from uwval.bridge.connector_reader import ConnectorReader
+
+        use = self.reader == "connector" or (self.reader == "auto" and self.transport != "ideal")
+        return ConnectorReader(seed=seed) if use else None
 
     def fault_model(self, seed: int) -> FaultModel:
         """The Unity side's link faults for a run seeded ``seed``."""

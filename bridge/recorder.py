@@ -26,30 +26,23 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from uwval.bridge.bag1_block_writer import Bag1BlockWriter
-from uwval.bridge.blocks import RawBlock, encode_header_block, encode_pose_block, write_raw_blocks
-from uwval.bridge.mcap_block_writer import McapBlockWriter
 from uwval.errors import LogWriteError
 from uwval.frames import get_convention
+from uwval.io.encode import encode_header, encode_pose_stamped
 from uwval.io.ros import APPLIED_SUFFIX, HEADER, POSE_STAMPED
+from uwval.io.writers import McapPoseWriter, PoseLogWriter, RawBlock, open_writer
 
 __all__ = [
     "GAZEBO_FRAME_ID",
     "GAZEBO_PREFIX",
     "UNITY_PREFIX",
-    "Bag1BlockWriter",
     "BridgeRecorder",
-    "McapBlockWriter",
     "PoseWriter",
-    "RawBlock",
     "RecoveryReport",
-    "encode_header_block",
-    "encode_pose_block",
     "log_topic",
     "open_log_writer",
     "open_mcap_writer",
     "scan_mcap",
-    "write_raw_blocks",
 ]
 
 F64 = NDArray[np.float64]
@@ -120,13 +113,12 @@ class _Pending:
 class BridgeRecorder:
     """Write Gazebo-side and Unity-side poses of one run through ``writer``.
 
-    With a writer that takes serialized messages (``write_raw``: uwval's log writers) the
-    recorder keeps the messages since the last flush as columns and, at each flush, encodes
-    every topic's block at once with numpy (:func:`encode_pose_block`,
-    :func:`encode_header_block`, in the writer's ``encoding``) and writes the blocks in the
-    order the messages came (``write_blocks`` of :class:`McapBlockWriter` in one call, else
-    ``write_raw`` message by message): the same messages, bytes and order as writing each at
-    once, without a Python serialization per message. Any other :class:`PoseWriter` gets
+    With a writer that takes blocks of serialized messages (``write_blocks``: uwval's log
+    writers, :mod:`uwval.io.writers`) the recorder keeps the messages since the last flush
+    as columns and, at each flush, encodes every topic's block at once with numpy
+    (:mod:`uwval.io.encode`, in the writer's ``encoding``) and hands the blocks over in one
+    call: the same messages, bytes and order as writing each at once, without a Python
+    serialization per message. Any other :class:`PoseWriter` gets
     ``write_pose``/``write_header`` per message as they come.
 
     Args:
@@ -156,7 +148,7 @@ class BridgeRecorder:
         self._last_flush = time.monotonic()
         self.closed = False
         #: Messages are encoded in blocks at each flush (the writer takes raw bytes).
-        self.blocks = callable(getattr(writer, "write_raw", None))
+        self.blocks = callable(getattr(writer, "write_blocks", None))
         self.encoding = str(getattr(writer, "encoding", "cdr"))
         self._pending: dict[str, _Pending] = {}
         self._rank = 0
@@ -164,6 +156,20 @@ class BridgeRecorder:
         # per (prefix, name, frame_id): the topic's pending buffer (and applied-stamp buffer)
         self._gz: dict[tuple[str, str], _Pending] = {}
         self._un: dict[str, tuple[_Pending, _Pending]] = {}
+        self._warm_up()
+
+    def _warm_up(self) -> None:
+        """Set up now what the first flush would (rosbags' type store and message
+        definitions, the chunk compressor: ~0.3-0.5 s), so that it does not happen on a live
+        render loop's thread and hold up the frames of the first second."""
+        import zstandard
+
+        from uwval.io.ros import typestore
+
+        ros = 1 if self.encoding == "ros1" else 2
+        for msgtype in (POSE_STAMPED, HEADER):
+            typestore(ros).generate_msgdef(msgtype, ros_version=ros)
+        zstandard.ZstdCompressor()
 
     @property
     def written(self) -> dict[str, int]:
@@ -272,7 +278,7 @@ class BridgeRecorder:
                 continue
             stamps = np.array(buf.stamps, dtype=np.int64)
             if buf.msgtype == HEADER:
-                rows = encode_header_block(stamps, buf.frame_id, self.encoding)
+                rows = encode_header(stamps, buf.frame_id, self.encoding)
             else:
                 try:
                     pos = np.array(buf.pos, dtype=np.float64).reshape(-1, 3)
@@ -285,7 +291,7 @@ class BridgeRecorder:
                         f"{topic}: a pose is not 3 position numbers and 4 quaternion numbers "
                         f"({exc})"
                     ) from None
-                rows = encode_pose_block(stamps, pos, quat, buf.frame_id, self.encoding)
+                rows = encode_pose_stamped(stamps, pos, quat, buf.frame_id, self.encoding)
             blocks.append(
                 RawBlock(
                     topic,
@@ -298,7 +304,8 @@ class BridgeRecorder:
             self._counted[topic] = self._counted.get(topic, 0) + n
             buf.clear()
         self._rank = 0
-        write_raw_blocks(self.writer, blocks)
+        if blocks:
+            self.writer.write_blocks(blocks)  # type: ignore[attr-defined]
 
     def flush(self) -> None:
         """Push everything written so far to the file (finishing the open MCAP chunk)."""
@@ -320,25 +327,16 @@ class BridgeRecorder:
 
 def open_mcap_writer(
     path: str | Path, *, metadata: dict[str, str] | None = None, chunk_size: int = 64 * 1024
-) -> McapBlockWriter:
-    """A :class:`McapBlockWriter` for a recorder (64 KiB chunks, so that a crash loses
-    little; its ``flush()`` finishes the open chunk)."""
-    return McapBlockWriter(path, metadata=metadata, chunk_size=chunk_size)
+) -> McapPoseWriter:
+    """An MCAP writer for a live recorder (64 KiB chunks, so that a crash loses little; its
+    ``flush()`` finishes the open chunk)."""
+    return McapPoseWriter(path, metadata=metadata, chunk_size=chunk_size)
 
 
 def open_log_writer(
     path: str | Path, format: str = "mcap", metadata: dict[str, str] | None = None
-) -> Any:
-    """The log writer of a recorded run: :class:`McapBlockWriter` for ``mcap`` and
-    :class:`Bag1BlockWriter` for ``rosbag1`` (blocks of messages at once; an earlier file
-    there is replaced, as uwval's writers do), uwval's writers (:func:`uwval.io.open_writer`)
-    for rosbag2 (rosbags' writer, message by message)."""
-    if format == "mcap":
-        return McapBlockWriter(path, metadata=metadata)
-    if format in ("rosbag1", "bag"):
-        return Bag1BlockWriter(path, metadata=metadata)
-    from uwval.io import open_writer
-
+) -> PoseLogWriter:
+    """The log writer of a recorded run (:func:`uwval.io.writers.open_writer`)."""
     return open_writer(path, format=format, metadata=metadata)
 
 

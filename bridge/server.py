@@ -15,8 +15,9 @@ Robustness rules (issue 6):
 One I/O thread serves every connection (issue 14): non-blocking sockets on a selector
 (epoll on Linux), so a connection costs a socket, a parser buffer and a queue, never a
 thread. Thread-per-client servers (this one before, and ROS-TCP-Endpoint) keep glibc arenas
-and thread stacks after their clients leave; after 10,000 hostile connections this one's
-RSS is back where it started (``benchmarks/bridge_hostile.py``). A publisher thread sends a
+and thread stacks after their clients leave; this one holds no per-client thread
+(``benchmarks/bridge_hostile.py`` measures its RSS across 10,000 hostile connections; glibc's
+malloc_trim is no longer called, nothing native is loaded). A publisher thread sends a
 frame itself with a non-blocking send when nothing is queued for that client (no hand-off,
 which keeps one-way latency low); what the socket does not take is finished by the I/O
 thread. Callbacks (:meth:`BridgeServer.on_topic`) and service handlers run on the I/O thread:
@@ -26,12 +27,13 @@ Limits against hostile clients (issue 14), so that memory stays bounded and the 
 never dies:
 - at most ``max_clients`` connections (default 64). When all are taken, a new connection
   takes the slot of the longest-silent connection that has registered nothing and sent
-  nothing for ``EVICT_SILENT_S`` (a socket held open and never used); otherwise it is closed
-  at once and counted in :attr:`BridgeServer.refused`;
+  nothing for ``EVICT_SILENT_S`` (a socket held open and never used), else of the one that
+  has sent nothing but keepalives for longest, if for ``EVICT_SILENT_S`` (registered, then
+  idle); otherwise it is closed at once and counted in :attr:`BridgeServer.refused`;
 - a connection that sends nothing at all (not a frame, not a keepalive) and registers
-  nothing within ``unused_timeout`` (default 10 s) is closed, and with ``idle_timeout`` set,
-  any connection silent (not even a keepalive; ROS-TCP-Connector sends one every second) for
-  that long;
+  nothing within ``unused_timeout`` (default 10 s) is closed, and so is any connection
+  silent (not even a keepalive; ROS-TCP-Connector sends one every second) for
+  ``idle_timeout`` (default 5 s);
 - a system command's payload is at most ``protocol.MAX_COMMAND_BYTES`` (64 KiB), a frame's
   destination ``MAX_DESTINATION_BYTES`` (1 KiB); a registered topic or message name is at
   most ``MAX_NAME_BYTES`` (1 KiB, a longer topic could never be a frame's destination), and
@@ -56,6 +58,7 @@ share its locks and counters; splitting would expose that state.
 from __future__ import annotations
 
 import contextlib
+import functools
 import gc
 import itertools
 import logging
@@ -76,6 +79,9 @@ from uwval.bridge.errors import BridgeError
 DEFAULT_MAX_CLIENTS = 64
 #: Default seconds a connection may stay without registering anything.
 DEFAULT_UNUSED_TIMEOUT_S = 10.0
+#: Default seconds any connection may stay silent (not even a keepalive: ROS-TCP-Connector
+#: sends one after 1 s without sending) before it is closed.
+DEFAULT_IDLE_TIMEOUT_S = 5.0
 #: Seconds of silence after which an unused connection gives its slot to a new one when all
 #: ``max_clients`` slots are taken (ROS-TCP-Connector sends a keepalive every second).
 EVICT_SILENT_S = 2.0
@@ -103,6 +109,10 @@ ACCEPT_BACKOFF_S = 0.05
 
 #: Server behaviours: uwval's own (forgiving, several clients) and ROS-TCP-Endpoint 0.7.0's.
 COMPAT_MODES = ("uwval", "real-endpoint")
+#: Where outgoing frames go: each subscribed client (uwval's), or everything (messages,
+#: replies, logs) to the newest connection only, as ROS-TCP-Endpoint 0.7.0's single sender
+#: queue does (``compat="real-endpoint"`` only).
+ROUTES = ("subscribers", "newest")
 #: Message packages a stock ROS install resolves (the real endpoint imports ``pkg.msg``);
 #: more with ``known_packages`` or :meth:`BridgeServer.advertise`.
 STANDARD_MSG_PACKAGES = frozenset(
@@ -137,6 +147,17 @@ _REAL_SYSCOMMANDS: dict[str, tuple[frozenset[str], frozenset[str]]] = {
 }
 
 log = logging.getLogger("uwval.bridge.server")
+
+
+@functools.lru_cache(maxsize=256)
+def _has_header(msg_name: str) -> bool:
+    """Whether a ROS 1 message's first field is a std_msgs/Header (rospy's ``_has_header``);
+    False for a type rosbags does not know."""
+    from uwval.io.ros import normalize_type_name, typestore
+
+    fields = typestore(1).fielddefs.get(normalize_type_name(msg_name))
+    return bool(fields and fields[1] and fields[1][0][1][1:] == ("std_msgs/msg/Header",))
+
 
 #: Selector keys' data for the listening socket and the wake-up socket.
 _LISTENER = object()
@@ -185,6 +206,7 @@ class _Client:
     writing: bool = False  # registered for write readiness (or asked to be)
     connected_at: float = 0.0  # time.monotonic()
     last_heard: float = 0.0  # time.monotonic() of the last bytes received
+    last_active: float = 0.0  # time.monotonic() of the last frame other than a keepalive
     parser: wire.FrameParser | None = None
 
     @property
@@ -274,42 +296,6 @@ def _short(text: str, limit: int) -> str:
     return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
 
 
-def _load_malloc_trim() -> Callable[[int], int] | None:
-    """glibc's ``malloc_trim`` (returns freed heap pages to the system), or None elsewhere."""
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL("libc.so.6")
-        trim: Callable[[int], int] = libc.malloc_trim
-    except (OSError, AttributeError):
-        return None
-    return trim
-
-
-_MALLOC_TRIM = _load_malloc_trim()
-
-#: glibc's mallopt parameter number of M_MMAP_THRESHOLD.
-_M_MMAP_THRESHOLD = -3
-
-
-def use_mmap_for_large_buffers(threshold: int = 64 * 1024) -> bool:
-    """Make glibc serve allocations of ``threshold`` bytes or more with mmap (process-wide).
-
-    For a long-running endpoint process: glibc otherwise raises its mmap threshold after the
-    first large buffer is freed and then takes large buffers (a hostile client's 256 KiB
-    topic name) from the heap, where they leave fragments that keep RSS up after every
-    client left. ``uwval bridge serve`` calls it; a library user decides for their process.
-    Returns False where glibc is not the allocator.
-    """
-    try:
-        import ctypes
-
-        mallopt = ctypes.CDLL("libc.so.6").mallopt
-    except (OSError, AttributeError):
-        return False
-    return bool(mallopt(_M_MMAP_THRESHOLD, int(threshold)))
-
-
 #: SO_LINGER (on, 0 s): close with a reset, leaving no TIME_WAIT for a refused connection.
 _LINGER_RESET = struct.pack("ii", 1, 0)
 
@@ -319,14 +305,15 @@ class BridgeServer:
 
     Args:
         host, port: where to listen (``port=0`` picks a free port; see :attr:`address`).
-        protocol: ``"ROS2"`` (CDR bodies) or ``"ROS1"``, announced in the handshake.
+        protocol: ``"ROS2"`` (CDR bodies) or ``"ROS1"``, announced in the handshake;
+            default ROS2, or ROS1 with ``compat="real-endpoint"`` (the 0.7.0 ROS 1 release).
         queue_size: bound of each client's outgoing queue (items).
         max_frame: cap on one incoming frame's payload, bytes.
         max_clients: bound on simultaneous connections (see the module's eviction rule).
         unused_timeout: seconds a connection may stay without sending any frame (a keepalive
             counts) or registering anything before it is closed; ``None`` keeps it.
         idle_timeout: seconds any connection may stay silent (no frame, no keepalive) before
-            it is closed; ``None`` (default) keeps it.
+            it is closed (default 5 s: five missed keepalives); ``None`` keeps it.
         evict_silent: seconds of silence after which an unused connection gives its slot to
             a new one when all ``max_clients`` slots are taken.
         compat: ``"uwval"`` (default) or ``"real-endpoint"``: behave as ROS-TCP-Endpoint
@@ -336,9 +323,13 @@ class BridgeServer:
             message class outside the known packages gets ``__error`` and is not
             registered; registrations belong to the endpoint, not the connection (kept
             across reconnects, and a client's publications come back to it when it also
-            subscribes); ``__topic_list`` answers the published topics of the ROS graph.
-            Several clients are still served at once (the real endpoint sends everything to
-            its newest connection).
+            subscribes); ``__topic_list`` answers the published topics of the ROS graph;
+            with ROS1, a message with a header that a client publishes reaches the ROS side
+            with ``header.seq`` rewritten (rospy's publisher counts 1, 2, ... per topic);
+            the handshake announces ROS1 unless ``protocol`` says otherwise.
+        route: one of :data:`ROUTES`; default: ``newest`` with ``compat="real-endpoint"``
+            (the real endpoint sends everything to its newest connection), ``subscribers``
+            otherwise.
         known_packages: message packages resolvable besides ``STANDARD_MSG_PACKAGES``
             (``compat="real-endpoint"`` only).
     """
@@ -348,19 +339,29 @@ class BridgeServer:
         host: str = wire.DEFAULT_HOST,
         port: int = wire.DEFAULT_PORT,
         *,
-        protocol: wire.Protocol = "ROS2",
+        protocol: wire.Protocol | None = None,
         queue_size: int = 1024,
         max_frame: int = wire.MAX_FRAME_BYTES,
         max_clients: int = DEFAULT_MAX_CLIENTS,
         unused_timeout: float | None = DEFAULT_UNUSED_TIMEOUT_S,
-        idle_timeout: float | None = None,
+        idle_timeout: float | None = DEFAULT_IDLE_TIMEOUT_S,
         evict_silent: float = EVICT_SILENT_S,
         compat: str = "uwval",
         known_packages: frozenset[str] | set[str] = frozenset(),
+        route: str | None = None,
     ) -> None:
         self.host = host
         self.port = port
-        self.protocol = wire.check_protocol(protocol)
+        if compat not in COMPAT_MODES:
+            raise BridgeError(f"compat must be one of {', '.join(COMPAT_MODES)}, got {compat!r}")
+        real = compat == "real-endpoint"
+        self.protocol = wire.check_protocol(protocol or ("ROS1" if real else "ROS2"))
+        self.route = route or ("newest" if real else "subscribers")
+        if self.route not in ROUTES or (self.route == "newest" and not real):
+            raise BridgeError(
+                f"route must be one of {', '.join(ROUTES)} (newest only with compat "
+                f"real-endpoint), got {route!r}"
+            )
         self.queue_size = int(queue_size)
         self.max_frame = int(max_frame)
         if self.queue_size < 1:
@@ -375,9 +376,12 @@ class BridgeServer:
                 raise BridgeError(f"{what} must be a positive number of seconds, got {value}")
         if not evict_silent >= 0:
             raise BridgeError(f"evict_silent must be >= 0 s, got {evict_silent}")
-        if compat not in COMPAT_MODES:
-            raise BridgeError(f"compat must be one of {', '.join(COMPAT_MODES)}, got {compat!r}")
         self.compat = compat
+        #: ``route="newest"``: the connection everything goes to (None after it closed,
+        #: until the next one connects, as the real endpoint's sender queue).
+        self._newest: _Client | None = None
+        #: real-endpoint mode, ROS1: rospy's per-topic publish count (header.seq).
+        self._pub_seq: dict[str, int] = {}
         self.known_packages = STANDARD_MSG_PACKAGES | frozenset(known_packages)
         # real-endpoint mode: registrations of the endpoint (topic -> message name)
         self._endpoint_subs: dict[str, str] = {}
@@ -488,7 +492,7 @@ class BridgeServer:
         """
         with self._lock:
             if topic in self._endpoint_subs:  # real-endpoint mode: the endpoint subscribed
-                targets = list(self._clients.values())
+                targets = self._endpoint_targets()
             else:
                 targets = [c for c in self._clients.values() if topic in c.subscriptions]
         if not targets:
@@ -532,7 +536,11 @@ class BridgeServer:
         """Send ``__log`` / ``__warn`` / ``__error`` text to every client."""
         cmd = {"info": wire.LOG, "log": wire.LOG, "warn": wire.WARN, "error": wire.ERROR}[level]
         with self._lock:
-            clients = list(self._clients.values())
+            clients = (
+                ([self._newest] if self._newest else [])
+                if self.route == "newest"
+                else list(self._clients.values())
+            )
         for c in clients:  # in each peer's own NUL convention, as every other reply
             c.enqueue(wire.encode_command(cmd, {"text": text}, nul=False))
 
@@ -754,13 +762,22 @@ class BridgeServer:
                     conn.close()
 
     def _evictable(self, now: float) -> _Client | None:
-        """The longest-silent connection that never registered anything, if silent long enough."""
+        """The connection that gives its slot to a new one when all are taken: the
+        longest-silent one that never registered anything, if silent ``evict_silent``; else
+        the one that has sent nothing but keepalives (or nothing) for longest, if for
+        ``evict_silent``: a flood of connections that register and then only idle cannot keep
+        a new client out (a real Unity that loses its slot reconnects after 1 s)."""
         with self._lock:
-            unused = [c for c in self._clients.values() if not c.registered and not c.closed]
-        if not unused:
+            live = [c for c in self._clients.values() if not c.closed]
+        unused = [c for c in live if not c.registered]
+        if unused:
+            oldest = min(unused, key=lambda c: c.last_heard)
+            if now - oldest.last_heard >= self.evict_silent:
+                return oldest
+        if not live:
             return None
-        oldest = min(unused, key=lambda c: c.last_heard)
-        return oldest if now - oldest.last_heard >= self.evict_silent else None
+        idlest = min(live, key=lambda c: c.last_active)
+        return idlest if now - idlest.last_active >= self.evict_silent else None
 
     def _admit(self, conn: socket.socket, addr: Any) -> None:
         """Start serving one accepted connection, or close it if ``max_clients`` are served."""
@@ -771,10 +788,15 @@ class BridgeServer:
             victim = self._evictable(now)
             if victim is not None:
                 self.evicted += 1
+                what = (
+                    f"registered nothing and was silent for {now - victim.last_heard:.1f} s"
+                    if not victim.registered
+                    else f"sent nothing but keepalives for {now - victim.last_active:.1f} s"
+                )
                 self._close(
                     victim,
                     f"evicted: {self.max_clients} clients connected (the limit) and this one "
-                    f"registered nothing and was silent for {now - victim.last_heard:.1f} s",
+                    f"{what}",
                 )
                 full = False
         if full:
@@ -795,7 +817,7 @@ class BridgeServer:
         address = f"{addr[0]}:{addr[1]}"
         client = _Client(conn, cid, address, self.queue_size, self.max_frame, self)
         client.stats = ClientStats(cid, address)
-        client.connected_at = client.last_heard = now
+        client.connected_at = client.last_heard = client.last_active = now
         client.parser = wire.FrameParser(max_frame=self.max_frame)
         assert self._selector is not None
         self._selector.register(conn, selectors.EVENT_READ, client)
@@ -804,6 +826,7 @@ class BridgeServer:
         client.enqueue(wire.handshake_frame(self.protocol))
         with self._lock:
             self._clients[cid] = client
+            self._newest = client
         self._event(f"client {cid} connected from {address}")
 
     def _read(self, c: _Client) -> None:
@@ -834,6 +857,8 @@ class BridgeServer:
         try:
             for frame in parser.feed(data):
                 c.stats.frames_in += 1
+                if not frame.is_keepalive:
+                    c.last_active = c.last_heard
                 self._dispatch(c, frame)
                 if c.closed:
                     return
@@ -863,6 +888,8 @@ class BridgeServer:
         # Bookkeeping first, so whoever sees the socket close also sees the reason.
         with self._lock:
             self._clients.pop(c.client_id, None)
+            if self._newest is c:
+                self._newest = None
             assert c.stats is not None
             c.stats.closed_reason = reason
             # a closed client's names are kept short: 256 kept stats of 16 names of 1 KiB
@@ -885,14 +912,28 @@ class BridgeServer:
         now = time.monotonic()
         if idle and now - self._last_trim >= 1.0:  # at most once a second (a flood comes and
             # goes): the last client left: free what only the cyclic GC frees (an exception
-            # with its frames), then give the freed pages back (glibc keeps them otherwise)
+            # with its frames)
             self._last_trim = now
             gc.collect()
-            if _MALLOC_TRIM is not None:
-                _MALLOC_TRIM(0)
 
     def _reply(self, c: _Client, command: str, params: dict[str, Any]) -> None:
-        c.enqueue(wire.encode_command(command, params, nul=False))
+        to = self._route_to(c)
+        if to is not None:
+            to.enqueue(wire.encode_command(command, params, nul=False))
+
+    def _route_to(self, c: _Client) -> _Client | None:
+        """Who gets a reply to ``c``: ``c``, or with ``route="newest"`` the newest connection
+        (None when it has closed)."""
+        if self.route != "newest":
+            return c
+        with self._lock:
+            return self._newest
+
+    def _endpoint_targets(self) -> list[_Client]:
+        """Clients a message of the endpoint's own subscriptions goes to (lock held)."""
+        if self.route == "newest":
+            return [self._newest] if self._newest is not None else []
+        return list(self._clients.values())
 
     def _dispatch(self, c: _Client, frame: wire.Frame) -> None:
         if c.pending_srv is not None:
@@ -947,7 +988,9 @@ class BridgeServer:
             pubs = list(self._endpoint_pubs)
             callbacks = list(self._callbacks.get(topic, ()))
             echo = topic in self._endpoint_subs
-            targets = list(self._clients.values()) if echo else []
+            targets = self._endpoint_targets() if echo else []
+            if registered and self.protocol == "ROS1":
+                payload = self._rospy_seq(topic, self._endpoint_pubs[topic], payload)
         if not registered:
             self._reply(
                 c,
@@ -1052,10 +1095,21 @@ class BridgeServer:
         except Exception as exc:
             self._reply(c, wire.ERROR, {"text": f"service {name!r} failed: {exc}"})
             return
-        c.enqueue(
-            wire.encode_command(wire.RESPONSE, {"srv_id": srv_id}, nul=False)
-            + wire.encode_frame(name, response, nul=False)
-        )
+        to = self._route_to(c)
+        if to is not None:
+            to.enqueue(
+                wire.encode_command(wire.RESPONSE, {"srv_id": srv_id}, nul=False)
+                + wire.encode_frame(name, response, nul=False)
+            )
+
+    def _rospy_seq(self, topic: str, msg_name: str, payload: bytes) -> bytes:
+        """A ROS 1 body as rospy's publisher sends it on: a message whose first field is a
+        std_msgs/Header gets ``header.seq`` = the publisher's count (1, 2, ...; lock held)."""
+        if len(payload) < 4 or not _has_header(msg_name):
+            return payload
+        seq = self._pub_seq.get(topic, 0) + 1
+        self._pub_seq[topic] = seq
+        return struct.pack("<I", seq & 0xFFFFFFFF) + payload[4:]
 
     def _command(self, c: _Client, frame: wire.Frame) -> None:
         cmd = frame.destination

@@ -16,31 +16,27 @@ carries batches instead of one round trip per frame (never across a disconnect).
 
 from __future__ import annotations
 
-import struct
 import time
 from array import array
 from bisect import bisect_right
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field, replace
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from uwval.bridge import protocol as wire
+from uwval.bridge.connector_reader import VirtualPort
 from uwval.bridge.errors import BridgeError
 from uwval.bridge.gazebo import (
     GazeboPublisher,
-    PoseEncoder,
     Tick,
     ticks_from_streams,
 )
 from uwval.bridge.options import LOG_SUFFIX, SessionOptions
 from uwval.bridge.recorder import BridgeRecorder, PoseWriter
 from uwval.bridge.server import BridgeServer
-from uwval.bridge.unity_client import UnityConnection, decode_pose_frame
-
-if TYPE_CHECKING:
-    from uwval.io.writers import PoseLogWriter
+from uwval.bridge.unity_client import ReceivedPose, UnityConnection, decode_pose_frame
 
 __all__ = [
     "LOG_SUFFIX",
@@ -129,63 +125,6 @@ class _Flight:
         return bisect_right(self._stamps, t_ns, lo) + self._base
 
 
-_HEADER_CDR = struct.Struct("<4siII")  # encapsulation, sec, nanosec, len(frame_id + NUL)
-_HEADER_ROS1 = struct.Struct("<IIII")  # seq, secs, nsecs, len(frame_id)
-
-
-class _StructEncoding:
-    """A log writer whose ``write_pose``/``write_header`` encode with ``struct`` templates.
-
-    The recorder calls these per message; the writers' own versions build a rosbags
-    message object and serialize it (~10x slower). The bytes are the same (the bridge's
-    wire encoder is byte-identical to rosbags' serializers, and the tests compare logs),
-    and everything else is the wrapped writer's.
-    """
-
-    def __init__(self, writer: PoseLogWriter) -> None:
-        self.writer = writer
-        enc = getattr(writer, "encoding", "cdr")
-        self.protocol: wire.Protocol = "ROS1" if enc == "ros1" else "ROS2"
-        self._raw = writer.write_raw
-        self._encoders: dict[str, PoseEncoder] = {}
-
-    def write_pose(
-        self,
-        topic: str,
-        t_ns: int,
-        position: Any,
-        quat: Any,
-        frame_id: str,
-        log_time: int | None = None,
-    ) -> None:
-        enc = self._encoders.get(frame_id)
-        if enc is None:
-            enc = self._encoders[frame_id] = PoseEncoder(frame_id, self.protocol)
-        data = enc.encode(t_ns, position, quat)
-        self._raw(topic, POSE_STAMPED_ROS2, data, t_ns if log_time is None else log_time)
-
-    def write_header(self, topic: str, stamp_ns: int, log_time: int, frame_id: str = "") -> None:
-        sec, nsec = divmod(int(stamp_ns), 1_000_000_000)
-        fid = frame_id.encode("utf-8")
-        if self.protocol == "ROS2":
-            data = _HEADER_CDR.pack(wire.CDR_HEADER, sec, nsec, len(fid) + 1) + fid + b"\x00"
-        else:
-            data = _HEADER_ROS1.pack(0, sec, nsec, len(fid)) + fid
-        self._raw(topic, HEADER_ROS2, data, log_time)
-
-    def flush(self) -> None:
-        flush = getattr(self.writer, "flush", None)
-        if flush is not None:
-            flush()
-
-    def close(self) -> None:
-        self.writer.close()
-
-
-POSE_STAMPED_ROS2 = "geometry_msgs/msg/PoseStamped"
-HEADER_ROS2 = "std_msgs/msg/Header"
-
-
 class BridgeSession:
     """One bridged run on the virtual clock: publish ticks, carry them over TCP, render, record.
 
@@ -203,7 +142,11 @@ class BridgeSession:
         self.seed = int(seed)
         self.faults = opts.fault_model(self.seed)
         self.scene = opts.render_loop(self.seed)
-        # the recorder encodes blocks of messages for writers that take raw bytes (uwval's)
+        #: ROS-TCP-Connector's reader (idle 10 ms sleeps) on the virtual clock, or None:
+        #: what reaches the socket is in the scene at once.
+        self.reader = opts.connector_reader(self.seed)
+        self._port: VirtualPort[ReceivedPose] = VirtualPort(self._read)
+        # the recorder hands uwval's writers blocks of messages encoded at once
         self.recorder = BridgeRecorder(
             writer, unity_map=self.scene.unity_map, flush_every=opts.flush_every
         )
@@ -234,6 +177,8 @@ class BridgeSession:
         max_delay_ns = round((opts.latency_s + opts.latency_jitter_s) * 1e9)
         if opts.transport != "ideal":  # a pose held by Nagle until a delayed ACK: ~41 ms
             max_delay_ns += LINK_DELAY_BOUND_NS
+        if self.reader is not None:  # and then a reader's idle sleep
+            max_delay_ns += self.reader.sleep_ns
         # Virtual times (ns) when the link drops and when it is back.
         drops = sorted(self._t0 + int(d * 1e9) for d in opts.disconnects)
         down_until: int | None = None  # while disconnected: reconnect time
@@ -250,6 +195,7 @@ class BridgeSession:
             )
             self._connect()
             self.faults.reset_connection(self._t0)
+            self._start_reader(self._t0)
             frames = scene.frame_times(self._t0, 2**62)
             frame_ns = next(frames)
             while True:
@@ -269,6 +215,8 @@ class BridgeSession:
                 last_frame = self._pending is None and frame_ns > self._last_tick_ns + max_delay_ns
                 if self.conn.connected:
                     self._receive_until(self._flight.needed_by(frame_ns))
+                    if self.reader is not None:
+                        self.reader.run(self._port, frame_ns)
                 self._pace(frame_ns)
                 self._render(frame_ns)
                 if last_frame:
@@ -336,12 +284,25 @@ class BridgeSession:
                     stats.dropped += 1
                     continue
                 stats.delivered += 1
-                self._latencies.append(arrival - pose.stamp_ns)
                 batch.append(pose)
                 arrivals.append(arrival)
             flight.got(len(frames))
             stats.received += len(frames)
-            self.scene.arrive_many(batch, arrivals)
+            if self.reader is not None:
+                self._port.add(batch, arrivals)  # the reader picks them up
+            else:
+                self._read(batch, arrivals)
+
+    def _start_reader(self, at_ns: int) -> None:
+        """A (re)connect at ``at_ns``: the reader's first look comes a seeded phase later."""
+        if self.reader is not None:
+            self._port.start(at_ns + self.reader.phase_ns())
+
+    def _read(self, poses: list[ReceivedPose], read_ns: list[int]) -> None:
+        """Poses Unity's reader handed to ``Update`` at ``read_ns`` (virtual ns)."""
+        for pose, t in zip(poses, read_ns, strict=True):
+            self._latencies.append(t - pose.stamp_ns)
+        self.scene.arrive_many(poses, read_ns)
 
     def _render(self, frame_ns: int) -> None:
         self.stats.frames += 1
@@ -360,7 +321,11 @@ class BridgeSession:
             self._last_tick_ns = int(self._pending[0])
             self._pending = next(self._ticks, None)
         self._receive_until(self._flight.sent)
-        in_flight = self.scene.discard_after(td)  # read from the socket, not yet arrived
+        in_flight = 0
+        if self.reader is not None:  # the reader reads until the link drops; the rest is lost
+            self.reader.run(self._port, td)
+            in_flight = self._port.drop_all()
+        in_flight += self.scene.discard_after(td)  # read from the socket, not yet arrived
         stats.delivered -= in_flight
         stats.lost_disconnected += in_flight
         me = _local_address(self.conn)
@@ -378,6 +343,7 @@ class BridgeSession:
         self._pace(at_ns)
         self._connect()
         self.faults.reset_connection(at_ns)
+        self._start_reader(at_ns)
         self._flight = _Flight()
         self.stats.reconnects += 1
 

@@ -25,6 +25,7 @@ import math
 import socket
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
@@ -33,6 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from uwval.bridge import protocol as wire
+from uwval.bridge.connector_reader import ConnectorReader, wall_sleep_ns
 from uwval.bridge.errors import BridgeError
 from uwval.bridge.unity_model import FrameClock, Transport, float32_transform, read_frame_trace
 from uwval.frames import convert_arrays, get_convention
@@ -237,12 +239,18 @@ class UnityConnection:
         if self.sock is not None and time.monotonic() - self._last_send >= interval:
             self._send(wire.KEEPALIVE)
 
-    def _recv_into_parser(self, timeout: float | None) -> bool:
-        """Read once from the socket; False on timeout. Raises BridgeError on EOF."""
-        assert self.sock is not None
-        self.sock.settimeout(timeout)
+    def receive(self, timeout: float | None) -> bool:
+        """Read once from the socket into the frame parser (``timeout`` 0: only what is
+        already there, without changing the socket's blocking mode, so another thread may
+        send meanwhile); False when nothing came. Raises BridgeError on EOF or a lost link."""
+        if self.sock is None:
+            raise BridgeError("not connected")
         try:
-            data = self.sock.recv(1 << 16)
+            if timeout == 0.0:
+                data = self.sock.recv(1 << 16, socket.MSG_DONTWAIT)
+            else:
+                self.sock.settimeout(timeout)
+                data = self.sock.recv(1 << 16)
         except (TimeoutError, BlockingIOError):
             return False
         except OSError as exc:
@@ -258,7 +266,7 @@ class UnityConnection:
         deadline = time.monotonic() + timeout
         while not self._pending:
             left = deadline - time.monotonic()
-            if left <= 0 or not self._recv_into_parser(left):
+            if left <= 0 or not self.receive(left):
                 raise BridgeError(f"no frame from {self.host}:{self.port} within {timeout} s")
         return self._pending.pop(0)
 
@@ -271,7 +279,11 @@ class UnityConnection:
         if self.sock is None:
             raise BridgeError("not connected")
         if not self._pending:
-            self._recv_into_parser(timeout)
+            self.receive(timeout)
+        return self.take_frames()
+
+    def take_frames(self) -> list[wire.Frame]:
+        """The topic frames parsed so far (system commands handled, keepalives dropped)."""
         frames, self._pending = self._pending, []
         out = []
         for f in frames:
@@ -509,17 +521,80 @@ class RenderLoop:
         return out
 
 
-def decode_pose_frame(frame: wire.Frame, protocol: wire.Protocol) -> ReceivedPose:
-    """A received topic frame holding a PoseStamped -> :class:`ReceivedPose`."""
+def decode_pose_frame(
+    frame: wire.Frame, protocol: wire.Protocol, recv_ns: int | None = None
+) -> ReceivedPose:
+    """A received topic frame holding a PoseStamped -> :class:`ReceivedPose`; ``recv_ns``
+    (``time.monotonic_ns()`` clock) when it was read, default now."""
     t_ns, pos, quat, fid = wire.decode_pose_stamped(frame.payload, protocol)
-    return ReceivedPose(frame.destination, t_ns, pos, quat, fid, time.monotonic_ns())
+    when = time.monotonic_ns() if recv_ns is None else recv_ns
+    return ReceivedPose(frame.destination, t_ns, pos, quat, fid, when)
+
+
+class SocketPort:
+    """The Connector reader's port on a real socket and the wall clock: frames read are
+    queued with their read time for the render loop (thread-safe hand-off, as the
+    Connector's ``ConcurrentQueue``)."""
+
+    def __init__(self, connection: UnityConnection) -> None:
+        self.connection = connection
+        self.queue: deque[tuple[wire.Frame, int]] = deque()
+        #: Why the reader stopped (a lost link), or "".
+        self.error = ""
+
+    def now_ns(self) -> int:
+        return time.monotonic_ns()
+
+    def sleep_ns(self, ns: int) -> None:
+        wall_sleep_ns(ns)
+
+    def read_available(self, now_ns: int) -> bool:
+        conn = self.connection
+        if not conn.has_pending and not conn.receive(0.0):
+            return False
+        for f in conn.take_frames():
+            self.queue.append((f, now_ns))
+        return True
+
+
+class ReaderThread:
+    """ROS-TCP-Connector's background reader on a thread, for one connection."""
+
+    def __init__(self, connection: UnityConnection, reader: ConnectorReader) -> None:
+        self.port = SocketPort(connection)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, args=(reader,), daemon=True)
+        self._thread.start()
+
+    def _run(self, reader: ConnectorReader) -> None:
+        try:
+            reader.run(self.port, 2**62, self._stop.is_set)
+        except BridgeError as exc:  # a lost link: the render loop reconnects
+            self.port.error = str(exc) or "connection lost"
+
+    @property
+    def failed(self) -> bool:
+        """True when the reader stopped on a lost link (see ``port.error``)."""
+        return bool(self.port.error)
+
+    def take(self) -> list[tuple[wire.Frame, int]]:
+        """Frames read since the last call, with their read times (ns, monotonic)."""
+        q = self.port.queue
+        return [q.popleft() for _ in range(len(q))]
+
+    def stop(self) -> None:
+        """Stop the reader (it notices within one idle sleep) and wait for it."""
+        self._stop.set()
+        self._thread.join(5.0)
 
 
 class UnityClient:
     """A Unity-like client on the wall clock: connect, render at a frame rate, reconnect.
 
-    Used against a live endpoint (``uwval bridge serve`` or ``replay``). Each frame it
-    drains the socket, applies the latest pose per topic and hands every
+    Used against a live endpoint (``uwval bridge serve`` or ``replay``). A background reader
+    drains the socket as ROS-TCP-Connector's does (10 ms idle sleep,
+    :mod:`uwval.bridge.connector_reader`); each frame ``Update`` takes what it queued,
+    applies the latest pose per topic and hands every
     :class:`AppliedTransform` to ``on_frame``; on a lost connection it waits
     ``reconnect_delay_s`` and reconnects, re-registering its subscriptions as Unity does.
     Latency, drops and link drops (``faults.disconnects``, seconds after the start) come
@@ -534,14 +609,12 @@ class UnityClient:
         topics: Sequence[str] = ("model_rov_pose", "gui_camera_pose"),
         unity_map: str = "unity-flu",
         frame_rate: float = 60.0,
-        frame_jitter_s: float = 0.0,
         clock_offset_s: float = 0.0,
         protocol: wire.Protocol | Literal["auto"] = "ROS2",
         faults: FaultModel | None = None,
         reconnect_delay_s: float = RECONNECT_DELAY_S,
         seed: int = 0,
         clock: Literal["monotonic", "epoch"] = "monotonic",
-        on_receive: Callable[[ReceivedPose], None] | None = None,
         on_message: Callable[[str, str], None] | None = None,
     ) -> None:
         if clock not in ("monotonic", "epoch"):
@@ -557,7 +630,6 @@ class UnityClient:
             topics,
             unity_map=unity_map,
             frame_rate=frame_rate,
-            frame_jitter_s=frame_jitter_s,
             clock_offset_s=clock_offset_s,
             seed=seed,
         )
@@ -572,7 +644,12 @@ class UnityClient:
         self.clock = clock
         if clock == "epoch":
             self.scene.offset_ns += self.epoch_minus_monotonic_ns
-        self.on_receive = on_receive
+        #: Called with each pose as it is handed to Update (e.g. to record the Gazebo side).
+        self.on_receive: Callable[[ReceivedPose], None] | None = None
+        #: The Connector's background reader (10 ms idle sleep), one thread per connection.
+        self.reader = ConnectorReader(seed=seed)
+        self._reader: ReaderThread | None = None
+        self._next_connect = 0
         self.received = 0
         self.dropped = 0
         self.disconnects = 0
@@ -596,54 +673,79 @@ class UnityClient:
         applied: list[AppliedTransform] = []
         t0 = time.monotonic_ns()
         end = t0 + int(duration_s * 1e9)
-        next_connect = t0
-        delay_ns = int(self.reconnect_delay_s * 1e9)
+        self._next_connect = t0
         # Injected link drops, on the wall clock since the start of the run.
         drops = sorted(t0 + int(d * 1e9) for d in self.faults.disconnects)
-        for frame_ns in self.scene.frame_times(t0, end):
-            if stop is not None and stop.is_set():
-                break
-            now = time.monotonic_ns()
-            if frame_ns > now:
-                time.sleep((frame_ns - now) * 1e-9)
-            while drops and drops[0] <= time.monotonic_ns():
-                drops.pop(0)
-                if self.connection.connected:
-                    self.connection.close()
-                    self.scene.discard_after(time.monotonic_ns())
-                    self.disconnects += 1
-                    next_connect = time.monotonic_ns() + delay_ns
-            if not self.connection.connected and time.monotonic_ns() >= next_connect:
-                try:
-                    self.connection.connect(connect_timeout)
-                    self.faults.reset_connection()
-                except ProtocolMismatchError:
-                    self.connection.close()
-                    raise  # a setting to change, not a link to retry
-                except BridgeError as exc:
-                    self.last_error = str(exc)
-                    next_connect = time.monotonic_ns() + delay_ns
-            if self.connection.connected:
-                try:
-                    for f in self.connection.poll(0.0):
-                        self.received += 1
-                        pose = decode_pose_frame(f, self.protocol)
-                        if self.on_receive is not None:
-                            self.on_receive(pose)
-                        arr = self.faults.arrival_ns(pose.recv_wall_ns)
-                        if arr is None:
-                            self.dropped += 1
-                        else:
-                            self.scene.arrive(pose, arr)
-                    self.connection.keepalive_if_idle()
-                except BridgeError as exc:  # lost link or a malformed frame: reconnect
-                    self.last_error = str(exc)
-                    self.connection.close()
-                    self.disconnects += 1
-                    next_connect = time.monotonic_ns() + delay_ns
-            for tr in self.scene.render(time.monotonic_ns()):
-                applied.append(tr)
-                if on_frame is not None:
-                    on_frame(tr)
-        self.connection.close()
+        try:
+            for frame_ns in self.scene.frame_times(t0, end):
+                if stop is not None and stop.is_set():
+                    break
+                now = time.monotonic_ns()
+                if frame_ns > now:
+                    time.sleep((frame_ns - now) * 1e-9)
+                while drops and drops[0] <= time.monotonic_ns():
+                    drops.pop(0)
+                    if self._reader is not None:
+                        self._drop_link("")
+                        self.scene.discard_after(time.monotonic_ns())
+                # the reader thread may have closed the socket: it says why, _update reconnects
+                if self._reader is None and time.monotonic_ns() >= self._next_connect:
+                    self._connect(connect_timeout)
+                if self._reader is not None:
+                    self._update()
+                for tr in self.scene.render(time.monotonic_ns()):
+                    applied.append(tr)
+                    if on_frame is not None:
+                        on_frame(tr)
+        finally:
+            if self._reader is not None:
+                self._reader.stop()
+                self._reader = None
+            self.connection.close()
         return applied
+
+    def _connect(self, timeout: float) -> None:
+        """(Re)connect and start the Connector's reader thread; on failure retry later."""
+        try:
+            self.connection.connect(timeout)
+            self.faults.reset_connection()
+        except ProtocolMismatchError:
+            self.connection.close()
+            raise  # a setting to change, not a link to retry
+        except BridgeError as exc:
+            self.last_error = str(exc)
+            self._next_connect = time.monotonic_ns() + int(self.reconnect_delay_s * 1e9)
+            return
+        self._reader = ReaderThread(self.connection, self.reader)
+
+    def _drop_link(self, why: str) -> None:
+        """Close the link (lost, or an injected drop) and reconnect after the delay."""
+        if why:
+            self.last_error = why
+        if self._reader is not None:
+            self._reader.stop()
+            self._reader = None
+        self.connection.close()
+        self.disconnects += 1
+        self._next_connect = time.monotonic_ns() + int(self.reconnect_delay_s * 1e9)
+
+    def _update(self) -> None:
+        """Unity's ``Update``: hand what the reader queued to the scene, keep the link alive."""
+        reader = self._reader
+        assert reader is not None
+        try:
+            for f, read_ns in reader.take():
+                self.received += 1
+                pose = decode_pose_frame(f, self.protocol, read_ns)
+                if self.on_receive is not None:
+                    self.on_receive(pose)
+                arr = self.faults.arrival_ns(pose.recv_wall_ns)
+                if arr is None:
+                    self.dropped += 1
+                else:
+                    self.scene.arrive(pose, arr)
+            if reader.failed:
+                raise BridgeError(reader.port.error)
+            self.connection.keepalive_if_idle()
+        except BridgeError as exc:  # lost link or a malformed frame: reconnect
+            self._drop_link(str(exc))

@@ -6,8 +6,8 @@ from typing import Any
 
 
 class PerMessage:
-    """The per-message path: a writer the recorder cannot hand blocks to (no write_raw),
-    whose every message is serialized by rosbags (uwval's writers' own write_pose)."""
+    """The per-message path: a writer the recorder cannot hand blocks to (no write_blocks),
+    whose every message is encoded by the writer's own write_pose / write_header."""
 
     def __init__(self, writer: Any) -> None:
         self.writer = writer

@@ -6,6 +6,7 @@ tests/test_ros_endpoint.py), against the real endpoint too, with the same expect
 
 from __future__ import annotations
 
+import contextlib
 import json
 import socket
 import struct
@@ -16,6 +17,7 @@ from typing import Any
 import pytest
 from cli_runner import run_uwval
 
+from uwval.bridge.errors import BridgeError
 from uwval.bridge.server import BridgeServer
 
 STRING = "std_msgs/String"
@@ -188,5 +190,104 @@ def test_uwval_mode_stays_forgiving() -> None:
 def test_bridge_serve_compat_option_is_checked() -> None:
     result = run_uwval("bridge", "serve", "--compat", "nope", "--port", "0")
     assert result.returncode == 2
-    assert "--compat must be one of uwval, real-endpoint" in result.stdout + result.stderr
+    want = "--compat must be one of uwval, real-endpoint, real-endpoint-subscribers"
+    assert want in result.stdout + result.stderr
     assert "Traceback" not in result.stderr
+
+
+POSE = "geometry_msgs/PoseStamped"
+
+
+def _pose(k: int, seq: int) -> bytes:
+    from uwval.bridge.protocol import encode_pose_stamped
+
+    return encode_pose_stamped(10**9 + k, [k, 0.0, 0.0], [0, 0, 0, 1.0], "world", "ROS1", seq)
+
+
+def _echo(peer: Peer, topic: str) -> None:
+    """Subscribe and publish ``topic`` (PoseStamped) until the endpoint echoes a pose back."""
+    peer.send(_cmd("__subscribe", {"topic": topic, "message_name": POSE}))
+    peer.send(_cmd("__publish", {"topic": topic, "message_name": POSE}))
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        peer.send(_frame(topic, _pose(0, 777)))
+        try:
+            while True:
+                if peer.read(0.1)[0] == topic:
+                    return
+        except TimeoutError:
+            continue
+    raise AssertionError(f"{topic} never came back")
+
+
+def _drain(peer: Peer, seconds: float) -> list[tuple[str, bytes]]:
+    got = []
+    with contextlib.suppress(TimeoutError):
+        while True:
+            got.append(peer.read(seconds))
+    return got
+
+
+def test_header_seq_is_rewritten_as_rospy_does(endpoint: int) -> None:
+    """A pose a client publishes reaches ROS with header.seq = the publisher's count (rospy),
+    whatever seq the client sent: what comes back counts up by one per message."""
+    topic = f"/uwval_seq_{time.monotonic_ns()}"
+    peer = Peer(endpoint)
+    try:
+        _echo(peer, topic)
+        _drain(peer, 0.3)
+        for k in range(1, 6):
+            peer.send(_frame(topic, _pose(k, 777)))
+        back = [b for d, b in _drain(peer, 1.0) if d == topic]
+        assert len(back) == 5
+        seqs = [struct.unpack_from("<I", b)[0] for b in back]
+        assert 777 not in seqs and seqs == list(range(seqs[0], seqs[0] + 5)), seqs
+        assert [b[4:] for b in back] == [_pose(k, 0)[4:] for k in range(1, 6)]  # the rest kept
+    finally:
+        peer.close()
+
+
+def test_everything_goes_to_the_newest_connection(endpoint: int) -> None:
+    """ROS-TCP-Endpoint 0.7.0 has one sender queue, the newest connection's: once a second
+    client connects, the first one's subscription is served to the second, not to it."""
+    topic = f"/uwval_newest_{time.monotonic_ns()}"
+    first = Peer(endpoint)
+    try:
+        _echo(first, topic)
+        _drain(first, 0.3)
+        second = Peer(endpoint)  # registers nothing
+        try:
+            time.sleep(0.3)
+            first.send(_frame(topic, _pose(9, 0)))
+            assert [d for d, _ in _drain(second, 1.0)] == [topic]
+            assert _drain(first, 0.3) == []
+        finally:
+            second.close()
+    finally:
+        first.close()
+
+
+def test_compat_real_endpoint_announces_ros1_itself() -> None:
+    with BridgeServer(port=0, compat="real-endpoint") as s:
+        sock = socket.create_connection(("127.0.0.1", s.port), timeout=5)
+        try:
+            peer = Peer.__new__(Peer)
+            peer.sock, peer.buf = sock, b""
+            dest, body = peer.read(5)
+            meta = json.loads(json.loads(body)["metadata"])
+            assert dest == "__handshake" and meta == {"protocol": "ROS1"}
+        finally:
+            sock.close()
+        assert (s.protocol, s.route) == ("ROS1", "newest")
+    res = run_uwval(
+        "bridge", "serve", "--compat", "real-endpoint", "--port", "0", "--duration", "0.3"
+    )
+    assert res.returncode == 0, res.stderr
+    assert "(ROS1, as ROS-TCP-Endpoint 0.7.0, to newest)" in " ".join(res.stderr.split())
+    res = run_uwval(
+        "bridge", "serve", "--compat", "real-endpoint-subscribers", "--port", "0",
+        "--duration", "0.3",
+    )  # fmt: skip
+    assert "(ROS1, as ROS-TCP-Endpoint 0.7.0, to subscribers)" in " ".join(res.stderr.split())
+    with pytest.raises(BridgeError, match="newest only with compat real-endpoint"):
+        BridgeServer(port=0, route="newest")

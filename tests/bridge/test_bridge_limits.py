@@ -5,6 +5,7 @@ benchmarks/bridge_hostile.py)."""
 
 from __future__ import annotations
 
+import contextlib
 import socket
 import subprocess
 import sys
@@ -271,3 +272,49 @@ def test_a_failed_parser_is_freed_without_the_cyclic_gc() -> None:
         assert ref() is None
     finally:
         gc.enable()
+
+
+@pytest.mark.parametrize("keepalives", [False, True], ids=["silent", "keepalive_only"])
+def test_64_registered_idle_connections_cannot_keep_a_good_client_out(keepalives: bool) -> None:
+    """bridge serve's defaults (64 slots): 64 real sockets that each subscribe and then stay
+    silent, or send only keepalives, hold every slot; a good client is still served (its
+    subscription registered and a message delivered) within a few seconds."""
+    from uwval.bridge.server import DEFAULT_MAX_CLIENTS
+
+    with BridgeServer(port=0) as s:  # the defaults of bridge serve
+        flood = [RawClient(s.port) for _ in range(DEFAULT_MAX_CLIENTS)]
+        for i, c in enumerate(flood):
+            _handshake(c)
+            c.command(wire.SUBSCRIBE, {"topic": f"/f{i}", "message_name": "std_msgs/String"})
+        _wait(lambda: len(s.clients()) == DEFAULT_MAX_CLIENTS, "the flood to register")
+        stop = threading.Event()
+
+        def keep_alive() -> None:  # every 0.5 s, as often as a Connector at most
+            while not stop.wait(0.5):
+                for c in flood:
+                    with contextlib.suppress(OSError):
+                        c.send_raw(wire.KEEPALIVE)
+
+        pinger = threading.Thread(target=keep_alive, daemon=True)
+        if keepalives:
+            pinger.start()
+        try:
+            t0 = time.monotonic()
+            served = False
+            for _ in range(40):  # a Unity-like client retrying, bounded
+                try:
+                    good = RawClient(s.port)
+                    _handshake(good)
+                    good.command(wire.SUBSCRIBE, {"topic": "/g", "message_name": "std_msgs/String"})
+                    s.wait_for_subscribers("/g", timeout=1.0)
+                    assert s.publish("/g", b"hello") == 1
+                    assert good.read() == ("/g", b"hello")
+                    served = True
+                    break
+                except (OSError, EOFError, BridgeError):
+                    time.sleep(0.25)
+            assert served and time.monotonic() - t0 < 6.0, time.monotonic() - t0
+        finally:
+            stop.set()
+            for c in flood:
+                c.sock.close()

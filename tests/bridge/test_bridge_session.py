@@ -248,22 +248,32 @@ def test_live_peer_on_the_session_endpoint_gets_the_poses_too(tmp_path: Path) ->
 
 @pytest.mark.parametrize("fmt", ["mcap", "rosbag2", "rosbag1"])
 def test_recorded_bytes_equal_the_writers_own_rosbags_encoding(tmp_path: Path, fmt: str) -> None:
-    """The session's struct encoding of PoseStamped/Header records the same bytes as the
-    writers' rosbags-serialized write_pose/write_header."""
-    from uwval.bridge.session import _StructEncoding
+    """The writers' write_pose/write_header (numpy encoding) record the same bytes as writing
+    rosbags' serialization of each message."""
     from uwval.io import open_writer
+    from uwval.io.ros import HEADER, POSE_STAMPED, header_msg, pose_stamped, typestore
 
+    ros = 1 if fmt == "rosbag1" else 2
+    ts = typestore(ros)
+    ser = ts.serialize_ros1 if ros == 1 else ts.serialize_cdr
     t, pos, quat = motion(50)
     logs = {}
-    for how in ("rosbags", "struct"):
+    for how in ("rosbags", "numpy"):
         path = tmp_path / f"{how}{'.bag' if fmt == 'rosbag1' else '.mcap' if fmt == 'mcap' else ''}"
         with open_writer(path, fmt) as w:
-            out = w if how == "rosbags" else _StructEncoding(w)
             for k in range(len(t)):
-                out.write_pose("/p", int(t[k]), pos[k], quat[k], "unity-flu", int(t[k]) + 5)
-                out.write_header("/h", int(t[k]) - 7, int(t[k]) + 5, "world")
+                tk = int(t[k])
+                if how == "numpy":
+                    w.write_pose("/p", tk, pos[k], quat[k], "unity-flu", tk + 5)
+                    w.write_header("/h", tk - 7, tk + 5, "world")
+                    continue
+                msg = pose_stamped(tk, pos[k], quat[k], "unity-flu", ros)
+                w.write_raw("/p", POSE_STAMPED, bytes(ser(msg, POSE_STAMPED)), tk + 5)
+                w.write_raw(
+                    "/h", HEADER, bytes(ser(header_msg(tk - 7, "world", ros), HEADER)), tk + 5
+                )
         logs[how] = path
-    a, b = (_payloads(logs[h]) for h in ("rosbags", "struct"))
+    a, b = (_payloads(logs[h]) for h in ("rosbags", "numpy"))
     assert a == b
     assert len(a["/p"]) == len(a["/h"]) == 50
 

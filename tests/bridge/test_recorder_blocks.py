@@ -11,18 +11,13 @@ from typing import Any
 import numpy as np
 import pytest
 from per_message import PerMessage
+from reference_writers import McapLibraryWriter
 
-from uwval.bridge.recorder import (
-    Bag1BlockWriter,
-    BridgeRecorder,
-    McapBlockWriter,
-    encode_header_block,
-    encode_pose_block,
-    open_log_writer,
-    scan_mcap,
-)
+from uwval.bridge.recorder import BridgeRecorder, open_log_writer, scan_mcap
 from uwval.errors import LogWriteError
 from uwval.io import read_stream
+from uwval.io.encode import encode_header as encode_header_block
+from uwval.io.encode import encode_pose_stamped as encode_pose_block
 from uwval.io.mcap_io import McapPoseWriter
 from uwval.io.ros import HEADER, POSE_STAMPED, header_msg, pose_stamped, typestore
 from uwval.io.writers import Rosbag1PoseWriter
@@ -164,13 +159,13 @@ def test_block_path_writes_what_the_per_message_path_writes(tmp_path: Path, fmt:
 
 
 def test_mcap_block_file_is_the_mcap_writers_file_byte_for_byte(tmp_path: Path) -> None:
-    """Written with the same flushes, McapBlockWriter's file equals McapPoseWriter's (the mcap
-    library's add_message per message): header, metadata, schemas, channels, chunks, message
-    indexes, statistics, summary and footer."""
+    """Written with the same flushes, McapPoseWriter's file (blocks built with numpy) equals
+    the mcap library's (add_message per message): header, metadata, schemas, channels, chunks,
+    message indexes, statistics, summary and footer."""
     a, b = tmp_path / "mcap_writer.mcap", tmp_path / "block_writer.mcap"
-    writers = {
-        a: McapPoseWriter(a, metadata={"run": "x"}, chunk_size=1 << 20),
-        b: McapBlockWriter(b, metadata={"run": "x"}, chunk_size=1 << 20),
+    writers: dict[Path, Any] = {
+        a: McapLibraryWriter(a, metadata={"run": "x"}, chunk_size=1 << 20),
+        b: McapPoseWriter(b, metadata={"run": "x"}, chunk_size=1 << 20),
     }
     for path, writer in writers.items():
         rec = BridgeRecorder(writer if path == b else PerMessage(writer), flush_every=500)
@@ -187,46 +182,40 @@ def test_mcap_block_file_is_the_mcap_writers_file_byte_for_byte(tmp_path: Path) 
 
 
 def test_ros1_block_file_is_the_rosbags_writers_file_byte_for_byte(tmp_path: Path) -> None:
-    """Bag1BlockWriter's bag equals uwval's Rosbag1PoseWriter's (rosbags' Writer, message by
-    message): bag header, connection records where rosbags puts them, chunks split after the
-    message that passes 1 MiB (here several, some inside one recorder block), index data,
-    chunk infos; and it keeps only the open chunk's index."""
+    """The recorder's blocks into a ROS 1 bag give the bag of one write per message (rosbags'
+    Writer): bag header, connection records, chunks split after the message that passes
+    1 MiB (here several, some inside one recorder block), index data, chunk infos."""
     a, b = tmp_path / "rosbags.bag", tmp_path / "blocks.bag"
     n = 9000
     t, pos, q = poses(n)
     for path in (a, b):
-        writer: Any = (Rosbag1PoseWriter if path == a else Bag1BlockWriter)(
-            path, metadata={"run": "x"}
-        )
+        writer = Rosbag1PoseWriter(path, metadata={"run": "x"})
         rec = BridgeRecorder(writer if path == b else PerMessage(writer), flush_every=20000)
         for k in range(n):
             rec.gazebo_pose("model_rov_pose", int(t[k]), pos[k], q[k])
             if k % 3:
                 rec.unity_pose("gui_camera_pose", int(t[k]) + 3, pos[k], q[k], int(t[k]))
-        if path == b:
-            assert len(writer._infos) == 2  # chunks written; the open one's index only:
-            assert sum(p[0].size for v in writer._index.values() for p in v) < 12000
         rec.close()
     assert a.read_bytes() == b.read_bytes()
     assert len(rosbags_messages(b)) == 1 + n + 2 * (n - n // 3)
 
 
 def test_block_writer_refuses_what_mcap_cannot_hold(tmp_path: Path) -> None:
-    w = McapBlockWriter(tmp_path / "neg.mcap")
+    w = McapPoseWriter(tmp_path / "neg.mcap")
     with pytest.raises(LogWriteError, match="negative log time"):
         w.write_pose("/p", 5, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]), "world", -1)
     w.close()
     w.close()  # idempotent
     with pytest.raises(LogWriteError, match="closed"):
         w.write_header("/h", 1, 1)
-    rec = BridgeRecorder(McapBlockWriter(tmp_path / "bad.mcap"))
+    rec = BridgeRecorder(McapPoseWriter(tmp_path / "bad.mcap"))
     rec.gazebo_pose("model_rov_pose", 1, np.zeros(2), np.array([0.0, 0.0, 0.0, 1.0]))
     with pytest.raises(LogWriteError, match="/gazebo/model_rov_pose: a pose is not 3"):
         rec.flush()
     with pytest.raises(LogWriteError, match="cannot open"):
-        McapBlockWriter(tmp_path / "no" / "such" / "dir.mcap")
+        McapPoseWriter(tmp_path / "no" / "such" / "dir.mcap")
     with pytest.raises(LogWriteError, match="cannot create ROS 1 bag"):
-        Bag1BlockWriter(tmp_path)  # a directory
+        Rosbag1PoseWriter(tmp_path)  # a directory
     old = tmp_path / "old.bag"
     old.write_bytes(b"an earlier log")
     with open_log_writer(old, "rosbag1") as w:  # replaced, as uwval's writers do

@@ -35,11 +35,12 @@ def test_simulate_then_compare_small_error_high_correlation(run_log: Path) -> No
     axes = d["axes"]
     assert set(axes) >= {"x", "y", "z", "roll", "pitch", "yaw"}
     # x moves (10 N surge): Unity follows Gazebo with r > 0.99 and a small error, bounded by
-    # one render frame of lag at the terminal speed (~1.27 m/s * 1/60 s ~ 2 cm)
+    # one render frame plus one idle sleep of the Connector's reader (10 ms) of lag at the
+    # terminal speed (~1.27 m/s * (1/60 + 0.01) s ~ 3.4 cm)
     assert axes["x"]["pearson_r"] > 0.99
     assert axes["yaw"]["pearson_r"] > 0.99
     assert axes["x"]["mae"] < 0.02
-    assert d["position_error_norm"]["max"] < 0.03
+    assert d["position_error_norm"]["max"] < 0.045
     # z does not move (neutral buoyancy): Pearson r is undefined, and says why
     assert axes["z"]["pearson_r"] is None
     pen = d["position_error_norm"]

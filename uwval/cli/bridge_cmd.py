@@ -28,6 +28,7 @@ from uwval.cli import app
 
 if TYPE_CHECKING:
     from uwval.bridge.protocol import Protocol
+    from uwval.bridge.unity_client import UnityClient
 
 bridge_app = typer.Typer(
     help="ROS-TCP bridge: endpoint server, log replay, Unity-like client.", no_args_is_help=True
@@ -75,19 +76,33 @@ def _protocol(name: str) -> Protocol:
         raise BridgeError(f"--protocol: {exc}") from None
 
 
-def _compat(name: str) -> str:
-    from uwval.bridge.server import COMPAT_MODES
+#: ``--compat`` values -> (server compat, route): ``real-endpoint`` routes as the real endpoint
+#: (everything to the newest connection), ``real-endpoint-subscribers`` keeps its rules but
+#: serves every subscribed client.
+_COMPAT_CHOICES = {
+    "uwval": ("uwval", None),
+    "real-endpoint": ("real-endpoint", "newest"),
+    "real-endpoint-subscribers": ("real-endpoint", "subscribers"),
+}
 
-    if name not in COMPAT_MODES:
-        raise BridgeError(f"--compat must be one of {', '.join(COMPAT_MODES)}, got {name!r}")
-    return name
+
+def _compat(name: str) -> tuple[str, str | None]:
+    if name not in _COMPAT_CHOICES:
+        raise BridgeError(f"--compat must be one of {', '.join(_COMPAT_CHOICES)}, got {name!r}")
+    return _COMPAT_CHOICES[name]
 
 
 @bridge_app.command("serve")
 def serve(
     host: HostOpt = "127.0.0.1",
     port: PortOpt = 10000,
-    protocol: ProtocolOpt = "ROS2",
+    protocol: Annotated[
+        str | None,
+        typer.Option(
+            help="ROS2 (CDR bodies) or ROS1. Default: ROS2, or ROS1 with --compat real-endpoint "
+            "(the ROS 1 release of ROS-TCP-Endpoint 0.7.0)."
+        ),
+    ] = None,
     queue_size: Annotated[int, typer.Option(help="Per-client outgoing queue bound.")] = 1024,
     max_frame: Annotated[int, typer.Option(help="Largest accepted frame payload, bytes.")] = 16
     * 1024
@@ -97,7 +112,8 @@ def serve(
         typer.Option(
             help="Simultaneous connections (one I/O thread serves all). When all are taken, a "
             "connection that registered nothing and was silent 2 s gives its slot to the new "
-            "one; otherwise the new one is closed at once."
+            "one, else the one that sent nothing but keepalives for longest (at least 2 s); "
+            "otherwise the new one is closed at once."
         ),
     ] = 64,
     unused_timeout: Annotated[
@@ -113,14 +129,16 @@ def serve(
             help="Close a connection silent (no frame, no keepalive; ROS-TCP-Connector sends "
             "one every second) for this many seconds (0: never)."
         ),
-    ] = 0.0,
+    ] = 5.0,
     compat: Annotated[
         str,
         typer.Option(
             help="uwval (forgiving) or real-endpoint: behave as Unity's ROS-TCP-Endpoint 0.7.0 "
-            "where it is stricter (closes on unknown commands and JSON keys, __error for "
-            "unknown message classes, registrations kept across reconnects, own publications "
-            "echoed), so an app tested here does not break on the real one."
+            "(ROS1 handshake unless --protocol; closes on unknown commands and JSON keys, "
+            "__error for unknown message classes, registrations kept across reconnects, own "
+            "publications echoed, header.seq rewritten, everything sent to the newest "
+            "connection), so an app tested here does not break on the real one. "
+            "real-endpoint-subscribers: the same, but every subscribed client is served."
         ),
     ] = "uwval",
     known_package: Annotated[
@@ -145,29 +163,30 @@ def serve(
     (__subscribe, __log...) at most 64 KiB; topic and message names at most 1 KiB; 256
     registrations per client; --queue-size outgoing frames per client (oldest dropped).
     """
-    from uwval.bridge.server import BridgeServer, use_mmap_for_large_buffers
+    from uwval.bridge.server import BridgeServer
 
     _check_port(port)
     _check_seconds(duration, "--duration", zero_ok=True)
     _check_seconds(unused_timeout, "--unused-timeout", zero_ok=True)
     _check_seconds(idle_timeout, "--idle-timeout", zero_ok=True)
-    use_mmap_for_large_buffers()  # memory comes back when hostile clients leave
     _logging(verbose)
     server = BridgeServer(
         host,
         port,
-        protocol=_protocol(protocol),
+        protocol=_protocol(protocol) if protocol is not None else None,
         queue_size=queue_size,
         max_frame=max_frame,
         max_clients=max_clients,
         unused_timeout=unused_timeout or None,
         idle_timeout=idle_timeout or None,
-        compat=_compat(compat),
+        compat=_compat(compat)[0],
         known_packages=frozenset(known_package or ()),
+        route=_compat(compat)[1],
     ).start()
     console.print(
         f"[green]ROS-TCP endpoint[/] listening on {host}:{server.port} "
-        f"({server.protocol}{', as ROS-TCP-Endpoint 0.7.0' if compat != 'uwval' else ''}); "
+        f"({server.protocol}"
+        f"{', as ROS-TCP-Endpoint 0.7.0, to ' + server.route if compat != 'uwval' else ''}); "
         "Ctrl-C to stop"
     )
     t_end = time.monotonic() + duration if duration > 0 else float("inf")
@@ -339,7 +358,6 @@ def unity(
         ProtocolMismatchError,
         ReceivedPose,
         UnityClient,
-        epoch_minus_monotonic_ns,
     )
 
     _check_port(port)
@@ -406,27 +424,42 @@ def unity(
     except ProtocolMismatchError as exc:
         mismatch, applied = exc, []
     finally:
-        conn = client.connection
-        writer.add_metadata(
-            "uwval.bridge_unity",
-            {
-                "endpoint": f"{host}:{port}",
-                "protocol": conn.protocol if conn.connects else "",
-                "endpoint_version": conn.server_version,
-                "connections": str(conn.connects),
-                "received": str(client.received),
-                "endpoint_errors": str(conn.message_counts[wire.ERROR]),
-                "endpoint_warnings": str(conn.message_counts[wire.WARN]),
-                "epoch_minus_monotonic_ns_at_end": str(epoch_minus_monotonic_ns()),
-            },
-        )
+        writer.add_metadata("uwval.bridge_unity", _run_metadata(client, f"{host}:{port}"))
         recorder.close()
     if mismatch is not None:
-        raise BridgeError(f"{mismatch} ({output} holds no Unity transforms)")
+        # nothing was recorded: an empty log left behind would read as a recording
+        output.unlink(missing_ok=True)
+        raise BridgeError(f"{mismatch}; no log written")
+    _say_how_it_went(client, len(applied), output, f"{host}:{port}")
+
+
+def _run_metadata(client: UnityClient, endpoint: str) -> dict[str, str]:
+    """The ``uwval.bridge_unity`` metadata of a ``bridge unity`` recording."""
+    from uwval.bridge import protocol as wire
+    from uwval.bridge.unity_client import epoch_minus_monotonic_ns
+
+    conn = client.connection
+    return {
+        "endpoint": endpoint,
+        "protocol": conn.protocol if conn.connects else "",
+        "endpoint_version": conn.server_version,
+        "connections": str(conn.connects),
+        "received": str(client.received),
+        "endpoint_errors": str(conn.message_counts[wire.ERROR]),
+        "endpoint_warnings": str(conn.message_counts[wire.WARN]),
+        "epoch_minus_monotonic_ns_at_end": str(epoch_minus_monotonic_ns()),
+    }
+
+
+def _say_how_it_went(client: UnityClient, applied: int, output: Path, endpoint: str) -> None:
+    """Print what ``bridge unity`` recorded; a clean error when it never connected, exit
+    status 1 when the endpoint sent ``__error``."""
+    from uwval.bridge import protocol as wire
+
     conn = client.connection
     counts = conn.message_counts
     console.print(
-        f"[green]wrote[/] {output}: {len(applied)} transforms, "
+        f"[green]wrote[/] {output}: {applied} transforms, "
         f"{client.received} messages received ({conn.protocol}), {conn.connects} "
         f"connection(s); endpoint sent {counts[wire.ERROR]} error(s), "
         f"{counts[wire.WARN]} warning(s), {counts[wire.LOG]} log(s)"
@@ -434,7 +467,7 @@ def unity(
     if conn.connects == 0:
         why = f": {client.last_error}" if client.last_error else ""
         raise BridgeError(
-            f"never connected to an endpoint at {host}:{port}{why} "
+            f"never connected to an endpoint at {endpoint}{why} "
             f"({output} holds no Unity transforms)"
         )
     if counts[wire.ERROR]:

@@ -484,7 +484,7 @@ def compare(
         topic=other.topic,
         source=other.source,
     )
-    latency = latency_stats(other, offset_s)
+    latency = latency_stats(other, offset_s, (int(reference.t[0]), int(reference.t[-1])))
     if latency is not None and estimate is not None:
         # the motion cannot tell a clock offset from a delay: the estimate absorbs both
         latency["note"] = (

@@ -10,13 +10,26 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from uwval.errors import LogWriteError
+
 U8 = NDArray[np.uint8]
 I64 = NDArray[np.int64]
 
 
-def _split(t_ns: ArrayLike) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    t = np.asarray(t_ns, dtype=np.int64)
+def _split(t_ns: ArrayLike, encoding: str, what: str) -> tuple[I64, I64]:
+    """(sec, nsec) of each stamp (ns) as ``divmod(t, 1e9)``, checked to fit the message's
+    time type (CDR: int32 seconds; ROS 1: uint32 seconds, not negative)."""
+    t = np.asarray(t_ns, dtype=np.int64).reshape(-1)
     sec, nsec = np.divmod(t, 1_000_000_000)
+    if sec.size:
+        lo, hi = int(sec.min()), int(sec.max())
+        if encoding == "ros1" and lo < 0:
+            raise LogWriteError(
+                f"{what}: ROS 1 time cannot be negative (stamp {int(t[sec < 0][0])} ns)"
+            )
+        if hi > (2**32 - 1 if encoding == "ros1" else 2**31 - 1) or lo < -(2**31):
+            bad = lo if lo < -(2**31) else hi
+            raise LogWriteError(f"{what}: stamp seconds {bad} do not fit the message's time type")
     return sec, nsec
 
 
@@ -63,7 +76,7 @@ def encode_pose_stamped(
     q = np.asarray(quat, dtype=np.float64).reshape(-1, 4)
     n = pos.shape[0]
     rows, stamp_at, body_at = _header(encoding, n, frame_id, 56)
-    sec, nsec = _split(t_ns)
+    sec, nsec = _split(t_ns, encoding, f"PoseStamped {frame_id!r}")
     _put(rows, stamp_at, sec, "<i4" if encoding == "cdr" else "<u4")
     _put(rows, stamp_at + 4, nsec, "<u4")
     _put(rows, body_at, np.concatenate([pos, q], axis=1), "<f8")
@@ -72,7 +85,7 @@ def encode_pose_stamped(
 
 def encode_header(stamp_ns: ArrayLike, frame_id: str = "", encoding: str = "cdr") -> U8:
     """(N, L) payload rows of std_msgs/Header stamped ``stamp_ns``."""
-    sec, nsec = _split(stamp_ns)
+    sec, nsec = _split(stamp_ns, encoding, f"Header {frame_id!r}")
     rows, stamp_at, _ = _header(encoding, sec.shape[0], frame_id, 0)
     _put(rows, stamp_at, sec, "<i4" if encoding == "cdr" else "<u4")
     _put(rows, stamp_at + 4, nsec, "<u4")
