@@ -18,27 +18,11 @@ end of that header; ROS 1: packed, little-endian, strings without NUL, header wi
 
 from __future__ import annotations
 
-import os
-import sys
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-
-try:  # the optional one-pass decode of uniform rows (uwval/io/_posedecode.c)
-    from uwval.io import _posedecode
-except ImportError:  # pragma: no cover - installs without a C compiler: numpy decodes all
-    _posedecode = None  # type: ignore[assignment]
-
-#: Whether topics whose messages all share the first one's layout and names are decoded by
-#: the C pass (built, a little-endian host, ``UWVAL_NO_ACCELERATOR`` not set); otherwise, and
-#: for any topic it declines, the numpy passes below decode them, with the same result.
-USE_ACCELERATOR = (
-    _posedecode is not None
-    and sys.byteorder == "little"
-    and not os.environ.get("UWVAL_NO_ACCELERATOR")
-)
 
 U8 = NDArray[np.uint8]
 I64 = NDArray[np.int64]
@@ -331,11 +315,7 @@ def fast_decode(msgtype: str, encoding: str, buf: U8, offset: I64, length: I64) 
         return Decoded.empty(n)
     cdr = encoding == "cdr"
     acc = _Bytes(buf, offset, length)
-    if acc.rows2d is not None and USE_ACCELERATOR:
-        uniform = _decode_uniform(fields, acc, cdr)
-        if uniform is not None:
-            return uniform
-    dec = Decoded.empty(n)  # (after the one-pass decode: it builds its own, NaN-free)
+    dec = Decoded.empty(n)
     rows = np.arange(n, dtype=np.int64)
     if cdr:
         # Only little-endian plain CDR (encapsulation kind 0x0001) has this layout.
@@ -366,67 +346,6 @@ def fast_decode(msgtype: str, encoding: str, buf: U8, offset: I64, length: I64) 
             raw = acc.at(lf.rows, lf.child_at, lf.child_len)
             ok &= _names(dec, dec.child_code, lf.rows, raw)
         dec.handled[lf.rows[ok]] = True
-    return dec
-
-
-def _decode_uniform(fields: tuple[str | int, ...], acc: _Bytes, cdr: bool) -> Decoded | None:
-    """The decode of equal-width rows (``acc.rows2d``) that all hold the first row's bytes
-    where its layout and names are (CDR encapsulation header, each string's length, bytes
-    and NUL): the first row's layout is found as :func:`fast_decode` finds it, then one C
-    pass checks every row and reads the stamps and poses. None when any row differs, or the
-    first row has no known layout or a name that is not UTF-8: :func:`fast_decode`'s numpy
-    passes then decide row by row. Equal to them wherever it answers (tested)."""
-    rows2d = acc.rows2d
-    assert rows2d is not None and _posedecode is not None
-    n = acc.n
-    first = np.zeros(1, dtype=np.int64)
-    if not rows2d.flags.c_contiguous or (cdr and not (rows2d[0, 0] == 0 and rows2d[0, 1] == 1)):
-        return None
-    leaves: list[_Leaf] = []
-    _walk(fields, 0, first, 0, _Leaf(first, -1, -1, 0, -1, 0, -1), acc, cdr, leaves)
-    if len(leaves) != 1:
-        return None
-    lf = leaves[0]
-    ranges = [(0, 2)] if cdr else []
-    names: list[tuple[int, str]] = []
-    for at, ln in ((lf.frame_at, lf.frame_len), (lf.child_at, lf.child_len)):
-        if at < 0:
-            names.append((at, ""))
-            continue
-        try:
-            names.append((at, bytes(rows2d[0, at : at + ln]).decode("utf-8")))
-        except UnicodeDecodeError:
-            return None
-        ranges.append((at - 4, 4 + ln + (1 if cdr else 0)))  # length field, bytes, NUL
-    stamp = np.empty(n, dtype=np.int64) if lf.stamp_at >= 0 else np.full(n, -1, dtype=np.int64)
-    if lf.pose_at >= 0:
-        position, orientation = np.empty((n, 3)), np.empty((n, 4))
-    else:
-        position, orientation = np.full((n, 3), np.nan), np.full((n, 4), np.nan)
-    differs = _posedecode.decode_uniform(
-        rows2d,
-        acc.width,
-        np.array(ranges, dtype=np.int64).reshape(-1, 2),
-        lf.stamp_at,
-        lf.pose_at,
-        stamp,
-        position,
-        orientation,
-    )
-    if differs >= 0:
-        return None
-    dec = Decoded(
-        stamp=stamp,
-        position=position,
-        orientation=orientation,
-        frame_code=np.full(n, -1, dtype=np.int64),
-        child_code=np.full(n, -1, dtype=np.int64),
-        names=[],
-        handled=np.ones(n, dtype=bool),
-    )
-    for (at, name), codes in zip(names, (dec.frame_code, dec.child_code), strict=True):
-        if at >= 0:
-            codes[:] = dec.code(name)
     return dec
 
 
