@@ -17,8 +17,7 @@ import pytest
 from cli_runner import run_uwval
 
 from uwval.errors import LogReadError
-from uwval.io.euroc import read_euroc
-from uwval.io.kitti import read_kitti
+from uwval.io.evo_text import read_euroc, read_kitti
 from uwval.rotations import matrix_from_quat
 
 EVO_BIN = Path(sys.executable).parent
