@@ -96,61 +96,10 @@ class Decoded:
             return len(self.names) - 1
 
 
-def gather(buf: U8, starts: I64, width: int) -> U8:
-    """(N, width) uint8 rows ``buf[starts[i] : starts[i] + width]``.
-
-    Messages of one topic in one chunk usually sit at a constant stride (same record size),
-    so runs of equally spaced starts are copied through a strided view (memcpy speed);
-    irregular starts fall back to a fancy-index gather in batches.
-    """
-    n = starts.shape[0]
-    out = np.empty((n, width), dtype=np.uint8)
-    if n == 0 or width == 0:
-        return out
-    if int(starts.min()) < 0 or int(starts.max()) + width > buf.shape[0]:
-        raise ValueError("gather: a row reaches outside the buffer")
-    if n > 64:
-        d = np.diff(starts)
-        # A run continues while the gap to the next start equals the previous gap.
-        brk = np.flatnonzero(d[1:] != d[:-1]) + 1
-        if brk.size < n // 64:
-            bounds = np.concatenate(([0], brk, [n - 1]))
-            a = 0
-            for k in range(bounds.size - 1):
-                b = int(bounds[k + 1]) + (1 if k == bounds.size - 2 else 0)
-                if b <= a:
-                    continue
-                stride = int(d[a]) if a < n - 1 else 0
-                if stride > 0:
-                    view = np.lib.stride_tricks.as_strided(
-                        buf[int(starts[a]) :],
-                        shape=(b - a, width),
-                        strides=(stride, 1),
-                        writeable=False,
-                    )
-                    out[a:b] = view
-                else:
-                    out[a:b] = _fancy(buf, starts[a:b], width)
-                a = b
-            return out
-    return _fancy(buf, starts, width)
-
-
-def _fancy(buf: U8, starts: I64, width: int) -> U8:
-    """Rows at arbitrary starts: one fancy index on a sliding-window view of ``buf`` (a row
-    copy each, no (N, width) index array)."""
-    if buf.shape[0] < width:
-        return np.empty((0, width), dtype=np.uint8)
-    return window(buf, width)[starts]
-
-
 def window(buf: U8, width: int) -> U8:
-    """Read-only (len(buf) - width + 1, width) view of ``buf`` whose row i starts at byte i.
-
-    Built directly on the buffer (a few microseconds: this runs once per topic per chunk,
-    thousands of times per log) when ``buf`` is contiguous; numpy's sliding_window_view
-    otherwise. ``buf`` must hold at least ``width`` bytes.
-    """
+    """Read-only (len(buf) - width + 1, width) view of ``buf`` whose row i starts at byte i
+    (``buf`` holds at least ``width`` bytes); built directly on a contiguous buffer, as this
+    runs once per topic per chunk."""
     n = buf.shape[0] - width + 1
     if buf.ndim == 1 and buf.flags.c_contiguous and buf.dtype == np.uint8:
         view = np.ndarray((n, width), dtype=np.uint8, buffer=buf, strides=(1, 1))
@@ -159,22 +108,19 @@ def window(buf: U8, width: int) -> U8:
     return np.lib.stride_tricks.sliding_window_view(buf, width)
 
 
-def rows_at(buf: U8, starts: I64, width: int) -> U8:
-    """(N, width) copies of ``buf[starts[i] : starts[i] + width]``, one fancy index.
-
-    The caller has checked the bounds (0 <= starts, starts + width <= len(buf)): numpy
-    still refuses an index past the view, so a wrong bound is an IndexError, never bytes
-    from outside ``buf``.
-    """
-    if starts.shape[0] == 0 or width == 0:
-        return np.zeros((starts.shape[0], width), dtype=np.uint8)
-    if buf.shape[0] < width:
-        raise ValueError("rows_at: a row reaches outside the buffer")
+def gather(buf: U8, starts: I64, width: int) -> U8:
+    """(N, width) copies of ``buf[starts[i] : starts[i] + width]``: one fancy index of a
+    sliding-window view (a row copy each, no (N, width) index array)."""
+    n = starts.shape[0]
+    if n == 0 or width == 0:
+        return np.zeros((n, width), dtype=np.uint8)
+    if int(starts.min()) < 0 or int(starts.max()) + width > buf.shape[0]:
+        raise ValueError("gather: a row reaches outside the buffer")
     return window(buf, width)[starts]
 
 
-def _u32(buf: U8, starts: I64) -> I64:
-    return gather(buf, starts, 4).view("<u4").reshape(-1).astype(np.int64)
+#: The same gather, under the name the container readers use (bounds are still checked).
+rows_at = gather
 
 
 class _Bytes:
