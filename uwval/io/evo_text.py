@@ -70,7 +70,7 @@ def read_kitti(path: str | Path, *, frame: str = "enu", topic: str = "") -> Pose
     m = _table(p, 12, None)
     rot = m.reshape(-1, 3, 4)[:, :, :3]
     err = np.abs(np.einsum("nij,nkj->nik", rot, rot) - np.eye(3)).max(axis=(1, 2))
-    finite = np.isfinite(m).all(axis=1)
+    finite: NDArray[np.bool_] = np.asarray(np.isfinite(m).all(axis=1))
     bad = ~finite | ~(err <= ORTHONORMAL_TOLERANCE) | (np.linalg.det(rot) <= 0)
     if bad.any():
         k = int(np.flatnonzero(bad)[0])
