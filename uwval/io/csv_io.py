@@ -32,25 +32,20 @@ from uwval.io.stamps import ns_from_seconds
 from uwval.posestream import PoseStream
 
 TIME_NAMES = ("t", "time", "timestamp", "stamp", "time_s", "unity_time", "frame_time", "sec")
-POS_NAMES = (
-    ("x", "y", "z"),
-    ("pos_x", "pos_y", "pos_z"),
-    ("px", "py", "pz"),
-    ("position_x", "position_y", "position_z"),
-    ("position.x", "position.y", "position.z"),
-)
-QUAT_NAMES = (
-    ("qx", "qy", "qz", "qw"),
-    ("rot_x", "rot_y", "rot_z", "rot_w"),
-    ("rotation_x", "rotation_y", "rotation_z", "rotation_w"),
-    ("rotation.x", "rotation.y", "rotation.z", "rotation.w"),
-)
-EULER_NAMES = (
-    ("ex", "ey", "ez"),
-    ("euler_x", "euler_y", "euler_z"),
-    ("rx", "ry", "rz"),
-    ("eulerangles.x", "eulerangles.y", "eulerangles.z"),
-)
+
+
+def _names(*groups: str) -> tuple[tuple[str, ...], ...]:
+    """Column-name groups written as space-separated strings."""
+    return tuple(tuple(g.split()) for g in groups)
+
+
+POS_NAMES = _names("x y z", "pos_x pos_y pos_z", "px py pz", "position_x position_y position_z")
+POS_NAMES += _names("position.x position.y position.z")
+QUAT_NAMES = _names("qx qy qz qw", "rot_x rot_y rot_z rot_w")
+QUAT_NAMES += _names("rotation_x rotation_y rotation_z rotation_w")
+QUAT_NAMES += _names("rotation.x rotation.y rotation.z rotation.w")
+EULER_NAMES = _names("ex ey ez", "euler_x euler_y euler_z", "rx ry rz")
+EULER_NAMES += _names("eulerangles.x eulerangles.y eulerangles.z")
 TIME_UNITS = {"s": 1e9, "ms": 1e6, "us": 1e3, "ns": 1.0}
 LENGTH_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 
@@ -65,17 +60,8 @@ def load_mapping(path: str | Path) -> dict[str, Any]:
         raise LogReadError(f"{p}: cannot read CSV mapping file: {one_line(exc)}") from exc
     if not isinstance(doc, dict):
         raise LogReadError(f"{p}: CSV mapping must be a mapping of option: value")
-    known = {
-        "time",
-        "time_unit",
-        "position",
-        "quaternion",
-        "euler",
-        "length_unit",
-        "frame",
-        "delimiter",
-        "topic",
-    }
+    known = {"time", "time_unit", "position", "quaternion", "euler", "length_unit", "frame"}
+    known |= {"delimiter", "topic"}
     unknown = set(doc) - known
     if unknown:
         raise LogReadError(f"{p}: unknown mapping keys {sorted(unknown)}; known: {sorted(known)}")
@@ -134,14 +120,8 @@ def read_csv(
     """
     p = Path(path)
     opts: dict[str, Any] = load_mapping(mapping) if mapping is not None else {}
-    given = {
-        "time": time,
-        "position": position,
-        "quaternion": quaternion,
-        "euler": euler,
-        "frame": frame,
-        "delimiter": delimiter,
-    }
+    given = dict(time=time, position=position, quaternion=quaternion, euler=euler)
+    given.update(frame=frame, delimiter=delimiter)
     opts.update({k: v for k, v in given.items() if v is not None})
     if time_unit != "s" or "time_unit" not in opts:
         opts["time_unit"] = time_unit
@@ -186,15 +166,12 @@ def read_csv(
     qcols = pick("quaternion", QUAT_NAMES, 4) if "euler" not in opts else None
     ecols = pick("euler", EULER_NAMES, 3) if qcols is None else None
     if tcol is None or pcols is None or (qcols is None and ecols is None):
-        what = [
-            w
-            for w, c in (
-                ("time", tcol),
-                ("position", pcols),
-                ("rotation (quaternion or euler)", qcols or ecols),
-            )
-            if c is None
-        ]
+        found = (
+            ("time", tcol),
+            ("position", pcols),
+            ("rotation (quaternion or euler)", qcols or ecols),
+        )
+        what = [w for w, c in found if c is None]
         raise LogReadError(
             f"{p}: cannot find {', '.join(what)} column(s) among {cols}; map them with "
             "time=, position=, quaternion= / euler= or a mapping file"
@@ -237,11 +214,8 @@ def read_csv(
         )
     except Exception as exc:
         raise LogReadError(f"{p}: {one_line(exc)}") from exc
-    dropped = (
-        {"duplicate_stamp": s.repairs["duplicates_dropped"]}
-        if s.repairs.get("duplicates_dropped")
-        else {}
-    )
+    dups = s.repairs.get("duplicates_dropped", 0)
+    dropped = {"duplicate_stamp": dups} if dups else {}
     warns: list[str] = []
     if s.repairs.get("sorted"):
         warns.append(
@@ -254,9 +228,7 @@ def read_csv(
 
 
 def _ends_with_newline(p: Path) -> bool:
+    """Whether the file's last byte ends a line (or the file is empty)."""
     with open(p, "rb") as fh:
-        fh.seek(0, 2)
-        if fh.tell() == 0:
-            return True
-        fh.seek(-1, 2)
-        return fh.read(1) in (b"\n", b"\r")
+        fh.seek(max(fh.seek(0, 2) - 1, 0))
+        return fh.read(1) in (b"", b"\n", b"\r")
