@@ -173,7 +173,9 @@ def test_kitti_errors_name_the_line(tmp_path: Path, kitti_pair: tuple[Path, Path
     lines = kitti_pair[0].read_text().splitlines()
     bad = tmp_path / "bad.kitti"
     bad.write_text("# header\n" + "\n".join([*lines[:4], " ".join(lines[4].split()[:11])]) + "\n")
-    with pytest.raises(LogReadError, match=r"bad.kitti line 6: 11 fields, expected 12"):
+    with pytest.raises(
+        LogReadError, match=r"bad.kitti: line 6 \(byte offset \d+\): 11 fields, expected 12"
+    ):
         read_kitti(bad)
     bad.write_text("\n".join([*lines[:2], lines[2].replace(lines[2].split()[3], "x", 1)]) + "\n")
     with pytest.raises(LogReadError, match=r"line 3: 'x' is not a number"):
@@ -193,7 +195,9 @@ def test_euroc_errors_name_the_line(tmp_path: Path, euroc_pair: tuple[Path, Path
     lines = euroc_pair[0].read_text().splitlines()
     bad = tmp_path / "bad.csv"
     bad.write_text("\n".join([*lines[:3], ",".join(lines[3].split(",")[:5])]) + "\n")
-    with pytest.raises(LogReadError, match=r"bad.csv line 4: 5 fields, expected at least 8"):
+    with pytest.raises(
+        LogReadError, match=r"bad.csv: line 4 \(byte offset \d+\): 5 fields, expected at least 8"
+    ):
         read_euroc(bad)
     fields = lines[2].split(",")
     fields[2] = "nan"

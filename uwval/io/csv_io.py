@@ -1,25 +1,16 @@
-"""CSV pose logs exported from Unity scripts.
+"""CSV pose logs exported from Unity scripts (user documentation: docs/formats.md).
 
-A Unity script typically writes one row per frame: a time column, ``transform.position``
-(x, y, z in Unity's left-handed Y-up axes) and ``transform.rotation`` as a quaternion or
-``transform.eulerAngles`` in degrees. Columns are found by common names or mapped by options
-or a small mapping file (YAML or JSON with the same keys as :func:`read_csv`'s options)::
-
-    time: frame_time          # column name
-    time_unit: s              # s | ms | us | ns
-    position: [px, py, pz]
-    quaternion: [qx, qy, qz, qw]     # or
-    euler: [ex, ey, ez]              # Unity eulerAngles, degrees (applied Z, X, Y)
-    length_unit: m            # m | cm | mm
-    frame: unity-flu          # uwval convention of the values (unity-flu, unity-enu, enu, ned)
-
-Positions are converted to metres and the result carries ``frame``; no axis change is made
-here (``uwval.frames.convert_stream`` does that).
+One row per frame: a time column, ``transform.position`` (Unity's left-handed Y-up axes) and
+``transform.rotation`` as a quaternion or ``transform.eulerAngles`` in degrees. Columns are
+found by common names or mapped by :func:`read_csv`'s options or a mapping file (YAML or JSON,
+the same keys). Positions are converted to metres and the result carries ``frame``; no axis
+change is made here (``uwval.frames.convert_stream`` does that).
 """
 
 from __future__ import annotations
 
 import json
+from itertools import islice
 from pathlib import Path
 from typing import Any
 
@@ -80,23 +71,14 @@ def _sniff(path: Path) -> tuple[str, str]:
     """(delimiter, decimal mark) from the header and first data line: ',' unless the
     header has no comma but semicolons or tabs (spreadsheet exports in locales that write
     decimal commas use ';' and '0,5')."""
-    lines: list[str] = []
     try:
         with open(path, encoding="utf-8-sig", errors="replace") as fh:
-            for line in fh:
-                if line.strip() and not line.lstrip().startswith("#"):
-                    lines.append(line)
-                    if len(lines) == 2:
-                        break
+            data = (ln for ln in fh if ln.strip() and not ln.lstrip().startswith("#"))
+            lines = [*islice(data, 2), ""]  # the header, the first row (or "")
     except OSError:
         return ",", "."
-    if not lines or "," in lines[0]:
-        return ",", "."
-    for sep in (";", "\t"):
-        if sep in lines[0]:
-            data = lines[1] if len(lines) > 1 else ""
-            return sep, ("," if "," in data and "." not in data else ".")
-    return ",", "."
+    sep = next((c for c in ";\t" if c in lines[0]), ",") if "," not in lines[0] else ","
+    return sep, ("," if sep != "," and "," in lines[1] and "." not in lines[1] else ".")
 
 
 def read_csv(
@@ -132,10 +114,9 @@ def read_csv(
     except FrameError as exc:
         raise LogReadError(f"{p}: {exc}") from None
     tu, lu = str(opts["time_unit"]), str(opts["length_unit"])
-    if tu not in TIME_UNITS:
-        raise LogReadError(f"{p}: time_unit must be one of {list(TIME_UNITS)}, not {tu!r}")
-    if lu not in LENGTH_UNITS:
-        raise LogReadError(f"{p}: length_unit must be one of {list(LENGTH_UNITS)}, not {lu!r}")
+    for key, unit, known in (("time_unit", tu, TIME_UNITS), ("length_unit", lu, LENGTH_UNITS)):
+        if unit not in known:
+            raise LogReadError(f"{p}: {key} must be one of {list(known)}, not {unit!r}")
     import pandas as pd
 
     sep, decimal = (str(opts["delimiter"]), ".") if "delimiter" in opts else _sniff(p)
@@ -216,12 +197,9 @@ def read_csv(
         raise LogReadError(f"{p}: {one_line(exc)}") from exc
     dups = s.repairs.get("duplicates_dropped", 0)
     dropped = {"duplicate_stamp": dups} if dups else {}
-    warns: list[str] = []
-    if s.repairs.get("sorted"):
-        warns.append(
-            f"{p}: stamps are not in order ({s.repairs['sorted']} step(s) back in time); "
-            "the rows were sorted by stamp"
-        )
+    back = s.repairs.get("sorted", 0)
+    warns = [f"{p}: stamps are not in order ({back} step(s) back in time); rows sorted"]
+    warns = warns if back else []
     if not _ends_with_newline(p):
         warns.append(f"{p}: the last line has no line end: the file may have been cut off")
     return s.with_(dropped=dropped, warnings=tuple(warns)) if dropped or warns else s

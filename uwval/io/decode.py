@@ -84,11 +84,8 @@ def decode_poses(raw: RawTopic, *, fast: bool = True, errors: str = "raise") -> 
             "supported: " + ", ".join(sorted(LAYOUTS)) + ", " + ", ".join(TF_TYPES)
         )
     n = len(raw)
-    dec = (
-        fast_decode(raw.msgtype, raw.encoding, raw.buf, raw.offset, raw.length)
-        if fast
-        else Decoded.empty(n)
-    )
+    fast_args = (raw.msgtype, raw.encoding, raw.buf, raw.offset, raw.length)
+    dec = fast_decode(*fast_args) if fast else Decoded.empty(n)
     rest = np.flatnonzero(~dec.handled)
     if rest.size and raw.encoding not in ("cdr", "ros1"):
         raise LogReadError(f"topic {raw.name}: message encoding {raw.encoding!r} is not supported")

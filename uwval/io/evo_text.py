@@ -1,11 +1,9 @@
-"""evo's text inputs besides TUM: KITTI pose files and EuRoC ground truth (``--format``).
+"""evo's text inputs besides TUM, ``--format kitti|euroc`` (user documentation: docs/formats.md).
 
-``kitti``: 12 numbers per line, the 3 x 4 matrix [R | t] row-major, no stamps. As evo does,
-pose k gets the stamp k seconds, so two files pair up pose by pose and must hold the same
-number of poses. ``euroc``: ``mav0/state_groundtruth_estimate0/data.csv``, comma-separated
-with a ``#`` header: timestamp (integer ns), p_RS_R x y z (m), q_RS w x y z, then columns
-that are ignored; as ``evo_ape euroc GT.csv EST.txt``, a file with a TUM suffix (.txt / .tum)
-is TUM text. Parsing is numpy's C text reader; a bad line is named (1-based) on the error path.
+``kitti``: 12 numbers a line ([R | t] row-major), no stamps: as in evo, pose k gets k seconds,
+so two files pair line by line (equal counts). ``euroc``: EuRoC's ground-truth ``data.csv``
+(ns, p_RS_R x y z, q_RS w x y z, ignored columns); as ``evo_ape euroc``, a .txt / .tum file of
+the pair is TUM text. numpy's C text reader parses; a bad line is named on the error path.
 """
 
 from __future__ import annotations
@@ -25,28 +23,26 @@ ORTHONORMAL_TOLERANCE = 1e-3
 
 
 def _first_bad_line(path: Path, n_fields: int, sep: str | None, at_least: bool = False) -> str:
-    """Where a numeric text table goes wrong: '<path> line L: <what>' (error path only)."""
-    with open(path, encoding="utf-8", errors="replace") as fh:
-        for no, line in enumerate(fh, start=1):
-            if not line.strip() or line.strip().startswith("#"):
-                continue
-            fields = [f.strip() for f in line.strip().split(sep)]
-            if (len(fields) < n_fields) if at_least else (len(fields) != n_fields):
-                want = f"at least {n_fields}" if at_least else str(n_fields)
-                return f"{path} line {no}: {len(fields)} fields, expected {want}"
-            for f in fields:
-                try:
-                    float(f)
-                except ValueError:
-                    return f"{path} line {no}: {f!r} is not a number"
+    """Where a numeric text table goes wrong: '<path>: line L (byte offset B): <what>'."""
+    from uwval.io.tum import data_lines
+
+    for here, fields in data_lines(path.read_bytes(), None if sep is None else sep.encode()):
+        if (len(fields) < n_fields) if at_least else (len(fields) != n_fields):
+            want = f"at least {n_fields}" if at_least else str(n_fields)
+            return f"{path}: {here}: {len(fields)} fields, expected {want}"
+        for f in fields:
+            try:
+                float(f)
+            except ValueError:
+                return f"{path}: {here}: {f.decode(errors='replace')!r} is not a number"
     return f"{path}: could not be parsed as a table of numbers"
 
 
-def _line_of_row(path: Path, row: int) -> int:
-    """1-based line number of data row ``row`` (not blank, not '#'; error path only)."""
-    lines = path.read_bytes().split(b"\n")
-    data = [k + 1 for k, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith(b"#")]
-    return data[row]
+def _line_of_row(path: Path, row: int) -> str:
+    """'line L (byte offset B)' of data row ``row`` (0-based; error path only)."""
+    from uwval.io.tum import data_lines
+
+    return next(here for k, (here, _) in enumerate(data_lines(path.read_bytes())) if k == row)
 
 
 def _table(path: Path, n_fields: int, sep: str | None) -> NDArray[np.float64]:
@@ -60,7 +56,7 @@ def _table(path: Path, n_fields: int, sep: str | None) -> NDArray[np.float64]:
     if m.shape[0] == 0:
         raise LogReadError(f"{path}: no poses (expected {n_fields} numbers per line)")
     if m.shape[1] < n_fields or (sep is None and m.shape[1] != n_fields):
-        raise LogReadError(f"{path} line 1: {m.shape[1]} fields, expected {n_fields}")
+        raise LogReadError(f"{path}: line 1: {m.shape[1]} fields, expected {n_fields}")
     return m
 
 
@@ -76,7 +72,7 @@ def read_kitti(path: str | Path, *, frame: str = "enu", topic: str = "") -> Pose
         k = int(np.flatnonzero(bad)[0])
         what = f"the rotation block is not a rotation (|R R^T - I| = {err[k]:.3g})"
         what = what if finite[k] else "a value is not finite"
-        raise LogReadError(f"{p} line {_line_of_row(p, k)}: {what}")
+        raise LogReadError(f"{p}: {_line_of_row(p, k)}: {what}")
     t = np.arange(m.shape[0], dtype=np.int64) * 1_000_000_000
     pos = np.ascontiguousarray(m[:, [3, 7, 11]])
     return PoseStream.from_arrays(
@@ -96,10 +92,10 @@ def read_euroc(path: str | Path, *, frame: str = "enu", topic: str = "") -> Pose
     bad = ~np.isfinite(m[:, 1:8]).all(axis=1)
     if bad.any():
         line = _line_of_row(p, int(np.flatnonzero(bad)[0]))
-        raise LogReadError(f"{p} line {line}: a position or quaternion value is not finite")
+        raise LogReadError(f"{p}: {line}: a position or quaternion value is not finite")
     if t.shape[0] > 1 and not bool(np.all(np.diff(t) > 0)):
         k = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
-        raise LogReadError(f"{p} line {_line_of_row(p, k)}: timestamp {t[k]} ns does not increase")
+        raise LogReadError(f"{p}: {_line_of_row(p, k)}: timestamp {t[k]} ns does not increase")
     quat = np.ascontiguousarray(m[:, [5, 6, 7, 4]])
     return PoseStream.from_arrays(
         t, np.ascontiguousarray(m[:, 1:4]), quat, frame=frame, topic=topic, source=str(p)

@@ -1,19 +1,12 @@
 """Vectorised decode of fixed-layout pose messages (ROS 2 CDR and ROS 1 serialization).
 
-A topic's payloads sit in one byte buffer (``buf``) at ``offset[i]`` with ``length[i]`` bytes.
-Messages whose strings (``header.frame_id``, ``child_frame_id``) have the same lengths share
-one byte layout, so each such group is decoded with a handful of numpy gathers instead of a
-Python call per message. Anything the layout engine does not recognise (big-endian CDR, a
-length that does not match the layout, an unknown type) is reported back as "not handled",
-and :mod:`uwval.io.decode` decodes those messages with rosbags, the correctness reference.
-
-Layouts (CDR: 4-byte encapsulation header, then fields aligned to their size relative to the
-end of that header; ROS 1: packed, little-endian, strings without NUL, header with ``seq``):
-
-* ``header``: stamp (sec int32, nanosec uint32; ROS 1's uint32 seconds are read as int32
-  too, as rosbags does, so both paths agree bit for bit) + ``frame_id`` string
-* ``string``: uint32 length + bytes (CDR counts and stores the NUL terminator)
-* ``f64 x n``: n float64 values
+A topic's payloads sit in one byte buffer at ``offset[i]`` with ``length[i]`` bytes. Messages
+whose strings (``frame_id``, ``child_frame_id``) have the same lengths share one byte layout
+and are decoded by a handful of numpy gathers. What the layouts do not cover (big-endian CDR, a
+length that does not match, an unknown type) is reported as not handled, for
+:mod:`uwval.io.decode` to decode with rosbags, the reference. CDR: 4-byte encapsulation header,
+fields aligned to their size from its end, strings count their NUL; ROS 1: packed, header with
+``seq``. Stamps: sec int32 (ROS 1's uint32 too, as rosbags reads it), nanosec uint32.
 """
 
 from __future__ import annotations
@@ -42,9 +35,6 @@ LAYOUTS: dict[str, tuple[str | int, ...]] = {
     "std_msgs/msg/Header": ("header",),
 }
 
-#: Messages gathered per numpy step: bounds the temporary index arrays (~30 MB).
-BATCH = 1 << 16
-
 
 @dataclass
 class Decoded:
@@ -66,15 +56,10 @@ class Decoded:
 
     @classmethod
     def empty(cls, n: int) -> Decoded:
-        return cls(
-            stamp=np.full(n, -1, dtype=np.int64),
-            position=np.full((n, 3), np.nan),
-            orientation=np.full((n, 4), np.nan),
-            frame_code=np.full(n, -1, dtype=np.int64),
-            child_code=np.full(n, -1, dtype=np.int64),
-            names=[],
-            handled=np.zeros(n, dtype=bool),
-        )
+        """``n`` rows, none decoded: stamps and codes -1, poses NaN."""
+        pos, quat = np.full((n, 3), np.nan), np.full((n, 4), np.nan)
+        none = [np.full(n, -1, dtype=np.int64) for _ in range(3)]
+        return cls(none[0], pos, quat, none[1], none[2], [], np.zeros(n, dtype=bool))
 
     @property
     def pose(self) -> F64:
@@ -137,14 +122,8 @@ class _Bytes:
         self.n = n
         self.rows2d: U8 | None = None
         w = int(length[0]) if n else 0
-        if (
-            n > 1
-            and w > 0
-            and buf.ndim == 1
-            and buf.shape[0] == n * w
-            and bool((length == w).all())
-            and bool(np.array_equal(offset, np.arange(0, n * w, w, dtype=np.int64)))
-        ):
+        tiled = n > 1 and w > 0 and buf.ndim == 1 and buf.shape[0] == n * w
+        if tiled and bool((length == w).all()) and np.array_equal(offset, np.arange(0, n * w, w)):
             self.rows2d = buf.reshape(n, w)
         self.width = w if self.rows2d is not None else 0
 
@@ -162,9 +141,7 @@ class _Bytes:
 
 
 def _align(pos: int, size: int, cdr: bool) -> int:
-    if not cdr:
-        return pos
-    return (pos + size - 1) // size * size
+    return (pos + size - 1) // size * size if cdr else pos
 
 
 @dataclass
@@ -178,16 +155,8 @@ class _Leaf:
     pose_at: int  # offset of the 7 pose doubles, or -1
 
 
-def _walk(
-    fields: tuple[str | int, ...],
-    k: int,
-    rows: I64,
-    pos: int,
-    leaf: _Leaf,
-    acc: _Bytes,
-    cdr: bool,
-    out: list[_Leaf],
-) -> None:
+def _walk(fields: tuple[str | int, ...], k: int, rows: I64, pos: int, leaf: _Leaf, acc: _Bytes,
+          cdr: bool, out: list[_Leaf]) -> None:  # fmt: skip
     """Follow the field list from field ``k`` at payload offset ``pos`` (shared by ``rows``).
 
     Strings split the group by their length; every leaf is checked against the real payload
@@ -272,8 +241,8 @@ def fast_decode(msgtype: str, encoding: str, buf: U8, offset: I64, length: I64) 
     if rows.size:
         _walk(fields, 0, rows, 0, _Leaf(rows, -1, -1, 0, -1, 0, -1), acc, cdr, leaves)
     for lf in leaves:
-        every = lf.rows.shape[0] == n  # all messages: plain slices, not fancy indexing
-        into: slice | I64 = slice(None) if every else lf.rows
+        # all messages: plain slices, not fancy indexing
+        into: slice | I64 = slice(None) if lf.rows.shape[0] == n else lf.rows
         if lf.stamp_at >= 0:
             st = acc.at(lf.rows, lf.stamp_at, 8)
             sec = st[:, :4].copy().view("<i4").reshape(-1).astype(np.int64)
@@ -285,12 +254,10 @@ def fast_decode(msgtype: str, encoding: str, buf: U8, offset: I64, length: I64) 
                 pose = pose.copy()  # rows not 8-byte spaced: one copy, then reinterpret
             dec.set_pose(into, pose.view("<f8"))
         ok = np.ones(lf.rows.shape[0], dtype=bool)
-        if lf.frame_at >= 0:
-            raw = acc.at(lf.rows, lf.frame_at, lf.frame_len)
-            ok &= _names(dec, dec.frame_code, lf.rows, raw)
-        if lf.child_at >= 0:
-            raw = acc.at(lf.rows, lf.child_at, lf.child_len)
-            ok &= _names(dec, dec.child_code, lf.rows, raw)
+        for at, size, codes in ((lf.frame_at, lf.frame_len, dec.frame_code),
+                                 (lf.child_at, lf.child_len, dec.child_code)):  # fmt: skip
+            if at >= 0:
+                ok &= _names(dec, codes, lf.rows, acc.at(lf.rows, at, size))
         dec.handled[lf.rows[ok]] = True
     return dec
 
@@ -299,12 +266,8 @@ def _names(dec: Decoded, codes: I64, rows: I64, raw: U8) -> NDArray[np.bool_]:
     """Fill ``codes[rows]`` with name indices for the strings ``raw`` ((rows, width) bytes);
     returns which rows hold valid UTF-8 (the others are left to rosbags, which rejects them,
     so that both paths agree)."""
-    n = rows.shape[0]
-    width = raw.shape[1]
-    if width == 0:
-        codes[rows] = dec.code("")
-        return np.ones(n, dtype=bool)
-    if raw.shape[0] and bool((raw == raw[0]).all()):  # one name for the topic (usual): no sort
+    n, width = raw.shape
+    if n and bool((raw == raw[0]).all()):  # one name for the topic (usual): no sort
         try:
             codes[rows] = dec.code(bytes(raw[0]).decode("utf-8"))
         except UnicodeDecodeError:

@@ -1,20 +1,12 @@
 """TUM trajectory text files: ``timestamp tx ty tz qx qy qz qw`` per line (evo's format).
 
-One reading path: the bytes are checked against one separator rule, then parsed by pandas'
-C reader, which is correctly rounded (every value is the double ``float()`` gives). Rules:
-
-* fields are separated by spaces and tabs; lines end in LF or CRLF; ``#`` starts a comment
-  (a whole line, indented or not, or the rest of a line); blank lines are skipped;
-* any other byte outside a comment (a no-break space 0xA0, a control byte such as 0x1C or
-  0x0B, a carriage return inside a line, any non-ASCII byte) is refused, naming the line and
-  byte offset: such a byte means a damaged or foreign file, never a separator;
-* a data line holds exactly 8 finite numbers; anything else is refused naming the line.
-
-Stamps become int64 nanoseconds by an exact split of each double (:func:`ns_from_seconds`),
-so :func:`seconds_from_ns` gives back bit for bit the double evo parses. Quaternions rounded
-to a few decimals (TUM RGB-D ground truths have 4) are normalised and counted in
-``repairs['renormalized']``; beyond ``QUAT_NORM_TOLERANCE`` they are refused naming the line.
-Poses are taken as ENU/FLU unless the caller states another convention.
+One reading path: the bytes are checked against one separator rule (fields are separated by
+spaces and tabs, lines end in LF or CRLF, ``#`` starts a comment; any other byte outside a
+comment, such as 0xA0 or 0x1C, is refused naming the line and byte offset), then parsed by
+pandas' C reader, correctly rounded (every value is the double ``float()`` gives). Stamps
+become int64 ns by an exact split of each double (:func:`ns_from_seconds`), so
+:func:`seconds_from_ns` gives back the double evo parses. Rounded quaternions are normalised
+and counted; every refusal names the line (docs/formats.md has the rules for users).
 """
 
 from __future__ import annotations
@@ -46,18 +38,18 @@ MAX_STAMP_S = 9.2e9
 _STRAY = np.ones(256, dtype=bool)
 _STRAY[0x20:0x7F] = False
 _STRAY[[0x09, 0x0A, 0x0D]] = False
+_ALLOWED = bytes(np.flatnonzero(~_STRAY).astype(np.uint8))
 _BYTE_NAMES = {0xA0: " (no-break space)", 0x1C: " (file separator)", 0x0B: " (vertical tab)"}
 
 
 def _stray_byte(data: bytes) -> int:
     """Offset of the first byte outside a comment that the format does not allow, or -1.
 
-    Vectorised: counts and one table look-up find the candidates (usually none); only those
-    are then checked for lying in a comment (after a ``#`` on their line).
+    Vectorised: one pass drops the allowed bytes (usually leaving none); only the candidates
+    left are then checked for lying in a comment (after a ``#`` on their line).
     """
     b = np.frombuffer(data, dtype=np.uint8)
-    allowed = data.count(b"\n") + data.count(b"\t") + data.count(b"\r")
-    clean = data.isascii() and b"\x7f" not in data and np.count_nonzero(b < 0x20) == allowed
+    clean = not data.translate(None, _ALLOWED)  # one C pass; usually nothing is left
     cand = np.zeros(0, dtype=np.intp) if clean else np.flatnonzero(_STRAY[b])
     if b"\r" in data:  # a CR must end a line (CRLF)
         crs = np.flatnonzero(b == 0x0D)
@@ -69,19 +61,20 @@ def _stray_byte(data: bytes) -> int:
     return -1
 
 
-def _data_lines(data: bytes) -> Iterator[tuple[str, list[bytes]]]:
-    """('line L (byte offset B)', fields) of each line holding data (error paths only)."""
+def data_lines(data: bytes, sep: bytes | None = None) -> Iterator[tuple[str, list[bytes]]]:
+    """('line L (byte offset B)', fields split at ``sep``, default blanks) of each line that
+    holds data once its comment is cut off (error paths only; also evo_text's)."""
     offset = 0
     for lineno, line in enumerate(data.split(b"\n"), start=1):
-        fields = line.split(b"#", 1)[0].split()
-        if fields:
-            yield f"line {lineno} (byte offset {offset})", fields
+        content = line.split(b"#", 1)[0]
+        if content.strip():
+            yield f"line {lineno} (byte offset {offset})", [f.strip() for f in content.split(sep)]
         offset += len(line) + 1
 
 
 def _first_bad_line(data: bytes) -> str:
     """What is wrong with the first data line that is not 8 finite numbers (error path)."""
-    for here, fields in _data_lines(data):
+    for here, fields in data_lines(data):
         if len(fields) != 8:
             text = b" ".join(fields)[:80].decode("ascii", "replace")
             want = f"expected 8 numbers '{' '.join(COLUMNS)}'"
@@ -182,7 +175,7 @@ def read_tum(path: str | Path, *, frame: str = "enu", topic: str = "") -> PoseSt
     off_unit = np.abs(norms - 1.0) > QUAT_NORM_TOLERANCE
     if off_unit.any():
         k = int(np.argmax(off_unit))
-        here = next(h for i, (h, _) in enumerate(_data_lines(data)) if i == k)
+        here = next(h for i, (h, _) in enumerate(data_lines(data)) if i == k)
         raise LogReadError(
             f"{p}: {here}: quaternion qx qy qz qw has norm {norms[k]:.6g}, more than "
             f"{QUAT_NORM_TOLERANCE} from 1: refused (is it x, y, z, w order?)"
