@@ -178,10 +178,12 @@ def test_kitti_errors_name_the_line(tmp_path: Path, kitti_pair: tuple[Path, Path
     ):
         read_kitti(bad)
     bad.write_text("\n".join([*lines[:2], lines[2].replace(lines[2].split()[3], "x", 1)]) + "\n")
-    with pytest.raises(LogReadError, match=r"line 3: 'x' is not a number"):
+    with pytest.raises(LogReadError, match=r"line 3 \(byte offset \d+\): 'x' is not a number"):
         read_kitti(bad)
     bad.write_text("\n".join([*lines[:1], "2 0 0 0 0 1 0 0 0 0 1 0"]) + "\n")
-    with pytest.raises(LogReadError, match=r"line 2: the rotation block is not a rotation"):
+    with pytest.raises(
+        LogReadError, match=r"line 2 \(byte offset \d+\): the rotation block is not a rotation"
+    ):
         read_kitti(bad)
     short = tmp_path / "short.kitti"
     short.write_text("\n".join(lines[:100]) + "\n")
@@ -202,10 +204,15 @@ def test_euroc_errors_name_the_line(tmp_path: Path, euroc_pair: tuple[Path, Path
     fields = lines[2].split(",")
     fields[2] = "nan"
     bad.write_text("\n".join([*lines[:2], ",".join(fields), *lines[3:6]]) + "\n")
-    with pytest.raises(LogReadError, match=r"line 3: a position or quaternion value is not finite"):
+    with pytest.raises(
+        LogReadError,
+        match=r"line 3 \(byte offset \d+\): a position or quaternion value is not finite",
+    ):
         read_euroc(bad)
     bad.write_text("\n".join([lines[0], lines[2], lines[1]]) + "\n")
-    with pytest.raises(LogReadError, match=r"line 3: timestamp \d+ ns does not increase"):
+    with pytest.raises(
+        LogReadError, match=r"line 3 \(byte offset \d+\): timestamp \d+ ns does not increase"
+    ):
         read_euroc(bad)
 
 
