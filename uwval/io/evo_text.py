@@ -107,7 +107,8 @@ def read_evo_text(path: str | Path, fmt: str, *, frame: str = "enu", topic: str 
     if fmt == "kitti":
         return read_kitti(path, frame=frame, topic=topic)
     if fmt == "euroc":
-        from uwval.io.tum import TUM_SUFFIXES, read_tum
+        from uwval.io.formats import TUM_SUFFIXES
+        from uwval.io.tum import read_tum
 
         if Path(path).suffix.lower() in TUM_SUFFIXES:
             return read_tum(path, frame=frame, topic=topic)

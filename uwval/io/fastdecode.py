@@ -82,9 +82,8 @@ class Decoded:
 
 
 def window(buf: U8, width: int) -> U8:
-    """Read-only (len(buf) - width + 1, width) view of ``buf`` whose row i starts at byte i
-    (``buf`` holds at least ``width`` bytes); built directly on a contiguous buffer, as this
-    runs once per topic per chunk."""
+    """Read-only (len(buf) - width + 1, width) view of ``buf`` (at least ``width`` bytes)
+    whose row i starts at byte i; built directly on a contiguous buffer (fast)."""
     n = buf.shape[0] - width + 1
     if buf.ndim == 1 and buf.flags.c_contiguous and buf.dtype == np.uint8:
         view = np.ndarray((n, width), dtype=np.uint8, buffer=buf, strides=(1, 1))
@@ -104,8 +103,7 @@ def gather(buf: U8, starts: I64, width: int) -> U8:
     return window(buf, width)[starts]
 
 
-#: The same gather, under the name the container readers use (bounds are still checked).
-rows_at = gather
+rows_at = gather  #: the name the container readers use (bounds checked too)
 
 
 class _Bytes:

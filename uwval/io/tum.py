@@ -21,12 +21,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from uwval.errors import LogReadError, LogWriteError, PoseStreamError
-from uwval.io.formats import TUM_SUFFIXES
 from uwval.io.stamps import NS_PER_S, ns_from_seconds, seconds_from_ns
 from uwval.posestream import QUAT_NORM_TOLERANCE, PoseStream
 
-__all__ = ["TUM_SUFFIXES", "ns_from_seconds", "read_tum", "read_tum_pair", "seconds_from_ns"]
-__all__ += ["write_tum"]
+__all__ = ["ns_from_seconds", "read_tum", "read_tum_pair", "seconds_from_ns", "write_tum"]
 
 F64 = NDArray[np.float64]
 
