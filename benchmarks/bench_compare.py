@@ -60,10 +60,6 @@ def _evo_ape_cmd() -> str:
 
 
 def _whole_command(a: Path, b: Path, ma: Path, mb: Path, reps: int) -> list[BenchRow]:
-    import os
-
-    from uwval.io import tum
-
     uw = [sys.executable, "-m", "uwval", "compare", str(a), str(b), "--sync", "nearest"]
     script = Path(sys.executable).parent / "uwval"  # the console script users run
     light = [
@@ -75,24 +71,15 @@ def _whole_command(a: Path, b: Path, ma: Path, mb: Path, reps: int) -> list[Benc
         "nearest",
     ]
     evo = [_evo_ape_cmd(), "tum", str(a), str(b)]
-    # the same console script with the TUM parser's C accelerator switched off (loadtxt):
-    # what an install without a C compiler gets
-    no_c = {**os.environ, "UWVAL_NO_ACCELERATOR": "1"}
-    runs: dict[str, list[tuple[float, float]]] = {"uwval": [], "light": [], "evo": [], "no_c": []}
+    runs: dict[str, list[tuple[float, float]]] = {"uwval": [], "light": [], "evo": []}
     for _ in range(reps):  # alternate so all see the same machine load
         runs["uwval"].append(run_command(uw))
         runs["light"].append(run_command(light))
         runs["evo"].append(run_command(evo))
-        runs["no_c"].append(run_command(light, env=no_c))
     t_evo = median([r[0] for r in runs["evo"]])
     m_evo = max(r[1] for r in runs["evo"])
     rows = []
-    c_note = "C accelerator built" if tum._tumparse is not None else "C accelerator NOT built"
-    for key, label in (
-        ("uwval", f"python -m uwval ({c_note})"),
-        ("light", f"uwval console script ({c_note})"),
-        ("no_c", "console script, UWVAL_NO_ACCELERATOR=1 (loadtxt)"),
-    ):
+    for key, label in (("uwval", "python -m uwval"), ("light", "uwval console script")):
         t_uw = median([r[0] for r in runs[key]])
         m_uw = max(r[1] for r in runs[key])
         rows += [

@@ -399,7 +399,6 @@ def _same_array(u: Any, v: Any) -> bool:
 
 
 def _worker(bases: list[str], intacts: dict[str, Any], jobs: Any, results: Any, work: str) -> None:
-    os.environ.setdefault("UWVAL_NO_ACCELERATOR", "0")
     while True:
         job = jobs.get()
         if job is None:

@@ -17,8 +17,7 @@ import pytest
 from cli_runner import run_uwval
 
 from uwval.errors import LogReadError
-from uwval.io.euroc import read_euroc
-from uwval.io.kitti import read_kitti
+from uwval.io.evo_text import read_euroc, read_kitti
 from uwval.rotations import matrix_from_quat
 
 EVO_BIN = Path(sys.executable).parent
@@ -174,13 +173,17 @@ def test_kitti_errors_name_the_line(tmp_path: Path, kitti_pair: tuple[Path, Path
     lines = kitti_pair[0].read_text().splitlines()
     bad = tmp_path / "bad.kitti"
     bad.write_text("# header\n" + "\n".join([*lines[:4], " ".join(lines[4].split()[:11])]) + "\n")
-    with pytest.raises(LogReadError, match=r"bad.kitti line 6: 11 fields, expected 12"):
+    with pytest.raises(
+        LogReadError, match=r"bad.kitti: line 6 \(byte offset \d+\): 11 fields, expected 12"
+    ):
         read_kitti(bad)
     bad.write_text("\n".join([*lines[:2], lines[2].replace(lines[2].split()[3], "x", 1)]) + "\n")
-    with pytest.raises(LogReadError, match=r"line 3: 'x' is not a number"):
+    with pytest.raises(LogReadError, match=r"line 3 \(byte offset \d+\): 'x' is not a number"):
         read_kitti(bad)
     bad.write_text("\n".join([*lines[:1], "2 0 0 0 0 1 0 0 0 0 1 0"]) + "\n")
-    with pytest.raises(LogReadError, match=r"line 2: the rotation block is not a rotation"):
+    with pytest.raises(
+        LogReadError, match=r"line 2 \(byte offset \d+\): the rotation block is not a rotation"
+    ):
         read_kitti(bad)
     short = tmp_path / "short.kitti"
     short.write_text("\n".join(lines[:100]) + "\n")
@@ -194,15 +197,22 @@ def test_euroc_errors_name_the_line(tmp_path: Path, euroc_pair: tuple[Path, Path
     lines = euroc_pair[0].read_text().splitlines()
     bad = tmp_path / "bad.csv"
     bad.write_text("\n".join([*lines[:3], ",".join(lines[3].split(",")[:5])]) + "\n")
-    with pytest.raises(LogReadError, match=r"bad.csv line 4: 5 fields, expected at least 8"):
+    with pytest.raises(
+        LogReadError, match=r"bad.csv: line 4 \(byte offset \d+\): 5 fields, expected at least 8"
+    ):
         read_euroc(bad)
     fields = lines[2].split(",")
     fields[2] = "nan"
     bad.write_text("\n".join([*lines[:2], ",".join(fields), *lines[3:6]]) + "\n")
-    with pytest.raises(LogReadError, match=r"line 3: a position or quaternion value is not finite"):
+    with pytest.raises(
+        LogReadError,
+        match=r"line 3 \(byte offset \d+\): a position or quaternion value is not finite",
+    ):
         read_euroc(bad)
     bad.write_text("\n".join([lines[0], lines[2], lines[1]]) + "\n")
-    with pytest.raises(LogReadError, match=r"line 3: timestamp \d+ ns does not increase"):
+    with pytest.raises(
+        LogReadError, match=r"line 3 \(byte offset \d+\): timestamp \d+ ns does not increase"
+    ):
         read_euroc(bad)
 
 

@@ -1,6 +1,7 @@
-"""The C pass over uniform pose rows (uwval/io/_posedecode.c) against the numpy decode it
-replaces: on every input, with mutations anywhere in any row, fast_decode gives the same
-stamps, poses (to the bit), names, codes and handled rows with the pass and without it."""
+"""The vectorised fixed-layout decoder (uwval.io.fastdecode) against rosbags' per-message
+deserialisation, the reference: on uniform rows and with byte edits anywhere in any row, every
+row the fast path claims holds rosbags' stamp, pose (to the bit) and frame names; the rows it
+declines are left to rosbags by decode_poses."""
 
 from __future__ import annotations
 
@@ -11,12 +12,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from accelerators import require_module
 from uwval.io import fastdecode
+from uwval.io.decode import decode_poses, deserialize
 from uwval.io.encode import encode_header, encode_pose_stamped
+from uwval.io.raw import RawTopic
 from uwval.io.ros import typestore
-
-require_module(fastdecode._posedecode, "uwval.io._posedecode")
 
 PS, HDR, TS = (
     "geometry_msgs/msg/PoseStamped",
@@ -61,49 +61,73 @@ def _rows(msgtype: str, n: int, frame: str, encoding: str, seed: int) -> np.ndar
     return _transform_rows(n, frame, frame[::-1] + "_child", encoding, seed)
 
 
-def _decode(rows: np.ndarray, msgtype: str, encoding: str, accel: bool, mp: Any) -> Any:
-    mp.setattr(fastdecode, "USE_ACCELERATOR", accel)
+def _raw(rows: np.ndarray, msgtype: str, encoding: str) -> RawTopic:
     n, w = rows.shape
-    buf = np.ascontiguousarray(rows).reshape(-1)
-    off = np.arange(n, dtype=np.int64) * w
-    return fastdecode.fast_decode(msgtype, encoding, buf, off, np.full(n, w, dtype=np.int64))
+    return RawTopic(
+        name="/t",
+        msgtype=msgtype,
+        encoding=encoding,
+        log_time=np.arange(n, dtype=np.int64),
+        buf=np.ascontiguousarray(rows).reshape(-1),
+        offset=np.arange(n, dtype=np.int64) * w,
+        length=np.full(n, w, dtype=np.int64),
+    )
 
 
-def _same(a: Any, b: Any) -> None:
-    np.testing.assert_array_equal(a.stamp, b.stamp)
-    # bit patterns: NaN payloads and -0.0 included
-    np.testing.assert_array_equal(a.position.view(np.int64), b.position.view(np.int64))
-    np.testing.assert_array_equal(a.orientation.view(np.int64), b.orientation.view(np.int64))
-    np.testing.assert_array_equal(a.frame_code, b.frame_code)
-    np.testing.assert_array_equal(a.child_code, b.child_code)
-    np.testing.assert_array_equal(a.handled, b.handled)
-    assert a.names == b.names
-    for arr in (a.position, a.orientation):
-        assert arr.flags.c_contiguous
+def _reference(raw: RawTopic, i: int) -> tuple[int, list[float], list[str]] | None:
+    """rosbags' stamp (ns), 7 pose values and frame names of message i, or None if it fails."""
+    try:
+        msg = deserialize(raw, i)
+    except Exception:
+        return None
+    header = msg if raw.msgtype == HDR else msg.header
+    stamp = int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+    names = [header.frame_id] + ([msg.child_frame_id] if raw.msgtype == TS else [])
+    if raw.msgtype == HDR:
+        return stamp, [], names
+    p, q = (
+        (msg.pose.position, msg.pose.orientation)
+        if raw.msgtype == PS
+        else (
+            msg.transform.translation,
+            msg.transform.rotation,
+        )
+    )
+    return stamp, [p.x, p.y, p.z, q.x, q.y, q.z, q.w], names
+
+
+def _agrees_with_rosbags(dec: Any, raw: RawTopic) -> None:
+    """Every row the fast path handled is rosbags' message, bit for bit."""
+    for i in np.flatnonzero(dec.handled).tolist():
+        ref = _reference(raw, i)
+        assert ref is not None, f"row {i}: fast path decoded a message rosbags refuses"
+        stamp, pose, names = ref
+        assert int(dec.stamp[i]) == stamp
+        if pose:
+            got = np.concatenate([dec.position[i], dec.orientation[i]])
+            assert got.view(np.int64).tolist() == np.array(pose).view(np.int64).tolist()
+        assert dec.names[int(dec.frame_code[i])] == names[0]
+        if len(names) > 1:
+            assert dec.names[int(dec.child_code[i])] == names[1]
 
 
 @pytest.mark.parametrize("encoding", ["cdr", "ros1"])
 @pytest.mark.parametrize("msgtype", [PS, HDR, TS])
 @pytest.mark.parametrize("frame", ["world", "", "odom_frame_with_a_long_name", "wörld"])
-def test_uniform_rows_take_the_c_pass_and_decode_as_numpy_does(
-    msgtype: str, encoding: str, frame: str, monkeypatch: pytest.MonkeyPatch
+def test_uniform_rows_are_all_decoded_as_rosbags_does(
+    msgtype: str, encoding: str, frame: str
 ) -> None:
-    rows = _rows(msgtype, 300, frame, encoding, seed=len(frame))
-    calls: list[int] = []
-    real = fastdecode._posedecode.decode_uniform
-
-    def counting(*args: Any) -> int:
-        got = real(*args)
-        calls.append(got)
-        return got
-
-    monkeypatch.setattr(fastdecode._posedecode, "decode_uniform", counting)
-    fast = _decode(rows, msgtype, encoding, True, monkeypatch)
-    assert calls == [-1], "uniform rows must be decoded by the C pass"
-    slow = _decode(rows, msgtype, encoding, False, monkeypatch)
-    _same(fast, slow)
-    assert fast.handled.all()
-    assert fast.names[0] == frame
+    raw = _raw(_rows(msgtype, 300, frame, encoding, seed=len(frame)), msgtype, encoding)
+    dec = fastdecode.fast_decode(msgtype, encoding, raw.buf, raw.offset, raw.length)
+    assert dec.handled.all()
+    assert dec.names[0] == frame
+    for arr in (dec.position, dec.orientation):
+        assert arr.flags.c_contiguous
+    _agrees_with_rosbags(dec, raw)
+    slow = decode_poses(raw, fast=False)  # the whole topic through rosbags
+    np.testing.assert_array_equal(dec.stamp, slow.stamp)
+    assert dec.position.tobytes() == slow.position.tobytes()
+    assert dec.orientation.tobytes() == slow.orientation.tobytes()
 
 
 @settings(max_examples=150, deadline=None)
@@ -118,7 +142,7 @@ def test_uniform_rows_take_the_c_pass_and_decode_as_numpy_does(
     ),
     seed=st.integers(0, 2**16),
 )
-def test_rows_changed_anywhere_decode_the_same_with_the_c_pass_and_without(
+def test_rows_changed_anywhere_are_decoded_as_rosbags_does_or_left_to_it(
     msgtype: str,
     encoding: str,
     frame: str,
@@ -127,47 +151,25 @@ def test_rows_changed_anywhere_decode_the_same_with_the_c_pass_and_without(
     seed: int,
 ) -> None:
     """Byte edits anywhere (encapsulation, string lengths, names, NULs, stamps, doubles):
-    the C pass either declines (numpy decides row by row) or answers as numpy does."""
+    a row the fast path claims is rosbags' message; decode_poses then agrees with rosbags on
+    every row rosbags can read."""
     rows = _rows(msgtype, n, frame, encoding, seed).copy()
     for r, c, v in edits:
         rows[r % n, c % rows.shape[1]] = v
-    with pytest.MonkeyPatch.context() as mp:
-        fast = _decode(rows, msgtype, encoding, True, mp)
-        slow = _decode(rows, msgtype, encoding, False, mp)
-    _same(fast, slow)
+    raw = _raw(rows, msgtype, encoding)
+    dec = fastdecode.fast_decode(msgtype, encoding, raw.buf, raw.offset, raw.length)
+    _agrees_with_rosbags(dec, raw)
+    both = decode_poses(raw, errors="drop") if dec.handled.any() else None
+    if both is not None:
+        readable = [i for i in range(n) if _reference(raw, i) is not None]
+        assert np.flatnonzero(both.handled).tolist() == readable
 
 
-def test_a_row_with_another_name_of_the_same_length_is_left_to_numpy(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
+def test_a_row_with_another_name_of_the_same_length_gets_its_own_code() -> None:
     rows = _rows(PS, 50, "left", "cdr", seed=1).copy()
     rows[17, 16:20] = np.frombuffer(b"rght", dtype=np.uint8)
-    monkeypatch.setattr(fastdecode, "USE_ACCELERATOR", True)
-    n, w = rows.shape
-    acc = fastdecode._Bytes(rows.reshape(-1), np.arange(n) * w, np.full(n, w))
-    assert fastdecode._decode_uniform(fastdecode.LAYOUTS[PS], acc, True) is None
-    fast = _decode(rows, PS, "cdr", True, monkeypatch)
-    assert fast.names == ["left", "rght"] and fast.frame_code[17] == 1
-    _same(fast, _decode(rows, PS, "cdr", False, monkeypatch))
-
-
-def test_bad_arguments_are_refused_without_reading_outside_the_rows() -> None:
-    dec = fastdecode._posedecode.decode_uniform
-    rows = np.zeros((4, 80), dtype=np.uint8)
-    stamp, pos, quat = np.empty(4, np.int64), np.empty((4, 3)), np.empty((4, 4))
-    ok = np.array([[0, 2]], dtype=np.int64)
-    assert dec(rows, 80, ok, 4, 24, stamp, pos, quat) == -1
-    for args in (
-        (rows, 0, ok, 4, 24),  # no width
-        (rows, 70, ok, 4, 24),  # not whole rows
-        (rows, 80, np.array([[79, 2]], dtype=np.int64), 4, 24),  # range past the row
-        (rows, 80, np.array([[-1, 2]], dtype=np.int64), 4, 24),
-        (rows, 80, ok, 73, 24),  # stamp past the row
-        (rows, 80, ok, 4, 25),  # pose past the row
-    ):
-        with pytest.raises(ValueError, match="decode_uniform"):
-            dec(*args, stamp, pos, quat)
-    with pytest.raises(ValueError, match="decode_uniform"):
-        dec(rows, 80, ok, 4, 24, np.empty(3, np.int64), pos, quat)  # outputs too small
-    with pytest.raises(ValueError, match="contiguous"):
-        dec(rows, 80, ok, 4, 24, stamp, pos, np.empty((4, 4)).T)
+    raw = _raw(rows, PS, "cdr")
+    dec = fastdecode.fast_decode(PS, "cdr", raw.buf, raw.offset, raw.length)
+    assert dec.handled.all()
+    assert dec.names == ["left", "rght"] and dec.frame_code[17] == 1
+    _agrees_with_rosbags(dec, raw)

@@ -2,16 +2,19 @@
 
 No circle and no arrow into the core: tests/test_import_graph.py.
 
-The wheel itself is built and installed in fresh virtual environments by ``.ci/package-smoke``
-(every claimed Python, commands run from another folder); these tests keep the sources in a
-shape that makes that work.
+The wheel is built here from a copy of the checkout (offline: no build isolation) and must be
+pure Python; it is installed in fresh virtual environments by ``.ci/package-smoke`` (every
+claimed Python, commands run from another folder); these tests keep the sources in a shape
+that makes that work.
 """
 
 from __future__ import annotations
 
 import ast
+import shutil
 import subprocess
 import sys
+import zipfile
 from pathlib import Path
 
 import pytest
@@ -47,11 +50,7 @@ def _modules() -> dict[str, Path]:
 def _imports(mods: dict[str, Path]) -> dict[str, set[str]]:
     """Module -> the uwval modules it imports (anywhere in the file, lazy imports included)."""
 
-    compiled = {ext["name"] for ext in SETUPTOOLS.get("ext-modules", [])}  # leaves: C modules
-
     def resolve(name: str) -> str:
-        if name in compiled:
-            return name
         while name and name not in mods:
             name = name.rpartition(".")[0]
         return name
@@ -167,3 +166,43 @@ def test_bench_outside_a_checkout_says_it_needs_one(tmp_path: Path) -> None:
     # wheel-only case, with no checkout at all, is run by .ci/package-smoke.
     found = find_checkout(tmp_path)
     assert found is None or (found / "benchmarks" / "__main__.py").is_file()
+
+
+def _tracked_copy(dest: Path) -> Path:
+    """The checkout's tracked files copied to ``dest`` (a build writes build/ and egg-info
+    beside its sources: never into the checkout); every file when git is not there."""
+    try:
+        listed = subprocess.run(
+            ["git", "ls-files", "-z"], cwd=REPO, capture_output=True, check=True
+        ).stdout.decode()
+        files = [f for f in listed.split("\0") if f and (REPO / f).is_file()]
+    except (OSError, subprocess.CalledProcessError):
+        skip = shutil.ignore_patterns(".*", "build", "*.egg-info", "__pycache__", "*.so")
+        shutil.copytree(REPO, dest, ignore=skip)
+        return dest
+    for f in files:
+        (dest / f).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(REPO / f, dest / f)
+    return dest
+
+
+def test_wheel_is_pure_python(tmp_path: Path) -> None:
+    """The wheel built from the sources is ``py3-none-any`` and ships no C source or binary:
+    nothing of uwval's own is compiled, at build time or at run time."""
+    src = _tracked_copy(tmp_path / "src")
+    out = tmp_path / "dist"
+    res = subprocess.run(
+        [sys.executable, "-m", "build", "--wheel", "--no-isolation", "-o", str(out), str(src)],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
+    (wheel,) = out.glob("*.whl")
+    assert wheel.name.endswith("-py3-none-any.whl"), wheel.name
+    names = zipfile.ZipFile(wheel).namelist()
+    compiled = [n for n in names if n.endswith((".c", ".h", ".so", ".pyd", ".dylib", ".pyx"))]
+    assert not compiled, compiled
+    assert "uwval/io/tum.py" in names
+    tags = zipfile.ZipFile(wheel).read(next(n for n in names if n.endswith("/WHEEL")))
+    assert b"Root-Is-Purelib: true" in tags and b"Tag: py3-none-any" in tags

@@ -1,25 +1,16 @@
-"""CSV pose logs exported from Unity scripts.
+"""CSV pose logs exported from Unity scripts (user documentation: docs/formats.md).
 
-A Unity script typically writes one row per frame: a time column, ``transform.position``
-(x, y, z in Unity's left-handed Y-up axes) and ``transform.rotation`` as a quaternion or
-``transform.eulerAngles`` in degrees. Columns are found by common names or mapped by options
-or a small mapping file (YAML or JSON with the same keys as :func:`read_csv`'s options)::
-
-    time: frame_time          # column name
-    time_unit: s              # s | ms | us | ns
-    position: [px, py, pz]
-    quaternion: [qx, qy, qz, qw]     # or
-    euler: [ex, ey, ez]              # Unity eulerAngles, degrees (applied Z, X, Y)
-    length_unit: m            # m | cm | mm
-    frame: unity-flu          # uwval convention of the values (unity-flu, unity-enu, enu, ned)
-
-Positions are converted to metres and the result carries ``frame``; no axis change is made
-here (``uwval.frames.convert_stream`` does that).
+One row per frame: a time column, ``transform.position`` (Unity's left-handed Y-up axes) and
+``transform.rotation`` as a quaternion or ``transform.eulerAngles`` in degrees. Columns are
+found by common names or mapped by :func:`read_csv`'s options or a mapping file (YAML or JSON,
+the same keys). Positions are converted to metres and the result carries ``frame``; no axis
+change is made here (``uwval.frames.convert_stream`` does that).
 """
 
 from __future__ import annotations
 
 import json
+from itertools import islice
 from pathlib import Path
 from typing import Any
 
@@ -32,25 +23,20 @@ from uwval.io.stamps import ns_from_seconds
 from uwval.posestream import PoseStream
 
 TIME_NAMES = ("t", "time", "timestamp", "stamp", "time_s", "unity_time", "frame_time", "sec")
-POS_NAMES = (
-    ("x", "y", "z"),
-    ("pos_x", "pos_y", "pos_z"),
-    ("px", "py", "pz"),
-    ("position_x", "position_y", "position_z"),
-    ("position.x", "position.y", "position.z"),
-)
-QUAT_NAMES = (
-    ("qx", "qy", "qz", "qw"),
-    ("rot_x", "rot_y", "rot_z", "rot_w"),
-    ("rotation_x", "rotation_y", "rotation_z", "rotation_w"),
-    ("rotation.x", "rotation.y", "rotation.z", "rotation.w"),
-)
-EULER_NAMES = (
-    ("ex", "ey", "ez"),
-    ("euler_x", "euler_y", "euler_z"),
-    ("rx", "ry", "rz"),
-    ("eulerangles.x", "eulerangles.y", "eulerangles.z"),
-)
+
+
+def _names(*groups: str) -> tuple[tuple[str, ...], ...]:
+    """Column-name groups written as space-separated strings."""
+    return tuple(tuple(g.split()) for g in groups)
+
+
+POS_NAMES = _names("x y z", "pos_x pos_y pos_z", "px py pz", "position_x position_y position_z")
+POS_NAMES += _names("position.x position.y position.z")
+QUAT_NAMES = _names("qx qy qz qw", "rot_x rot_y rot_z rot_w")
+QUAT_NAMES += _names("rotation_x rotation_y rotation_z rotation_w")
+QUAT_NAMES += _names("rotation.x rotation.y rotation.z rotation.w")
+EULER_NAMES = _names("ex ey ez", "euler_x euler_y euler_z", "rx ry rz")
+EULER_NAMES += _names("eulerangles.x eulerangles.y eulerangles.z")
 TIME_UNITS = {"s": 1e9, "ms": 1e6, "us": 1e3, "ns": 1.0}
 LENGTH_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 
@@ -65,17 +51,8 @@ def load_mapping(path: str | Path) -> dict[str, Any]:
         raise LogReadError(f"{p}: cannot read CSV mapping file: {one_line(exc)}") from exc
     if not isinstance(doc, dict):
         raise LogReadError(f"{p}: CSV mapping must be a mapping of option: value")
-    known = {
-        "time",
-        "time_unit",
-        "position",
-        "quaternion",
-        "euler",
-        "length_unit",
-        "frame",
-        "delimiter",
-        "topic",
-    }
+    known = {"time", "time_unit", "position", "quaternion", "euler", "length_unit", "frame"}
+    known |= {"delimiter", "topic"}
     unknown = set(doc) - known
     if unknown:
         raise LogReadError(f"{p}: unknown mapping keys {sorted(unknown)}; known: {sorted(known)}")
@@ -94,23 +71,14 @@ def _sniff(path: Path) -> tuple[str, str]:
     """(delimiter, decimal mark) from the header and first data line: ',' unless the
     header has no comma but semicolons or tabs (spreadsheet exports in locales that write
     decimal commas use ';' and '0,5')."""
-    lines: list[str] = []
     try:
         with open(path, encoding="utf-8-sig", errors="replace") as fh:
-            for line in fh:
-                if line.strip() and not line.lstrip().startswith("#"):
-                    lines.append(line)
-                    if len(lines) == 2:
-                        break
+            data = (ln for ln in fh if ln.strip() and not ln.lstrip().startswith("#"))
+            lines = [*islice(data, 2), ""]  # the header, the first row (or "")
     except OSError:
         return ",", "."
-    if not lines or "," in lines[0]:
-        return ",", "."
-    for sep in (";", "\t"):
-        if sep in lines[0]:
-            data = lines[1] if len(lines) > 1 else ""
-            return sep, ("," if "," in data and "." not in data else ".")
-    return ",", "."
+    sep = next((c for c in ";\t" if c in lines[0]), ",") if "," not in lines[0] else ","
+    return sep, ("," if sep != "," and "," in lines[1] and "." not in lines[1] else ".")
 
 
 def read_csv(
@@ -134,14 +102,8 @@ def read_csv(
     """
     p = Path(path)
     opts: dict[str, Any] = load_mapping(mapping) if mapping is not None else {}
-    given = {
-        "time": time,
-        "position": position,
-        "quaternion": quaternion,
-        "euler": euler,
-        "frame": frame,
-        "delimiter": delimiter,
-    }
+    given = dict(time=time, position=position, quaternion=quaternion, euler=euler)
+    given.update(frame=frame, delimiter=delimiter)
     opts.update({k: v for k, v in given.items() if v is not None})
     if time_unit != "s" or "time_unit" not in opts:
         opts["time_unit"] = time_unit
@@ -152,10 +114,9 @@ def read_csv(
     except FrameError as exc:
         raise LogReadError(f"{p}: {exc}") from None
     tu, lu = str(opts["time_unit"]), str(opts["length_unit"])
-    if tu not in TIME_UNITS:
-        raise LogReadError(f"{p}: time_unit must be one of {list(TIME_UNITS)}, not {tu!r}")
-    if lu not in LENGTH_UNITS:
-        raise LogReadError(f"{p}: length_unit must be one of {list(LENGTH_UNITS)}, not {lu!r}")
+    for key, unit, known in (("time_unit", tu, TIME_UNITS), ("length_unit", lu, LENGTH_UNITS)):
+        if unit not in known:
+            raise LogReadError(f"{p}: {key} must be one of {list(known)}, not {unit!r}")
     import pandas as pd
 
     sep, decimal = (str(opts["delimiter"]), ".") if "delimiter" in opts else _sniff(p)
@@ -186,15 +147,12 @@ def read_csv(
     qcols = pick("quaternion", QUAT_NAMES, 4) if "euler" not in opts else None
     ecols = pick("euler", EULER_NAMES, 3) if qcols is None else None
     if tcol is None or pcols is None or (qcols is None and ecols is None):
-        what = [
-            w
-            for w, c in (
-                ("time", tcol),
-                ("position", pcols),
-                ("rotation (quaternion or euler)", qcols or ecols),
-            )
-            if c is None
-        ]
+        found = (
+            ("time", tcol),
+            ("position", pcols),
+            ("rotation (quaternion or euler)", qcols or ecols),
+        )
+        what = [w for w, c in found if c is None]
         raise LogReadError(
             f"{p}: cannot find {', '.join(what)} column(s) among {cols}; map them with "
             "time=, position=, quaternion= / euler= or a mapping file"
@@ -237,26 +195,18 @@ def read_csv(
         )
     except Exception as exc:
         raise LogReadError(f"{p}: {one_line(exc)}") from exc
-    dropped = (
-        {"duplicate_stamp": s.repairs["duplicates_dropped"]}
-        if s.repairs.get("duplicates_dropped")
-        else {}
-    )
-    warns: list[str] = []
-    if s.repairs.get("sorted"):
-        warns.append(
-            f"{p}: stamps are not in order ({s.repairs['sorted']} step(s) back in time); "
-            "the rows were sorted by stamp"
-        )
+    dups = s.repairs.get("duplicates_dropped", 0)
+    dropped = {"duplicate_stamp": dups} if dups else {}
+    back = s.repairs.get("sorted", 0)
+    warns = [f"{p}: stamps are not in order ({back} step(s) back in time); rows sorted"]
+    warns = warns if back else []
     if not _ends_with_newline(p):
         warns.append(f"{p}: the last line has no line end: the file may have been cut off")
     return s.with_(dropped=dropped, warnings=tuple(warns)) if dropped or warns else s
 
 
 def _ends_with_newline(p: Path) -> bool:
+    """Whether the file's last byte ends a line (or the file is empty)."""
     with open(p, "rb") as fh:
-        fh.seek(0, 2)
-        if fh.tell() == 0:
-            return True
-        fh.seek(-1, 2)
-        return fh.read(1) in (b"\n", b"\r")
+        fh.seek(max(fh.seek(0, 2) - 1, 0))
+        return fh.read(1) in (b"", b"\n", b"\r")

@@ -58,22 +58,16 @@ def _pose7(p: Any) -> tuple[float, ...]:
 
 def _fields(msgtype: str, msg: Any) -> tuple[int, tuple[float, ...] | None, str | None, str | None]:
     """(stamp ns or -1, pose, frame_id, child_frame_id) of one decoded message."""
-    short = msgtype.rsplit("/", 1)[-1]
-    if short == "Header":
-        return _stamp(msg), None, msg.frame_id, None
-    if short in ("Pose", "Transform"):
-        return -1, _pose7(msg), None, None
-    if short == "PoseWithCovariance":
-        return -1, _pose7(msg.pose), None, None
-    if short == "PoseStamped":
-        return _stamp(msg.header), _pose7(msg.pose), msg.header.frame_id, None
-    if short == "PoseWithCovarianceStamped":
-        return _stamp(msg.header), _pose7(msg.pose.pose), msg.header.frame_id, None
-    if short == "TransformStamped":
-        return _stamp(msg.header), _pose7(msg.transform), msg.header.frame_id, msg.child_frame_id
-    if short == "Odometry":
-        return _stamp(msg.header), _pose7(msg.pose.pose), msg.header.frame_id, msg.child_frame_id
-    raise LogReadError(f"message type {msgtype} carries no pose")
+    if msgtype not in LAYOUTS:
+        raise LogReadError(f"message type {msgtype} carries no pose")
+    header = msg if msgtype.endswith("/Header") else getattr(msg, "header", None)
+    body = getattr(msg, "transform", None) or getattr(msg, "pose", msg)
+    while hasattr(body, "pose"):  # PoseWithCovariance(Stamped), Odometry: pose.pose
+        body = body.pose
+    pose = None if header is msg else _pose7(body)
+    if header is None:
+        return -1, pose, None, None
+    return _stamp(header), pose, header.frame_id, getattr(msg, "child_frame_id", None)
 
 
 def decode_poses(raw: RawTopic, *, fast: bool = True, errors: str = "raise") -> Decoded:
@@ -90,11 +84,8 @@ def decode_poses(raw: RawTopic, *, fast: bool = True, errors: str = "raise") -> 
             "supported: " + ", ".join(sorted(LAYOUTS)) + ", " + ", ".join(TF_TYPES)
         )
     n = len(raw)
-    dec = (
-        fast_decode(raw.msgtype, raw.encoding, raw.buf, raw.offset, raw.length)
-        if fast
-        else Decoded.empty(n)
-    )
+    fast_args = (raw.msgtype, raw.encoding, raw.buf, raw.offset, raw.length)
+    dec = fast_decode(*fast_args) if fast else Decoded.empty(n)
     rest = np.flatnonzero(~dec.handled)
     if rest.size and raw.encoding not in ("cdr", "ros1"):
         raise LogReadError(f"topic {raw.name}: message encoding {raw.encoding!r} is not supported")
@@ -128,23 +119,14 @@ def decode_poses(raw: RawTopic, *, fast: bool = True, errors: str = "raise") -> 
 def decode_tf(raw: RawTopic, *, errors: str = "raise") -> tuple[Decoded, int]:
     """One row per transform in a TFMessage topic (stamp, pose, parent in frame, child), and
     the number of messages that could not be decoded (``errors="drop"``; else they raise)."""
-    stamps: list[int] = []
-    poses: list[tuple[float, ...]] = []
-    parents: list[str] = []
-    children: list[str] = []
+    rows: list[tuple[int, tuple[float, ...], str, str]] = []
     bad = 0
     first: LogReadError | None = None
     for i in range(len(raw)):
         try:
-            msg = deserialize(raw, i)
-            rows = [
-                (
-                    _stamp(tr.header),
-                    _pose7(tr.transform),
-                    tr.header.frame_id.strip("/"),
-                    tr.child_frame_id.strip("/"),
-                )
-                for tr in msg.transforms
+            rows += [
+                (_stamp(tr.header), _pose7(tr.transform), tr.header.frame_id, tr.child_frame_id)
+                for tr in deserialize(raw, i).transforms
             ]
         except Exception as exc:
             err = LogReadError(
@@ -153,22 +135,15 @@ def decode_tf(raw: RawTopic, *, errors: str = "raise") -> tuple[Decoded, int]:
             )
             if errors != "drop":
                 raise err from exc
-            first = first or err
-            bad += 1
-            continue
-        for st, pose, par, ch in rows:
-            stamps.append(st)
-            poses.append(pose)
-            parents.append(par)
-            children.append(ch)
+            first, bad = first or err, bad + 1
     if first is not None and bad == len(raw):
         raise first
-    n = len(stamps)
-    dec = Decoded.empty(n)
-    if n:
+    dec = Decoded.empty(len(rows))
+    if rows:
+        stamps, poses, parents, children = zip(*rows, strict=True)
         dec.stamp[:] = stamps
         dec.set_pose(slice(None), poses)
-        dec.frame_code[:] = [dec.code(p) for p in parents]
-        dec.child_code[:] = [dec.code(c) for c in children]
+        dec.frame_code[:] = [dec.code(p.strip("/")) for p in parents]
+        dec.child_code[:] = [dec.code(c.strip("/")) for c in children]
         dec.handled[:] = True
     return dec, bad

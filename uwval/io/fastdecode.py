@@ -1,44 +1,21 @@
 """Vectorised decode of fixed-layout pose messages (ROS 2 CDR and ROS 1 serialization).
 
-A topic's payloads sit in one byte buffer (``buf``) at ``offset[i]`` with ``length[i]`` bytes.
-Messages whose strings (``header.frame_id``, ``child_frame_id``) have the same lengths share
-one byte layout, so each such group is decoded with a handful of numpy gathers instead of a
-Python call per message. Anything the layout engine does not recognise (big-endian CDR, a
-length that does not match the layout, an unknown type) is reported back as "not handled",
-and :mod:`uwval.io.decode` decodes those messages with rosbags, the correctness reference.
-
-Layouts (CDR: 4-byte encapsulation header, then fields aligned to their size relative to the
-end of that header; ROS 1: packed, little-endian, strings without NUL, header with ``seq``):
-
-* ``header``: stamp (sec int32, nanosec uint32; ROS 1's uint32 seconds are read as int32
-  too, as rosbags does, so both paths agree bit for bit) + ``frame_id`` string
-* ``string``: uint32 length + bytes (CDR counts and stores the NUL terminator)
-* ``f64 x n``: n float64 values
+A topic's payloads sit in one byte buffer at ``offset[i]`` with ``length[i]`` bytes. Messages
+whose strings (``frame_id``, ``child_frame_id``) have the same lengths share one byte layout
+and are decoded by a handful of numpy gathers. What the layouts do not cover (big-endian CDR, a
+length that does not match, an unknown type) is reported as not handled, for
+:mod:`uwval.io.decode` to decode with rosbags, the reference. CDR: 4-byte encapsulation header,
+fields aligned to their size from its end, strings count their NUL; ROS 1: packed, header with
+``seq``. Stamps: sec int32 (ROS 1's uint32 too, as rosbags reads it), nanosec uint32.
 """
 
 from __future__ import annotations
 
-import os
-import sys
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-
-try:  # the optional one-pass decode of uniform rows (uwval/io/_posedecode.c)
-    from uwval.io import _posedecode
-except ImportError:  # pragma: no cover - installs without a C compiler: numpy decodes all
-    _posedecode = None  # type: ignore[assignment]
-
-#: Whether topics whose messages all share the first one's layout and names are decoded by
-#: the C pass (built, a little-endian host, ``UWVAL_NO_ACCELERATOR`` not set); otherwise, and
-#: for any topic it declines, the numpy passes below decode them, with the same result.
-USE_ACCELERATOR = (
-    _posedecode is not None
-    and sys.byteorder == "little"
-    and not os.environ.get("UWVAL_NO_ACCELERATOR")
-)
 
 U8 = NDArray[np.uint8]
 I64 = NDArray[np.int64]
@@ -57,9 +34,6 @@ LAYOUTS: dict[str, tuple[str | int, ...]] = {
     "nav_msgs/msg/Odometry": ("header", "string", 7, 36, 6, 36),
     "std_msgs/msg/Header": ("header",),
 }
-
-#: Messages gathered per numpy step: bounds the temporary index arrays (~30 MB).
-BATCH = 1 << 16
 
 
 @dataclass
@@ -82,15 +56,10 @@ class Decoded:
 
     @classmethod
     def empty(cls, n: int) -> Decoded:
-        return cls(
-            stamp=np.full(n, -1, dtype=np.int64),
-            position=np.full((n, 3), np.nan),
-            orientation=np.full((n, 4), np.nan),
-            frame_code=np.full(n, -1, dtype=np.int64),
-            child_code=np.full(n, -1, dtype=np.int64),
-            names=[],
-            handled=np.zeros(n, dtype=bool),
-        )
+        """``n`` rows, none decoded: stamps and codes -1, poses NaN."""
+        pos, quat = np.full((n, 3), np.nan), np.full((n, 4), np.nan)
+        none = [np.full(n, -1, dtype=np.int64) for _ in range(3)]
+        return cls(none[0], pos, quat, none[1], none[2], [], np.zeros(n, dtype=bool))
 
     @property
     def pose(self) -> F64:
@@ -112,61 +81,9 @@ class Decoded:
             return len(self.names) - 1
 
 
-def gather(buf: U8, starts: I64, width: int) -> U8:
-    """(N, width) uint8 rows ``buf[starts[i] : starts[i] + width]``.
-
-    Messages of one topic in one chunk usually sit at a constant stride (same record size),
-    so runs of equally spaced starts are copied through a strided view (memcpy speed);
-    irregular starts fall back to a fancy-index gather in batches.
-    """
-    n = starts.shape[0]
-    out = np.empty((n, width), dtype=np.uint8)
-    if n == 0 or width == 0:
-        return out
-    if int(starts.min()) < 0 or int(starts.max()) + width > buf.shape[0]:
-        raise ValueError("gather: a row reaches outside the buffer")
-    if n > 64:
-        d = np.diff(starts)
-        # A run continues while the gap to the next start equals the previous gap.
-        brk = np.flatnonzero(d[1:] != d[:-1]) + 1
-        if brk.size < n // 64:
-            bounds = np.concatenate(([0], brk, [n - 1]))
-            a = 0
-            for k in range(bounds.size - 1):
-                b = int(bounds[k + 1]) + (1 if k == bounds.size - 2 else 0)
-                if b <= a:
-                    continue
-                stride = int(d[a]) if a < n - 1 else 0
-                if stride > 0:
-                    view = np.lib.stride_tricks.as_strided(
-                        buf[int(starts[a]) :],
-                        shape=(b - a, width),
-                        strides=(stride, 1),
-                        writeable=False,
-                    )
-                    out[a:b] = view
-                else:
-                    out[a:b] = _fancy(buf, starts[a:b], width)
-                a = b
-            return out
-    return _fancy(buf, starts, width)
-
-
-def _fancy(buf: U8, starts: I64, width: int) -> U8:
-    """Rows at arbitrary starts: one fancy index on a sliding-window view of ``buf`` (a row
-    copy each, no (N, width) index array)."""
-    if buf.shape[0] < width:
-        return np.empty((0, width), dtype=np.uint8)
-    return window(buf, width)[starts]
-
-
 def window(buf: U8, width: int) -> U8:
-    """Read-only (len(buf) - width + 1, width) view of ``buf`` whose row i starts at byte i.
-
-    Built directly on the buffer (a few microseconds: this runs once per topic per chunk,
-    thousands of times per log) when ``buf`` is contiguous; numpy's sliding_window_view
-    otherwise. ``buf`` must hold at least ``width`` bytes.
-    """
+    """Read-only (len(buf) - width + 1, width) view of ``buf`` (at least ``width`` bytes)
+    whose row i starts at byte i; built directly on a contiguous buffer (fast)."""
     n = buf.shape[0] - width + 1
     if buf.ndim == 1 and buf.flags.c_contiguous and buf.dtype == np.uint8:
         view = np.ndarray((n, width), dtype=np.uint8, buffer=buf, strides=(1, 1))
@@ -175,22 +92,18 @@ def window(buf: U8, width: int) -> U8:
     return np.lib.stride_tricks.sliding_window_view(buf, width)
 
 
-def rows_at(buf: U8, starts: I64, width: int) -> U8:
-    """(N, width) copies of ``buf[starts[i] : starts[i] + width]``, one fancy index.
-
-    The caller has checked the bounds (0 <= starts, starts + width <= len(buf)): numpy
-    still refuses an index past the view, so a wrong bound is an IndexError, never bytes
-    from outside ``buf``.
-    """
-    if starts.shape[0] == 0 or width == 0:
-        return np.zeros((starts.shape[0], width), dtype=np.uint8)
-    if buf.shape[0] < width:
-        raise ValueError("rows_at: a row reaches outside the buffer")
+def gather(buf: U8, starts: I64, width: int) -> U8:
+    """(N, width) copies of ``buf[starts[i] : starts[i] + width]``: one fancy index of a
+    sliding-window view (a row copy each, no (N, width) index array)."""
+    n = starts.shape[0]
+    if n == 0 or width == 0:
+        return np.zeros((n, width), dtype=np.uint8)
+    if int(starts.min()) < 0 or int(starts.max()) + width > buf.shape[0]:
+        raise ValueError("gather: a row reaches outside the buffer")
     return window(buf, width)[starts]
 
 
-def _u32(buf: U8, starts: I64) -> I64:
-    return gather(buf, starts, 4).view("<u4").reshape(-1).astype(np.int64)
+rows_at = gather  #: the name the container readers use (bounds checked too)
 
 
 class _Bytes:
@@ -207,14 +120,8 @@ class _Bytes:
         self.n = n
         self.rows2d: U8 | None = None
         w = int(length[0]) if n else 0
-        if (
-            n > 1
-            and w > 0
-            and buf.ndim == 1
-            and buf.shape[0] == n * w
-            and bool((length == w).all())
-            and bool(np.array_equal(offset, np.arange(0, n * w, w, dtype=np.int64)))
-        ):
+        tiled = n > 1 and w > 0 and buf.ndim == 1 and buf.shape[0] == n * w
+        if tiled and bool((length == w).all()) and np.array_equal(offset, np.arange(0, n * w, w)):
             self.rows2d = buf.reshape(n, w)
         self.width = w if self.rows2d is not None else 0
 
@@ -232,9 +139,7 @@ class _Bytes:
 
 
 def _align(pos: int, size: int, cdr: bool) -> int:
-    if not cdr:
-        return pos
-    return (pos + size - 1) // size * size
+    return (pos + size - 1) // size * size if cdr else pos
 
 
 @dataclass
@@ -248,16 +153,8 @@ class _Leaf:
     pose_at: int  # offset of the 7 pose doubles, or -1
 
 
-def _walk(
-    fields: tuple[str | int, ...],
-    k: int,
-    rows: I64,
-    pos: int,
-    leaf: _Leaf,
-    acc: _Bytes,
-    cdr: bool,
-    out: list[_Leaf],
-) -> None:
+def _walk(fields: tuple[str | int, ...], k: int, rows: I64, pos: int, leaf: _Leaf, acc: _Bytes,
+          cdr: bool, out: list[_Leaf]) -> None:  # fmt: skip
     """Follow the field list from field ``k`` at payload offset ``pos`` (shared by ``rows``).
 
     Strings split the group by their length; every leaf is checked against the real payload
@@ -331,11 +228,7 @@ def fast_decode(msgtype: str, encoding: str, buf: U8, offset: I64, length: I64) 
         return Decoded.empty(n)
     cdr = encoding == "cdr"
     acc = _Bytes(buf, offset, length)
-    if acc.rows2d is not None and USE_ACCELERATOR:
-        uniform = _decode_uniform(fields, acc, cdr)
-        if uniform is not None:
-            return uniform
-    dec = Decoded.empty(n)  # (after the one-pass decode: it builds its own, NaN-free)
+    dec = Decoded.empty(n)
     rows = np.arange(n, dtype=np.int64)
     if cdr:
         # Only little-endian plain CDR (encapsulation kind 0x0001) has this layout.
@@ -346,8 +239,8 @@ def fast_decode(msgtype: str, encoding: str, buf: U8, offset: I64, length: I64) 
     if rows.size:
         _walk(fields, 0, rows, 0, _Leaf(rows, -1, -1, 0, -1, 0, -1), acc, cdr, leaves)
     for lf in leaves:
-        every = lf.rows.shape[0] == n  # all messages: plain slices, not fancy indexing
-        into: slice | I64 = slice(None) if every else lf.rows
+        # all messages: plain slices, not fancy indexing
+        into: slice | I64 = slice(None) if lf.rows.shape[0] == n else lf.rows
         if lf.stamp_at >= 0:
             st = acc.at(lf.rows, lf.stamp_at, 8)
             sec = st[:, :4].copy().view("<i4").reshape(-1).astype(np.int64)
@@ -359,74 +252,11 @@ def fast_decode(msgtype: str, encoding: str, buf: U8, offset: I64, length: I64) 
                 pose = pose.copy()  # rows not 8-byte spaced: one copy, then reinterpret
             dec.set_pose(into, pose.view("<f8"))
         ok = np.ones(lf.rows.shape[0], dtype=bool)
-        if lf.frame_at >= 0:
-            raw = acc.at(lf.rows, lf.frame_at, lf.frame_len)
-            ok &= _names(dec, dec.frame_code, lf.rows, raw)
-        if lf.child_at >= 0:
-            raw = acc.at(lf.rows, lf.child_at, lf.child_len)
-            ok &= _names(dec, dec.child_code, lf.rows, raw)
+        for at, size, codes in ((lf.frame_at, lf.frame_len, dec.frame_code),
+                                 (lf.child_at, lf.child_len, dec.child_code)):  # fmt: skip
+            if at >= 0:
+                ok &= _names(dec, codes, lf.rows, acc.at(lf.rows, at, size))
         dec.handled[lf.rows[ok]] = True
-    return dec
-
-
-def _decode_uniform(fields: tuple[str | int, ...], acc: _Bytes, cdr: bool) -> Decoded | None:
-    """The decode of equal-width rows (``acc.rows2d``) that all hold the first row's bytes
-    where its layout and names are (CDR encapsulation header, each string's length, bytes
-    and NUL): the first row's layout is found as :func:`fast_decode` finds it, then one C
-    pass checks every row and reads the stamps and poses. None when any row differs, or the
-    first row has no known layout or a name that is not UTF-8: :func:`fast_decode`'s numpy
-    passes then decide row by row. Equal to them wherever it answers (tested)."""
-    rows2d = acc.rows2d
-    assert rows2d is not None and _posedecode is not None
-    n = acc.n
-    first = np.zeros(1, dtype=np.int64)
-    if not rows2d.flags.c_contiguous or (cdr and not (rows2d[0, 0] == 0 and rows2d[0, 1] == 1)):
-        return None
-    leaves: list[_Leaf] = []
-    _walk(fields, 0, first, 0, _Leaf(first, -1, -1, 0, -1, 0, -1), acc, cdr, leaves)
-    if len(leaves) != 1:
-        return None
-    lf = leaves[0]
-    ranges = [(0, 2)] if cdr else []
-    names: list[tuple[int, str]] = []
-    for at, ln in ((lf.frame_at, lf.frame_len), (lf.child_at, lf.child_len)):
-        if at < 0:
-            names.append((at, ""))
-            continue
-        try:
-            names.append((at, bytes(rows2d[0, at : at + ln]).decode("utf-8")))
-        except UnicodeDecodeError:
-            return None
-        ranges.append((at - 4, 4 + ln + (1 if cdr else 0)))  # length field, bytes, NUL
-    stamp = np.empty(n, dtype=np.int64) if lf.stamp_at >= 0 else np.full(n, -1, dtype=np.int64)
-    if lf.pose_at >= 0:
-        position, orientation = np.empty((n, 3)), np.empty((n, 4))
-    else:
-        position, orientation = np.full((n, 3), np.nan), np.full((n, 4), np.nan)
-    differs = _posedecode.decode_uniform(
-        rows2d,
-        acc.width,
-        np.array(ranges, dtype=np.int64).reshape(-1, 2),
-        lf.stamp_at,
-        lf.pose_at,
-        stamp,
-        position,
-        orientation,
-    )
-    if differs >= 0:
-        return None
-    dec = Decoded(
-        stamp=stamp,
-        position=position,
-        orientation=orientation,
-        frame_code=np.full(n, -1, dtype=np.int64),
-        child_code=np.full(n, -1, dtype=np.int64),
-        names=[],
-        handled=np.ones(n, dtype=bool),
-    )
-    for (at, name), codes in zip(names, (dec.frame_code, dec.child_code), strict=True):
-        if at >= 0:
-            codes[:] = dec.code(name)
     return dec
 
 
@@ -434,12 +264,8 @@ def _names(dec: Decoded, codes: I64, rows: I64, raw: U8) -> NDArray[np.bool_]:
     """Fill ``codes[rows]`` with name indices for the strings ``raw`` ((rows, width) bytes);
     returns which rows hold valid UTF-8 (the others are left to rosbags, which rejects them,
     so that both paths agree)."""
-    n = rows.shape[0]
-    width = raw.shape[1]
-    if width == 0:
-        codes[rows] = dec.code("")
-        return np.ones(n, dtype=bool)
-    if raw.shape[0] and bool((raw == raw[0]).all()):  # one name for the topic (usual): no sort
+    n, width = raw.shape
+    if n and bool((raw == raw[0]).all()):  # one name for the topic (usual): no sort
         try:
             codes[rows] = dec.code(bytes(raw[0]).decode("utf-8"))
         except UnicodeDecodeError:

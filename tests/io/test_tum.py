@@ -1,46 +1,30 @@
-"""TUM text reader/writer: exact stamps, repairs, and errors that name the line."""
+"""TUM text reader/writer: exact stamps, repairs, one rule for separators, and errors that name
+the file, the line and what is wrong."""
 
 from __future__ import annotations
 
-import os
-from collections.abc import Iterator
+import re
 from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_runner import run_uwval
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import uwval.io.tum as tum_module
-from uwval.errors import LogReadError, PoseStreamError
-from uwval.io.tum import ns_from_seconds, read_tum, seconds_from_ns, write_tum
+from uwval.errors import LogReadError
+from uwval.io.tum import ns_from_seconds, read_tum, read_tum_pair, seconds_from_ns, write_tum
 from uwval.posestream import PoseStream
 from uwval.rotations import quat_from_rpy
-
-#: Set (as .ci/run does) to fail instead of skip when the C accelerator was not built.
-REQUIRE_ACCELERATOR = bool(os.environ.get("UWVAL_REQUIRE_ACCELERATOR"))
-
-
-@pytest.fixture(
-    autouse=True,
-    scope="module",
-    params=[pytest.param(True, id="c-accelerator"), pytest.param(False, id="loadtxt")],
-)
-def tum_engine(request: pytest.FixtureRequest) -> Iterator[bool]:
-    """Every test of this file runs with the C accelerator and with numpy's loadtxt path."""
-    if request.param and tum_module._tumparse is None:
-        if REQUIRE_ACCELERATOR:
-            pytest.fail("uwval.io._tumparse was not built (UWVAL_REQUIRE_ACCELERATOR is set)")
-        pytest.skip("the C accelerator uwval.io._tumparse is not built here")
-    saved = tum_module.USE_ACCELERATOR
-    tum_module.USE_ACCELERATOR = request.param
-    yield request.param
-    tum_module.USE_ACCELERATOR = saved
 
 
 def test_parses_comments_and_values(tmp_path: Path) -> None:
     f = tmp_path / "a.tum"
-    f.write_text("# header\n1.5 1 2 3 0 0 0 1\n  # indented comment\n2.25 4 5 6 0 0 1 0\n\n")
+    f.write_text(
+        "# header\n1.5 1 2 3 0 0 0 1\n  # indented comment\n\t# tab\n"
+        "2.25 4 5 6 0 0 1 0  # trailing comment\n   \n\n"
+    )
     s = read_tum(f)
     assert s.t.tolist() == [1_500_000_000, 2_250_000_000]
     np.testing.assert_array_equal(s.position, [[1, 2, 3], [4, 5, 6]])
@@ -67,10 +51,13 @@ def test_missing_and_empty_files(tmp_path: Path) -> None:
         read_tum(tmp_path / "e.tum")
 
 
-def test_nan_is_rejected_naming_the_sample(tmp_path: Path) -> None:
+@pytest.mark.parametrize("value", ["nan", "inf", "-inf", "1e999", "NA", "1_0", "0x10", "1,5"])
+def test_a_value_that_is_no_finite_number_is_refused_naming_the_line(
+    tmp_path: Path, value: str
+) -> None:
     f = tmp_path / "n.tum"
-    f.write_text("1 0 0 0 0 0 0 1\n2 nan 0 0 0 0 0 1\n")
-    with pytest.raises(PoseStreamError, match="sample 1"):
+    f.write_text(f"# h\n1 0 0 0 0 0 0 1\n2 {value} 0 0 0 0 0 1\n")
+    with pytest.raises(LogReadError, match=r"n\.tum: line 3 \(byte offset 20\): tx "):
         read_tum(f)
 
 
@@ -177,19 +164,16 @@ def test_rounded_quaternions_are_normalised_without_the_per_line_search(
     assert np.abs(norms - 1.0).max() < 1e-12
 
 
-def test_badly_non_unit_quaternion_is_still_refused(tmp_path: Path) -> None:
+def test_badly_non_unit_quaternion_is_refused_naming_the_line(tmp_path: Path) -> None:
     f = tmp_path / "s.tum"
-    f.write_text("1 0 0 0 0 0 0 1\n2 0 0 0 0 0 0 0.9\n")
-    with pytest.raises(PoseStreamError, match=r"sample 1 has norm 0\.9"):
+    f.write_text("1 0 0 0 0 0 0 1\n# gap\n\n2 0 0 0 0 0 0 0.9\n")
+    with pytest.raises(LogReadError, match=r"s\.tum: line 4 \(byte offset 23\): quaternion .*0\.9"):
         read_tum(f)
 
 
-def test_large_file_is_parsed_in_chunks(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import uwval.io.tum as tum
-
-    monkeypatch.setattr(tum, "_CHUNK", 64)  # force many chunks and boundary cases
+def test_an_error_far_down_a_large_file_names_its_line(tmp_path: Path) -> None:
     rng = np.random.default_rng(2)
-    n = 300
+    n = 3000
     s = PoseStream.from_arrays(
         np.arange(n, dtype=np.int64) * 10_000_000 + 5,
         rng.normal(size=(n, 3)),
@@ -200,7 +184,7 @@ def test_large_file_is_parsed_in_chunks(tmp_path: Path, monkeypatch: pytest.Monk
     np.testing.assert_array_equal(back.t, s.t)
     np.testing.assert_allclose(back.position, s.position, atol=1e-9)
     (tmp_path / "c.tum").write_text((tmp_path / "c.tum").read_text() + "1e99 1 2\n")
-    with pytest.raises(LogReadError, match=f"line {n + 2}"):
+    with pytest.raises(LogReadError, match=f"line {n + 2} .*got 3 fields"):
         read_tum(tmp_path / "c.tum")
 
 
@@ -236,29 +220,21 @@ def _tum_text(draw: st.DrawFn) -> tuple[str, list[list[str]]]:
 
 
 @settings(max_examples=150, deadline=None)
-@given(_tum_text(), st.sampled_from([64, 200, 1 << 18]))
-def test_block_parser_equals_float_bit_for_bit(
-    tmp_path_factory: pytest.TempPathFactory, case: tuple[str, list[list[str]]], chunk: int
+@given(_tum_text())
+def test_parser_equals_float_bit_for_bit(
+    tmp_path_factory: pytest.TempPathFactory, case: tuple[str, list[list[str]]]
 ) -> None:
-    import uwval.io.tum as tum
-
     text, tokens = case
     f = tmp_path_factory.mktemp("tum") / "h.tum"
     f.write_bytes(text.encode())
     expected = np.array([[float(tok) for tok in row] for row in tokens])
-    old = tum._CHUNK
-    tum._CHUNK = chunk  # small blocks: lines cut at every possible place
-    try:
-        table = tum.parse_tum_file(f)
-        t, pose = tum._read_columns(f)
-    finally:
-        tum._CHUNK = old
-    assert table.view(np.int64).tolist() == expected.view(np.int64).tolist()
-    assert t.tolist() == ns_from_seconds(expected[:, 0]).tolist()
-    assert pose.view(np.int64).tolist() == expected[:, 1:].view(np.int64).tolist()
+    stamps, position, quat = tum_module._parse(f.read_bytes(), f)
+    assert stamps.view(np.int64).tolist() == expected[:, 0].view(np.int64).tolist()
+    got = np.column_stack([position, quat])
+    assert got.view(np.int64).tolist() == expected[:, 1:].view(np.int64).tolist()
 
 
-def test_block_parser_matches_numpy_loadtxt_on_a_large_clean_file(tmp_path: Path) -> None:
+def test_parser_matches_numpy_loadtxt_on_a_large_clean_file(tmp_path: Path) -> None:
     # many blocks of the fast path (no comments), compared with np.loadtxt on the whole text
     rng = np.random.default_rng(5)
     n = 20_000
@@ -267,10 +243,9 @@ def test_block_parser_matches_numpy_loadtxt_on_a_large_clean_file(tmp_path: Path
         t, rng.normal(size=(n, 3)) * 100, quat_from_rpy(rng.normal(size=(n, 3)))
     )
     write_tum(tmp_path / "big.tum", s)
-    import uwval.io.tum as tum
-
     reference = np.loadtxt(tmp_path / "big.tum")
-    table = tum.parse_tum_file(tmp_path / "big.tum")
+    stamps, position, quat = tum_module._parse((tmp_path / "big.tum").read_bytes(), tmp_path)
+    table = np.column_stack([stamps, position, quat])
     assert table.shape == (n, 8)
     assert np.array_equal(table.view(np.int64), reference.view(np.int64))
 
@@ -287,11 +262,11 @@ def test_crlf_and_tabs_are_read(tmp_path: Path) -> None:
 def test_bad_stamps_are_errors_naming_the_pose_line(tmp_path: Path, stamp: str) -> None:
     f = tmp_path / "s.tum"
     f.write_text(f"# h\n1 0 0 0 0 0 0 1\n{stamp} 0 0 0 0 0 0 1\n")
-    with pytest.raises(LogReadError, match=r"s.tum: pose line 2: timestamp"):
+    with pytest.raises(LogReadError, match=r"s.tum: line 3 \(byte offset 20\): timestamp"):
         read_tum(f)
 
 
-# ---- two files at once: the forked reader gives what reading one after the other gives -----
+# ---- two files: read one after the other ----------------------------------------------------
 
 
 def _pair(tmp_path: Path, n: int = 3000) -> tuple[Path, Path]:
@@ -304,108 +279,21 @@ def _pair(tmp_path: Path, n: int = 3000) -> tuple[Path, Path]:
     return tmp_path / "a.tum", tmp_path / "b.tum"
 
 
-def test_parallel_pair_equals_sequential_reads(tmp_path: Path) -> None:
-    from uwval.io.tum import read_tum_pair
-
+def test_pair_equals_two_reads_and_the_first_files_error_wins(tmp_path: Path) -> None:
     a, b = _pair(tmp_path)
-    pa, pb = read_tum_pair(a, b, frame_b="ned", topic_a="ref", parallel=True)
+    pa, pb = read_tum_pair(a, b, frame_b="ned", topic_a="ref")
     sa, sb = read_tum(a, topic="ref"), read_tum(b, frame="ned")
     for got, want in ((pa, sa), (pb, sb)):
         np.testing.assert_array_equal(got.t, want.t)
         assert got.position.tobytes() == want.position.tobytes()
         assert got.orientation.tobytes() == want.orientation.tobytes()
         assert (got.frame, got.topic, got.source) == (want.frame, want.topic, want.source)
-
-
-def test_parallel_pair_repairs_like_read_tum(tmp_path: Path) -> None:
-    from uwval.io.tum import read_tum_pair
-
-    a, b = _pair(tmp_path, 50)
-    b.write_text("3 0 0 0 0 0 0 1\n1 0 0 0 0 0 0 1\n2 0 0 0 0 0 0 1\n")
-    _, pb = read_tum_pair(a, b, parallel=True)
-    assert pb.t.tolist() == [1_000_000_000, 2_000_000_000, 3_000_000_000]
-    assert pb.repairs["sorted"] == 1
-
-
-def test_parallel_pair_first_file_checks_win_over_second_file_errors(tmp_path: Path) -> None:
-    # read one after the other, the first file's stream checks (here a quaternion of norm
-    # 0.001) run before the second file is even opened: the parallel reader says the same
-    from uwval.io.tum import read_tum_pair
-
-    a, b = _pair(tmp_path, 50)
     a.write_text("1 0 0 0 0 0 0 1\n2 0 0 0 0 0 0 1e-3\n")
-    b.write_text("1 2 3\n")  # malformed
-    for second in (b, tmp_path / "missing.tum"):
-        with pytest.raises(PoseStreamError, match=r"a\.tum.*norm 0\.001") as seq:
-            read_tum(a), read_tum(second)
-        with pytest.raises(PoseStreamError, match=r"a\.tum.*norm 0\.001") as par:
-            read_tum_pair(a, second, parallel=True)
-        assert str(par.value) == str(seq.value)
-
-
-def _children() -> set[int]:
-    """Live child processes of this one (Linux), to check the forked parser is reaped."""
-    import os
-
-    path = Path(f"/proc/{os.getpid()}/task/{os.getpid()}/children")
-    return {int(x) for x in path.read_text().split()} if path.exists() else set()
-
-
-def test_parallel_pair_errors_name_the_file_and_reap_the_child(tmp_path: Path) -> None:
-    from uwval.io.tum import read_tum_pair
-
-    a, b = _pair(tmp_path, 50)
-    before = _children()
-    b.write_text("1.0 0 0 0 0 0 0 1\n2.0 0 0 x 0 0 0 1\n")
-    with pytest.raises(LogReadError, match=r"b.tum: line 2"):
-        read_tum_pair(a, b, parallel=True)
-    a.write_text("1.0 0 0 0 0 0 1\n")  # both bad: the first file's error, as sequential reads
-    with pytest.raises(LogReadError, match=r"a.tum: line 1"):
-        read_tum_pair(a, b, parallel=True)
-    _pair(tmp_path, 50)
+    b.write_text("1 2 3\n")
+    with pytest.raises(LogReadError, match=r"a\.tum: line 2 .*norm 0\.001"):
+        read_tum_pair(a, b)
     with pytest.raises(LogReadError, match=r"missing\.tum: no such file"):
-        read_tum_pair(a, tmp_path / "missing.tum", parallel=True)
-    assert _children() == before
-
-
-def test_compare_of_large_tum_pair_is_parallel_and_unchanged(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    # compare_logs reads two TUM files through read_tum_pair: the JSON is the same whether the
-    # second file is parsed concurrently (thread or forked child) or not
-    import os
-
-    import uwval.io.tum as tum
-    from uwval.comparison.logs import compare_logs
-
-    a, b = _pair(tmp_path)
-    forks: list[int] = []
-    real_fork = os.fork
-
-    def counting_fork() -> int:
-        pid = real_fork()
-        if pid:
-            forks.append(pid)
-        return pid
-
-    threads: list[str] = []
-    real_pair = tum._threaded_pair
-
-    def counting_pair(pa: Path, pb: Path) -> object:
-        threads.append(str(pb))
-        return real_pair(pa, pb)
-
-    monkeypatch.setattr(tum, "PARALLEL_MIN_BYTES", 0)
-    monkeypatch.setattr(tum.os, "fork", counting_fork)
-    monkeypatch.setattr(tum, "_threaded_pair", counting_pair)
-    forked = compare_logs(a, b, sync="nearest").to_json()
-    # the C parser releases the GIL: the second file goes to a thread, else to a child
-    assert (len(threads), len(forks)) == ((1, 0) if tum.USE_ACCELERATOR else (0, 1))
-    monkeypatch.setattr(tum, "PARALLEL_MIN_BYTES", 1 << 40)
-    sequential = compare_logs(a, b, sync="nearest").to_json()
-    assert len(forks) + len(threads) == 1
-    assert forked == sequential
-    assert forked["counts"]["matched"] == 3000
+        read_tum_pair(b.with_name("missing.tum"), b)
 
 
 # ---- the light command-line path --------------------------------------------------------------
@@ -461,53 +349,73 @@ def test_fast_compare_leaves_anything_unusual_to_typer(args: list[str]) -> None:
     assert fast_compare(args) is False
 
 
-def test_pair_is_read_in_this_process_when_other_threads_run(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    # forking a multi-threaded process can deadlock the child: read sequentially instead
-    import threading
-
-    import uwval.io.tum as tum
-
-    a, b = _pair(tmp_path, 50)
-    monkeypatch.setattr(tum, "USE_ACCELERATOR", False)  # the path that would fork
-    monkeypatch.setattr(tum, "PARALLEL_MIN_BYTES", 0)
-    forks: list[int] = []
-
-    def no_fork() -> int:
-        forks.append(1)
-        raise AssertionError("forked")
-
-    stop = threading.Event()
-    worker = threading.Thread(target=stop.wait)
-    worker.start()
-    try:
-        monkeypatch.setattr(tum.os, "fork", no_fork)
-        ra, rb = tum.read_tum_pair(a, b)
-    finally:
-        stop.set()
-        worker.join()
-    assert not forks
-    assert len(ra) == len(rb) == 50
-
-
-@pytest.mark.parametrize("accelerated", [True, False])
-def test_a_carriage_return_inside_a_line_is_refused_not_read_as_space(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, accelerated: bool
-) -> None:
+def test_a_carriage_return_inside_a_line_is_refused_not_read_as_space(tmp_path: Path) -> None:
     """Found by the fuzz harness: '-' flipped to CR turned -0.007853 into 0.007853 silently
     (both parsers took CR as blank space; loadtxt and evo see a line break). CRLF files stay
     fine."""
-    import uwval.io.tum as tum
-
-    if accelerated and tum._tumparse is None:
-        pytest.skip("C accelerator not built")
-    monkeypatch.setattr(tum, "USE_ACCELERATOR", accelerated)
     good = "1.0 0.1 -0.2 0.3 0 0 0 1\n2.0 0.1 -0.007853 0.3 0 0 0 1\n"
     p = tmp_path / "crlf.txt"
     p.write_bytes(good.replace("\n", "\r\n").encode())
     assert read_tum(p).position[1, 1] == -0.007853
     p = tmp_path / "damaged.txt"
     p.write_bytes(good.replace("-0.007853", "\r0.007853").encode())
-    with pytest.raises(LogReadError, match=r"line 2 \(byte \d+\): a carriage return inside"):
+    with pytest.raises(LogReadError, match=r"line 2 \(byte offset 33\): a carriage return inside"):
         read_tum(p)
+
+
+# ---- one rule for what separates fields, whichever way a file is laid out ----------------------
+
+_STRAY = [
+    (b"\xa0", "byte 0xA0 (no-break space)"),
+    (b"\x1c", "byte 0x1C (file separator)"),
+    (b"\x0b", "byte 0x0B (vertical tab)"),
+    (b"\x0c", "byte 0x0C"),
+    (b"\xc2\xa0", "byte 0xC2"),  # UTF-8's no-break space
+    (b"\x00", "byte 0x00"),
+]
+
+
+@pytest.mark.parametrize(("layout"), ["plain", "comments", "crlf", "long"])
+@pytest.mark.parametrize(("sep", "named"), _STRAY)
+def test_a_foreign_separator_is_refused_naming_line_and_byte(
+    tmp_path: Path, sep: bytes, named: str, layout: str
+) -> None:
+    """0xA0 or 0x1C between two fields: refused, naming the line, the byte offset and the
+    byte, however the rest of the file looks (with or without comments, CRLF, long files).
+    Before, numpy's path read ``2.0<0xA0>1`` as two fields of a comment-free file and refused
+    the same line once the file had a comment further down."""
+    n = 5000 if layout == "long" else 5
+    lines = [b"%d.0 1 2 3 0 0 0 1" % i for i in range(n)]
+    k = n - 2
+    lines[k] = lines[k].replace(b".0 1", b".0" + sep + b"1", 1)
+    head = [b"# timestamp tx ty tz qx qy qz qw \xc3\xa9 \xa0"] if layout == "comments" else []
+    tail = [b"  # the end \x1c"] if layout == "comments" else []
+    eol = b"\r\n" if layout == "crlf" else b"\n"
+    body = eol.join(head + lines + tail) + eol
+    f = tmp_path / "sep.tum"
+    f.write_bytes(body)
+    offset = body.index(sep, body.index(lines[k].split(sep)[0]))
+    line = len(head) + k + 1
+    want = rf"sep\.tum: line {line} \(byte offset {offset}\): {re.escape(named)}: refused"
+    with pytest.raises(LogReadError, match=want):
+        read_tum(f)
+
+
+def test_a_foreign_separator_fails_the_command_in_one_line(tmp_path: Path) -> None:
+    a, b = _pair(tmp_path, 20)
+    text = b.read_bytes()
+    cut = text.index(b" ", text.index(b"\n") + 1)  # first space of the first pose line
+    b.write_bytes(text[:cut] + b"\xa0" + text[cut + 1 :])
+    proc = run_uwval("compare", str(a), str(b), "--sync", "nearest")
+    assert proc.returncode == 2
+    err = proc.stderr.strip()
+    assert "\n" not in err and "Traceback" not in err
+    assert f"b.tum: line 2 (byte offset {cut}): byte 0xA0 (no-break space): refused" in err
+
+
+def test_foreign_bytes_inside_comments_are_fine_and_a_bom_is_skipped(tmp_path: Path) -> None:
+    f = tmp_path / "c.tum"
+    f.write_bytes(
+        b"\xef\xbb\xbf# r\xc3\xa9f\xa0\x1c\n1 0 0 0 0 0 0 1 # \xa0 ok\n  #\x0b\n2 0 0 0 0 0 0 1\n"
+    )
+    assert read_tum(f).t.tolist() == [1_000_000_000, 2_000_000_000]
