@@ -1,20 +1,20 @@
-"""Fast ROS 1 bag (v2.0) scanner: per chunk, one decompress and numpy offset arithmetic.
+"""ROS 1 bag (v2.0) reader: a numpy walk of the bag's index, one decompress per chunk.
 
-A bag's index section lists connections and chunk positions; each chunk is followed by
-IndexData records giving, per connection, every message's time and offset inside the
-uncompressed chunk. From those offsets the payload positions are computed with two numpy
-gathers (the record's header length, then its data length) instead of parsing every
-message record in Python. The wanted connections' entries are checked against the records
-they point at (op, connection, time, bounds); the other connections are counted from the
-index. Files this scanner cannot follow (unindexed, damaged) are handed
-to rosbags' reader by :mod:`uwval.io.containers`, which reports the cause.
+A bag's index section lists connections and chunk positions (ChunkInfo); each chunk is
+followed by IndexData records giving, per connection, every message's time and offset inside
+the uncompressed chunk. From those offsets the payload positions are computed with two numpy
+gathers (the record's header length, then its data length) instead of parsing every message
+record in Python. The wanted connections' entries are checked against the records they point
+at (op, connection, time, bounds); the other connections are counted from the index. A chunk
+whose index disagrees is read by walking its records; a damaged chunk is dropped and counted
+by cause; a bag without a usable index (the recorder was killed) is read by a linear walk
+over its records and reported as not closed cleanly.
 """
 
 from __future__ import annotations
 
 import bz2
 import mmap
-import os
 import struct
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
@@ -38,15 +38,6 @@ from uwval.io.raw import (
 )
 from uwval.io.ros import normalize_type_name
 
-try:  # the optional C check of IndexData entries (uwval/io/_bag1index.c)
-    from uwval.io import _bag1index
-except ImportError:  # pragma: no cover - installs without a C compiler: the numpy check
-    _bag1index = None  # type: ignore[assignment]
-
-#: Whether the wanted connections' entries are checked (and located) by the C accelerator:
-#: built and ``UWVAL_NO_ACCELERATOR`` not set; else :func:`_index_ok` alone (same result).
-USE_LOCATE = _bag1index is not None and not os.environ.get("UWVAL_NO_ACCELERATOR")
-
 MAGIC = b"#ROSBAG V2.0\n"
 OP_MSG_DATA, OP_BAG_HEADER, OP_INDEX_DATA, OP_CHUNK, OP_CHUNK_INFO, OP_CONNECTION = (
     0x02,
@@ -62,7 +53,7 @@ I64 = NDArray[np.int64]
 
 
 class BagFormatError(LogReadError):
-    """The bag does not have the structure this scanner follows (use the fallback)."""
+    """A record of the bag does not have the structure of the ROS bag 2.0 format."""
 
 
 @dataclass
@@ -156,11 +147,16 @@ def _decompress(comp: str, data: bytes, size: int) -> bytes:
 
 
 def scan_bag1(path: Path, topics: Iterable[str] | None, *, times_only: bool = False) -> RawLog:
-    """Read an indexed ROS 1 bag: topic infos and raw messages of ``topics`` (None: all)."""
+    """Read a ROS 1 bag: topic infos and raw messages of ``topics`` (None: all).
+
+    ``times_only``: the selected topics' log times alone (no payloads), for listings."""
     with open(path, "rb") as fh:
         mm = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
     try:
         return _scan(path, mm, len(mm), topics, times_only)
+    except (BagFormatError, KeyError, ValueError, struct.error) as exc:
+        # the bag header itself is damaged: nothing can be located without it
+        raise LogReadError(f"{path}: cannot read ROS 1 bag: {_why(exc)}") from exc
     finally:
         mm.close()
 
@@ -320,14 +316,8 @@ def _chunk(
     if entries is not None:
         # The wanted connections' entries are checked against their records; the others
         # are only counted (from the index, as chunks holding no wanted connection are).
-        located = {c: _locate(buf, c, e) for c, e in entries.items() if c in builders}
         bad = next(
-            (
-                c
-                for c, e in entries.items()
-                if c in builders and located[c] is None and not _index_ok(buf, c, e)
-            ),
-            None,
+            (c for c, e in entries.items() if c in builders and not _index_ok(buf, c, e)), None
         )
         if bad is None:
             u32 = unaligned(buf, "<u4")
@@ -335,14 +325,10 @@ def _chunk(
                 t = e[:, 0].astype(np.int64) * 1_000_000_000 + e[:, 1]
                 times.setdefault(cid, []).append(t)
                 if cid in builders:
-                    loc = located[cid]
-                    if loc is not None:  # the C check gave each record's data place
-                        data_at, dlen = loc[:, 0], loc[:, 1]
-                    else:
-                        rec = e[:, 2].astype(np.int64)
-                        hl = u32[rec].astype(np.int64)
-                        data_at = rec + 8 + hl
-                        dlen = u32[rec + 4 + hl].astype(np.int64)
+                    rec = e[:, 2].astype(np.int64)
+                    hl = u32[rec].astype(np.int64)
+                    data_at = rec + 8 + hl
+                    dlen = u32[rec + 4 + hl].astype(np.int64)
                     width = int(dlen[0])
                     if width > 0 and int(dlen.min()) == int(dlen.max()):
                         # one payload length (a pose topic), bounds checked by the check
@@ -393,16 +379,6 @@ def _chunk(
                 else ""
             )
         )
-
-
-def _locate(buf: NDArray[np.uint8], cid: int, e: NDArray[np.uint32]) -> NDArray[np.int64] | None:
-    """(data start, data length) of each indexed record of ``cid``, checked by the C
-    accelerator as :func:`_index_ok` checks them (narrower: a header it does not take is
-    left to :func:`_index_ok`); None without it, or when it does not confirm the entries."""
-    if not USE_LOCATE or not len(e):
-        return None
-    out = np.empty((len(e), 2), dtype=np.int64)
-    return out if _bag1index.locate(buf, cid, np.ascontiguousarray(e), out) else None
 
 
 def _index_ok(buf: NDArray[np.uint8], cid: int, e: NDArray[np.uint32]) -> bool:
