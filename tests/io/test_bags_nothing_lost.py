@@ -175,7 +175,7 @@ def test_a_blob_that_is_not_a_blob_is_named_not_an_internal_exception(tmp_path: 
     t, _x, warns = _read(path, "/gazebo/model_rov_pose")
     assert len(t) == 9
     assert any(
-        "ints.db3" in w and "messages row 4" in w and "data is integer, not a blob" in w
+        "ints.db3" in w and "messages row 4" in w and "data is of type integer, not blob" in w
         for w in warns
     ), warns
     assert not any("TypeError" in w for w in warns)

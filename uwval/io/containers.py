@@ -245,6 +245,13 @@ def scan_db3(
     return log
 
 
+#: A row as rosbag2 writes it; others are named in a warning and skipped.
+_GOOD = "typeof(topic_id) = 'integer' AND typeof(timestamp) = 'integer' AND typeof(data) = 'blob'"
+#: A timestamp's two 32-bit halves summed: a flipped bit changes one sum (SUM of whole
+#: nanosecond stamps would overflow sqlite's int64 and raise).
+_HALVES = "SUM(timestamp & 4294967295), SUM(timestamp >> 32)"
+
+
 @dataclass
 class _Db3Reader:
     """One pass over a sqlite3 storage file's messages table (see :func:`scan_db3`)."""
@@ -256,10 +263,11 @@ class _Db3Reader:
     warnings: list[str] = field(default_factory=list)
     builders: dict[str, TopicBuilder] = field(default_factory=dict)
     topic_of: dict[int, str] = field(default_factory=dict)  # selected topic ids -> name
-    bad_rows: int = 0
 
     def read(self, times_only: bool) -> RawLog:
         """The storage's topics and the selected topics' messages."""
+        from concurrent.futures import ThreadPoolExecutor
+
         try:
             con = sqlite3.connect(self.uri, uri=True)
         except sqlite3.Error as exc:
@@ -270,20 +278,11 @@ class _Db3Reader:
             tops = self._topics(con)
             # Every topic's count and span is a second walk of the table: sqlite runs it on
             # its own connection and thread (it releases the GIL) while this one fetches.
-            from concurrent.futures import ThreadPoolExecutor
-
             with ThreadPoolExecutor(1, thread_name_prefix="uwval-db3-stats") as pool:
                 stats = pool.submit(_table_stats, self.uri)
-                try:
-                    self._messages(con, times_only)
-                finally:
-                    per_id, index_agrees = stats.result()
-            if not index_agrees:
-                self.warnings.append(
-                    f"{self.name}: the timestamp index disagrees with the messages table "
-                    "(damaged file): the rows' own timestamps were read"
-                )
-            infos = self._infos(con, tops, per_id)
+                self._fetch(con, times_only)
+                per_id, index_agrees = stats.result()
+            infos = self._check(con, tops, per_id, index_agrees)
         except sqlite3.DatabaseError as exc:
             raise LogReadError(f"{self.name}: damaged sqlite3 storage: {one_line(exc)}") from exc
         finally:
@@ -299,103 +298,56 @@ class _Db3Reader:
         except sqlite3.DatabaseError as exc:
             raise LogReadError(f"{self.name}: not a rosbag2 sqlite3 file: {one_line(exc)}") from exc
         want = None if self.topics is None else {norm_topic(t) for t in self.topics}
-        spelled: dict[str, list[tuple[int, str]]] = {}
+        spelled: dict[str, list[str]] = {}
         out = []
         for tid, tname, ttype, fmt in rows:
             if not isinstance(tid, int) or not isinstance(tname, str):
                 raise LogReadError(f"{self.name}: topics row {tid!r}: id or name of wrong type")
-            name = norm_topic(tname)
-            spelled.setdefault(name, []).append((tid, tname))
-            out.append((tid, name, normalize_type_name(str(ttype))))
+            name, msgtype = norm_topic(tname), normalize_type_name(str(ttype))
+            spelled.setdefault(name, []).append(f"id {tid} as {tname!r}")
+            out.append((tid, name, msgtype))
             if want is None or name in want:
                 self.topic_of[tid] = name
-                if name not in self.builders:
-                    enc = "cdr" if fmt == "cdr" else str(fmt)
-                    self.builders[name] = TopicBuilder(name, normalize_type_name(str(ttype)), enc)
+                enc = "cdr" if fmt == "cdr" else str(fmt)
+                self.builders.setdefault(name, TopicBuilder(name, msgtype, enc))
         for name, seen in spelled.items():
             if len(seen) > 1:
                 self.warnings.append(
-                    f"{self.name}: the topics table lists {name} twice or more ("
-                    + ", ".join(f"id {i} as {n!r}" for i, n in seen)
-                    + "): their messages are read as one topic"
+                    f"{self.name}: the topics table lists {name} twice or more "
+                    f"({', '.join(seen)}): their messages are read as one topic"
                 )
         return out
 
-    def _messages(self, con: sqlite3.Connection, times_only: bool) -> None:
-        """The selected rows (table order) into the builders; rows whose columns have the
-        wrong type are named in a warning and skipped."""
+    def _fetch(self, con: sqlite3.Connection, times_only: bool) -> None:
+        """The selected rows, in table order, into the builders, :data:`DB3_BATCH` at a time."""
         sel = sorted(self.topic_of)
         if not sel:
             return
-        marks = ",".join("?" * len(sel))
-        data = "NULL" if times_only else "data"
-        query = (
-            f"SELECT topic_id, timestamp, {data} FROM messages NOT INDEXED "
-            f"WHERE topic_id IN ({marks}) AND typeof(topic_id) = 'integer'"
-        )
-        try:
-            return self._fetch(con.execute(query, sel), sel, times_only)
-        except _BadRowsError:  # start again without the rows of wrong types
-            self.builders = {
-                n: TopicBuilder(n, b.msgtype, b.encoding) for n, b in self.builders.items()
-            }
-        good = "typeof(timestamp) = 'integer' AND typeof(data) = 'blob'"
-        for rid, what, value in con.execute(
-            "SELECT id, 'timestamp', typeof(timestamp) FROM messages NOT INDEXED "
-            f"WHERE topic_id IN ({marks}) AND typeof(timestamp) != 'integer' UNION ALL "
-            "SELECT id, 'data', typeof(data) FROM messages NOT INDEXED "
-            f"WHERE topic_id IN ({marks}) AND typeof(data) != 'blob' ORDER BY 1",
-            sel + sel,
-        ).fetchall():
-            self._bad_row(
-                rid, f"{what} is {value}, not {'a blob' if what == 'data' else 'an integer'}"
-            )
-        for (tid,) in con.execute(
-            "SELECT topic_id FROM messages NOT INDEXED "
-            f"WHERE topic_id IN ({marks}) AND NOT ({good})",
+        ids_of = {n: [t for t in sel if self.topic_of[t] == n] for n in self.builders}
+        cur = con.execute(
+            f"SELECT topic_id, timestamp, {'NULL' if times_only else 'data'} FROM messages "
+            f"NOT INDEXED WHERE topic_id IN ({','.join('?' * len(sel))}) AND {_GOOD}",
             sel,
-        ).fetchall():
-            self.builders[self.topic_of[tid]].drop("damaged_row", 1)
-        return self._fetch(con.execute(f"{query} AND {good}", sel), sel, times_only)
-
-    def _bad_row(self, rid: int, why: str) -> None:
-        """Warn of one skipped row (the first three are named, then only counted)."""
-        self.bad_rows += 1
-        if self.bad_rows <= 3:
-            self.warnings.append(f"{self.name}: messages row {rid}: {why}; the row was skipped")
-
-    def _fetch(self, cur: sqlite3.Cursor, sel: list[int], times_only: bool) -> None:
+        )
         while rows := cur.fetchmany(DB3_BATCH):
             tids_t, stamps_t, datas = zip(*rows, strict=True)
             del rows
-            tids, stamps = np.array(tids_t, dtype=np.int64), np.array(stamps_t)
-            if stamps.dtype != np.int64:
-                raise _BadRowsError
+            tids, stamps = np.array(tids_t, np.int64), np.array(stamps_t, np.int64)
             if times_only:
-                for tid in np.unique(tids):
-                    t = stamps[tids == tid]
-                    z = np.zeros_like(t)
-                    self.builders[self.topic_of[int(tid)]].add(np.zeros(0, np.uint8), z, z, t)
-            else:
-                self._add_blobs(list(datas), tids, stamps)
-
-    def _add_blobs(self, datas: list[Any], tids: Any, stamps: Any) -> None:
-        """The selected rows of one batch (data, topic id, timestamp) into their builders."""
-        try:
-            if self.zstd_rows:
-                datas = self._decompress(datas)
+                datas = (b"",) * len(datas)
+            elif self.zstd_rows:
+                datas = tuple(self._decompress(datas))
             lens = np.fromiter(map(len, datas), dtype=np.int64, count=len(datas))
             buf = np.frombuffer(b"".join(datas), dtype=np.uint8)
-        except TypeError as exc:  # a data value that is not a blob (sqlite's types are per row)
-            raise _BadRowsError from exc
-        offs = np.zeros_like(lens)
-        np.cumsum(lens[:-1], out=offs[1:])
-        for name in {self.topic_of[int(t)] for t in np.unique(tids)}:
-            ids = [t for t, n in self.topic_of.items() if n == name]
-            pick = np.flatnonzero(np.isin(tids, ids))
-            self.builders[name].add(buf, offs[pick], lens[pick], stamps[pick])
+            del datas
+            offs = np.zeros_like(lens)
+            np.cumsum(lens[:-1], out=offs[1:])
+            for name in {self.topic_of[t] for t in np.unique(tids).tolist()}:
+                pick = np.flatnonzero(np.isin(tids, ids_of[name]))
+                self.builders[name].add(buf, offs[pick], lens[pick], stamps[pick])
 
-    def _decompress(self, datas: list[bytes]) -> list[bytes]:
+    def _decompress(self, datas: Iterable[bytes]) -> list[bytes]:
+        """rosbag2's message compression: each row's data is one zstd frame."""
         import zstandard
 
         dec = zstandard.ZstdDecompressor()
@@ -406,68 +358,77 @@ class _Db3Reader:
                 f"{self.name}: a message's zstd data cannot be decompressed: {one_line(exc)}"
             ) from exc
 
-    def _infos(
-        self, con: sqlite3.Connection, tops: list[tuple[int, str, str]], per_id: list[Any]
+    def _check(
+        self,
+        con: sqlite3.Connection,
+        tops: list[tuple[int, str, str]],
+        per_id: list[Any],
+        index_agrees: bool,
     ) -> list[TopicInfo]:
-        """Count and log-time span per topic, from :func:`_table_stats`; rows of topic ids
-        the topics table lacks, or of non-integer ones, are named in a warning."""
+        """Count and log-time span per topic from :func:`_table_stats`, and a warning for
+        each thing found wrong: the timestamp index, rows of topic ids the topics table
+        lacks, rows of wrong column types (the first three named, counted per topic)."""
+        if not index_agrees:
+            self.warnings.append(
+                f"{self.name}: the timestamp index disagrees with the messages table "
+                "(damaged file): the rows' own timestamps were read"
+            )
         known = {tid: (name, ttype) for tid, name, ttype in tops}
-        found = {tid: (n, lo, hi) for tid, n, lo, hi, *_ in per_id if tid in known}
-        orphans = [(tid, n) for tid, n, *_ in per_id if isinstance(tid, int) and tid not in known]
+        orphans = [(t, n) for t, n, *_ in per_id if isinstance(t, int) and t not in known]
         if orphans:
             self.warnings.append(
                 f"{self.name}: messages rows name topic ids the topics table lacks ("
-                + ", ".join(f"{n} rows of id {tid}" for tid, n in orphans[:5])
+                + ", ".join(f"{n} rows of id {t}" for t, n in orphans[:5])
                 + "); they were not read"
             )
-        if any(not isinstance(tid, int) for tid, *_ in per_id):
-            for rid, tid, kind in con.execute(
-                "SELECT id, topic_id, typeof(topic_id) FROM messages NOT INDEXED "
-                "WHERE typeof(topic_id) != 'integer' ORDER BY id"
-            ).fetchall():
-                self._bad_row(rid, f"topic_id is {kind} ({tid!r}), not an integer")
-        if self.bad_rows > 3:
-            self.warnings.append(
-                f"{self.name}: {self.bad_rows - 3} more messages rows skipped (wrong column types)"
+        bad = sum(int(r[-1] or 0) for r in per_id)
+        named = "SELECT id, typeof(topic_id), typeof(timestamp), typeof(data) FROM messages"
+        for rid, *kinds in con.execute(f"{named} WHERE NOT ({_GOOD}) LIMIT 3") if bad else []:
+            col, kind, should = next(
+                x for x in zip(_COLUMNS, kinds, _SHOULD, strict=True) if x[1] != x[2]
             )
-        infos = []
-        for tid, (name, ttype) in known.items():
-            n, lo, hi = found.get(tid, (0, 0, 0))
-            infos.append(TopicInfo(name, ttype, int(n), int(lo or 0), int(hi or 0)))
-        return infos
+            self.warnings.append(
+                f"{self.name}: messages row {rid}: {col} is of type {kind}, not {should}; "
+                "the row was skipped"
+            )
+        if bad > 3:
+            self.warnings.append(
+                f"{self.name}: {bad - 3} more messages rows of wrong types skipped"
+            )
+        for tid, *_, n_bad in per_id:
+            if n_bad and tid in self.topic_of:
+                self.builders[self.topic_of[tid]].drop("damaged_row", int(n_bad))
+        found = {tid: (n, lo, hi) for tid, n, lo, hi, *_ in per_id}
+        return [
+            TopicInfo(name, ttype, *(int(x or 0) for x in found.get(tid, (0, 0, 0))))
+            for tid, (name, ttype) in known.items()
+        ]
 
 
-#: A timestamp's two 32-bit halves summed: a flipped bit changes one sum (SUM of whole
-#: nanosecond stamps would overflow sqlite's int64 and raise).
-_HALVES = "SUM(timestamp & 4294967295), SUM(timestamp >> 32)"
+_COLUMNS = ("topic_id", "timestamp", "data")
+_SHOULD = ("integer", "integer", "blob")  # typeof() of each, as rosbag2 writes them
 
 
 def _table_stats(uri: str) -> tuple[list[Any], bool]:
-    """(topic_id, row count, min and max timestamp, the sums of :data:`_HALVES`) per
-    topic_id of the messages table, on a connection of its own; and whether rosbag2's
-    timestamp index holds the same timestamps as the rows (True when there is none)."""
+    """(topic_id, row count, min and max timestamp, the sums of :data:`_HALVES`, rows not
+    :data:`_GOOD`) per topic_id of the messages table, on a connection of its own; and
+    whether rosbag2's timestamp index holds the same timestamps (True when it has none)."""
     con = sqlite3.connect(uri, uri=True)
     try:
         per_id = con.execute(
-            f"SELECT topic_id, COUNT(*), MIN(timestamp), MAX(timestamp), {_HALVES} "
-            "FROM messages NOT INDEXED GROUP BY topic_id"
+            f"SELECT topic_id, COUNT(*), MIN(timestamp), MAX(timestamp), {_HALVES}, "
+            f"SUM(NOT ({_GOOD})) FROM messages NOT INDEXED GROUP BY topic_id"
         ).fetchall()
-        has_index = con.execute(
+        if not con.execute(
             "SELECT 1 FROM sqlite_master WHERE type = 'index' AND name = 'timestamp_idx'"
-        ).fetchone()
-        if not has_index:
+        ).fetchone():
             return per_id, True
         n, lo, hi = con.execute(
             f"SELECT COUNT(*), {_HALVES} FROM messages INDEXED BY timestamp_idx"
         ).fetchone()
-        rows = [sum(r[k] or 0 for r in per_id) for k in (1, 4, 5)]
-        return per_id, rows == [n, lo or 0, hi or 0]
+        return per_id, [sum(r[k] or 0 for r in per_id) for k in (1, 4, 5)] == [n, lo or 0, hi or 0]
     finally:
         con.close()
-
-
-class _BadRowsError(Exception):
-    """A fetched batch held a value of the wrong type: read again, naming those rows."""
 
 
 def _time_ordered(topic: RawTopic) -> RawTopic:
