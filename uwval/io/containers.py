@@ -245,8 +245,9 @@ def scan_db3(
     return log
 
 
-#: A row as rosbag2 writes it; others are named in a warning and skipped.
-_GOOD = "typeof(topic_id) = 'integer' AND typeof(timestamp) = 'integer' AND typeof(data) = 'blob'"
+#: A row's keys as rosbag2 writes them (and its data a blob, checked on the rows read only:
+#: typeof(data) loads the data); other rows are named in a warning and skipped.
+_KEYS_OK = "typeof(topic_id) = 'integer' AND typeof(timestamp) = 'integer'"
 #: A timestamp's two 32-bit halves summed: a flipped bit changes one sum (SUM of whole
 #: nanosecond stamps would overflow sqlite's int64 and raise).
 _HALVES = "SUM(timestamp & 4294967295), SUM(timestamp >> 32)"
@@ -263,6 +264,8 @@ class _Db3Reader:
     warnings: list[str] = field(default_factory=list)
     builders: dict[str, TopicBuilder] = field(default_factory=dict)
     topic_of: dict[int, str] = field(default_factory=dict)  # selected topic ids -> name
+    fetched: dict[int, int] = field(default_factory=dict)  # rows read per selected id
+    times_only: bool = False
 
     def read(self, times_only: bool) -> RawLog:
         """The storage's topics and the selected topics' messages."""
@@ -280,6 +283,7 @@ class _Db3Reader:
             # its own connection and thread (it releases the GIL) while this one fetches.
             with ThreadPoolExecutor(1, thread_name_prefix="uwval-db3-stats") as pool:
                 stats = pool.submit(_table_stats, self.uri)
+                self.times_only = times_only
                 self._fetch(con, times_only)
                 per_id, index_agrees = stats.result()
             infos = self._check(con, tops, per_id, index_agrees)
@@ -326,7 +330,8 @@ class _Db3Reader:
         ids_of = {n: [t for t in sel if self.topic_of[t] == n] for n in self.builders}
         cur = con.execute(
             f"SELECT topic_id, timestamp, {'NULL' if times_only else 'data'} FROM messages "
-            f"NOT INDEXED WHERE topic_id IN ({','.join('?' * len(sel))}) AND {_GOOD}",
+            f"NOT INDEXED WHERE topic_id IN ({','.join('?' * len(sel))}) AND {_KEYS_OK}"
+            + ("" if times_only else " AND typeof(data) = 'blob'"),
             sel,
         )
         while rows := cur.fetchmany(DB3_BATCH):
@@ -342,7 +347,10 @@ class _Db3Reader:
             del datas
             offs = np.zeros_like(lens)
             np.cumsum(lens[:-1], out=offs[1:])
-            for name in {self.topic_of[t] for t in np.unique(tids).tolist()}:
+            ids, counts = np.unique(tids, return_counts=True)
+            for tid, n in zip(ids.tolist(), counts.tolist(), strict=True):
+                self.fetched[tid] = self.fetched.get(tid, 0) + n
+            for name in {self.topic_of[t] for t in ids.tolist()}:
                 pick = np.flatnonzero(np.isin(tids, ids_of[name]))
                 self.builders[name].add(buf, offs[pick], lens[pick], stamps[pick])
 
@@ -381,9 +389,23 @@ class _Db3Reader:
                 + ", ".join(f"{n} rows of id {t}" for t, n in orphans[:5])
                 + "); they were not read"
             )
-        bad = sum(int(r[-1] or 0) for r in per_id)
-        named = "SELECT id, typeof(topic_id), typeof(timestamp), typeof(data) FROM messages"
-        for rid, *kinds in con.execute(f"{named} WHERE NOT ({_GOOD}) LIMIT 3") if bad else []:
+        # per topic id: rows of wrong key types, and rows read of wrong data type
+        bad = {t: int(r[-1] or 0) for t, *r in per_id}
+        for tid, n, *_ in per_id:
+            if isinstance(tid, int) and tid in self.topic_of:
+                bad[tid] += 0 if self.times_only else n - bad[tid] - self.fetched.get(tid, 0)
+                self.builders[self.topic_of[tid]].drop("damaged_row", bad[tid])
+        total = sum(bad.values())
+        sel = ",".join(map(str, self.topic_of))
+        rows = (
+            con.execute(
+                "SELECT id, typeof(topic_id), typeof(timestamp), typeof(data) FROM messages WHERE "
+                f"NOT ({_KEYS_OK}) OR (topic_id IN ({sel}) AND typeof(data) != 'blob') LIMIT 3"
+            ).fetchall()
+            if total
+            else []
+        )
+        for rid, *kinds in rows:
             col, kind, should = next(
                 x for x in zip(_COLUMNS, kinds, _SHOULD, strict=True) if x[1] != x[2]
             )
@@ -391,13 +413,10 @@ class _Db3Reader:
                 f"{self.name}: messages row {rid}: {col} is of type {kind}, not {should}; "
                 "the row was skipped"
             )
-        if bad > 3:
+        if total > 3:
             self.warnings.append(
-                f"{self.name}: {bad - 3} more messages rows of wrong types skipped"
+                f"{self.name}: {total - 3} more messages rows of wrong types skipped"
             )
-        for tid, *_, n_bad in per_id:
-            if n_bad and tid in self.topic_of:
-                self.builders[self.topic_of[tid]].drop("damaged_row", int(n_bad))
         found = {tid: (n, lo, hi) for tid, n, lo, hi, *_ in per_id}
         return [
             TopicInfo(name, ttype, *(int(x or 0) for x in found.get(tid, (0, 0, 0))))
@@ -411,13 +430,13 @@ _SHOULD = ("integer", "integer", "blob")  # typeof() of each, as rosbag2 writes 
 
 def _table_stats(uri: str) -> tuple[list[Any], bool]:
     """(topic_id, row count, min and max timestamp, the sums of :data:`_HALVES`, rows not
-    :data:`_GOOD`) per topic_id of the messages table, on a connection of its own; and
+    :data:`_KEYS_OK`) per topic_id of the messages table, on a connection of its own; and
     whether rosbag2's timestamp index holds the same timestamps (True when it has none)."""
     con = sqlite3.connect(uri, uri=True)
     try:
         per_id = con.execute(
             f"SELECT topic_id, COUNT(*), MIN(timestamp), MAX(timestamp), {_HALVES}, "
-            f"SUM(NOT ({_GOOD})) FROM messages NOT INDEXED GROUP BY topic_id"
+            f"SUM(NOT ({_KEYS_OK})) FROM messages NOT INDEXED GROUP BY topic_id"
         ).fetchall()
         if not con.execute(
             "SELECT 1 FROM sqlite_master WHERE type = 'index' AND name = 'timestamp_idx'"
