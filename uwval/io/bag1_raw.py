@@ -1,13 +1,11 @@
 """ROS 1 bag (v2.0) reader: a numpy walk of the bag's index, one decompress per chunk.
 
-A bag's index section lists connections and chunk positions (ChunkInfo); each chunk is
-followed by IndexData records giving, per connection, every message's time and offset inside
-the uncompressed chunk. Payload positions come from those offsets by two numpy gathers (the
-record's header length, then its data length), never by parsing records one by one. The
-wanted connections' entries are checked against the records they point at (op, connection,
-time, bounds); the others are counted from the index. A chunk whose index disagrees is read
-by walking its records; a damaged chunk is dropped and counted by cause; a bag without a
-usable index (the recorder was killed) is read by a walk over its records and reported.
+The index section lists connections and chunks (ChunkInfo); the IndexData records after each
+chunk give every message's time and offset in it, checked against the records they point at
+(op, connection, time, bounds) for the topics read, and turned into payload positions by
+numpy gathers. A chunk whose index disagrees is read by walking its records; a damaged chunk
+is dropped and counted by cause; a bag without a usable index (its recorder was killed) is
+read by a walk over its records and reported.
 """
 
 from __future__ import annotations
@@ -82,26 +80,13 @@ def _why(exc: BaseException) -> str:
     return " ".join(str(exc).split()) or type(exc).__name__
 
 
-@dataclass(frozen=True)
-class _Conn:
-    """A connection record: id and topic from its header, type and definition from its data
-    (text that is not UTF-8 is damage, as rosbags says too)."""
-
-    id: int
-    topic: str
-    msgtype: str
-    msgdef: str
-
-    @classmethod
-    def parse(cls, b: Any, hdr: dict[str, bytes], ds: int, dl: int) -> _Conn:
-        d = _fields(b, ds, ds + dl)
-        d["md5sum"].decode()  # required, as rosbags requires it
-        return cls(
-            _u32(hdr["conn"]),
-            hdr["topic"].decode(),
-            d["type"].decode(),
-            d["message_definition"].decode(),
-        )
+def _conn(b: Any, hdr: dict[str, bytes], ds: int, dl: int) -> tuple[int, str, str, str]:
+    """A connection record's id and topic (header), type and definition (data); text that
+    is not UTF-8, or no md5sum, is damage (rosbags refuses both too)."""
+    d = _fields(b, ds, ds + dl)
+    d["md5sum"].decode()
+    text = (hdr["topic"], d["type"], d["message_definition"])
+    return (_u32(hdr["conn"]), *(x.decode() for x in text))  # type: ignore[return-value]
 
 
 def _decompress(hdr: dict[str, bytes], data: bytes) -> bytes:
@@ -144,7 +129,7 @@ class _Bag:
     mm: mmap.mmap
     want: set[str] | None
     times_only: bool
-    conns: dict[int, _Conn] = field(default_factory=dict)
+    conns: dict[int, tuple[str, str]] = field(default_factory=dict)  # id: topic, type
     builders: dict[int, TopicBuilder] = field(default_factory=dict)
     times: dict[int, list[I64]] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
@@ -187,7 +172,7 @@ class _Bag:
         while pos < len(self.mm):
             h, ds, dl, pos = _record(self.mm, pos, len(self.mm))
             if h["op"][0] == OP_CONNECTION:
-                self._connection(_Conn.parse(self.mm, h, ds, dl))
+                self._connection(*_conn(self.mm, h, ds, dl))
             elif h["op"][0] == OP_CHUNK_INFO:
                 if dl % 8 or _u32(h["count"]) * 8 != dl or not {"start_time", "end_time"} <= set(h):
                     raise BagFormatError(f"chunk info at byte {ds} is malformed")
@@ -197,14 +182,12 @@ class _Bag:
             raise BagFormatError("index section does not match the bag header counts")
         return chunks
 
-    def _connection(self, c: _Conn) -> None:
-        self.conns[c.id] = c
-        self.times.setdefault(c.id, [])
-        name = norm_topic(c.topic)
-        if c.id not in self.builders and (self.want is None or name in self.want):
-            self.builders[c.id] = TopicBuilder(
-                name, normalize_type_name(c.msgtype), "ros1", c.msgdef
-            )
+    def _connection(self, cid: int, topic: str, msgtype: str, msgdef: str) -> None:
+        name, msgtype = norm_topic(topic), normalize_type_name(msgtype)
+        self.conns[cid] = (name, msgtype)
+        self.times.setdefault(cid, [])
+        if cid not in self.builders and (self.want is None or name in self.want):
+            self.builders[cid] = TopicBuilder(name, msgtype, "ros1", msgdef)
 
     def _chunk(self, cp: int, expected: dict[int, int]) -> None:
         """One chunk and its IndexData records into the builders (checked against each other)."""
@@ -241,12 +224,13 @@ class _Bag:
             return
         data = _decompress(h, bytes(self.mm[ds : ds + dl]))
         buf = np.frombuffer(data, dtype=np.uint8)
-        if entries is not None:
-            bad = next((c for c in wanted if not _index_ok(buf, c, entries[c])), None)
-            if bad is None:
-                for cid, e in entries.items():
-                    self._take(cid, buf, e[:, 0].astype(np.int64) * 1_000_000_000 + e[:, 1], e)
-                return
+        checks = {c: _index_ok(buf, c, entries[c]) for c in wanted} if entries else {}
+        if entries is not None and all(checks.values()):
+            for cid, e in entries.items():
+                self._take(cid, buf, e[:, 0].astype(np.int64) * 1_000_000_000 + e[:, 1], e)
+            return
+        bad = next((c for c, ok in checks.items() if ok is False), None)
+        if bad is not None:  # (None: headers of varying layout, read by the walk below)
             self.warnings.append(
                 f"{self.path}: the index of the ROS 1 chunk at byte {cp} disagrees with its "
                 f"records (connection {bad}); read the chunk by walking its records"
@@ -296,7 +280,7 @@ class _Bag:
                 h, ds, dl, nxt = _record(b, pos, end)
                 op = h["op"][0]
                 if op == OP_CONNECTION:
-                    self._connection(_Conn.parse(b, h, ds, dl))
+                    self._connection(*_conn(b, h, ds, dl))
                 elif op == OP_MSG_DATA:
                     m = found.setdefault(_u32(h["conn"]), ([], [], []))
                     m[0].append(ds)
@@ -372,11 +356,10 @@ class _Bag:
 
     def _log(self, lost_bytes: int, unclean: str) -> RawLog:
         infos = []
-        for cid, c in self.conns.items():
+        for cid, (name, msgtype) in self.conns.items():
             t = [x for x in self.times.get(cid, []) if x.size]
             lo, hi = (min(int(x.min()) for x in t), max(int(x.max()) for x in t)) if t else (0, 0)
-            n = sum(x.size for x in t)
-            infos.append(TopicInfo(norm_topic(c.topic), normalize_type_name(c.msgtype), n, lo, hi))
+            infos.append(TopicInfo(name, msgtype, sum(x.size for x in t), lo, hi))
         log = RawLog(
             self.path,
             merge_infos(infos),
@@ -390,11 +373,11 @@ class _Bag:
         return log
 
 
-def _index_ok(buf: NDArray[np.uint8], cid: int, e: NDArray[np.uint32]) -> bool:
+def _index_ok(buf: NDArray[np.uint8], cid: int, e: NDArray[np.uint32]) -> bool | None:
     """Whether every IndexData entry of ``cid`` points at a MessageData record of ``cid``
     with the entry's time, lying inside the chunk (vectorised: every header is compared with
-    the first one's bytes, the time field with the index's times). Headers of varying
-    layout are checked one by one."""
+    the first one's bytes, the time field with the index's times); None when the headers
+    differ in layout (the chunk is then read by walking its records)."""
     if not len(e):
         return True
     size = buf.shape[0]
@@ -404,7 +387,7 @@ def _index_ok(buf: NDArray[np.uint8], cid: int, e: NDArray[np.uint32]) -> bool:
     u32 = unaligned(buf, "<u4")
     hl = u32[rec].astype(np.int64)
     if int(hl.min()) != int(hl.max()) or int((rec + 8 + hl).max()) > size:
-        return all(_entry_ok(buf, cid, row) for row in e.tolist())
+        return None
     h0 = int(hl[0])
     heads = gather(buf, rec + 4, h0)
     try:
@@ -422,21 +405,7 @@ def _index_ok(buf: NDArray[np.uint8], cid: int, e: NDArray[np.uint32]) -> bool:
     mask = np.ones(h0, dtype=bool)
     mask[tpos + 5 : tpos + 13] = False
     if not bool((heads[:, mask] == heads[0, mask]).all()):
-        return all(_entry_ok(buf, cid, row) for row in e.tolist())
+        return None
     stamp = np.ascontiguousarray(heads[:, tpos + 5 : tpos + 13]).view("<u4").reshape(-1, 2)
     dlen = u32[rec + 4 + hl].astype(np.int64)
     return bool(np.array_equal(stamp, e[:, :2]) and int((rec + 8 + hl + dlen).max()) <= size)
-
-
-def _entry_ok(buf: NDArray[np.uint8], cid: int, entry: list[int]) -> bool:
-    """One IndexData entry (sec, nsec, offset) against the record it points at."""
-    sec, nsec, off = entry
-    try:
-        h, _ds, _dl, _nxt = _record(buf, off, buf.shape[0])
-        return (
-            h["op"][:1] == bytes([OP_MSG_DATA])
-            and _u32(h["conn"]) == cid
-            and h["time"][:8] == struct.pack("<II", sec, nsec)
-        )
-    except DAMAGE:
-        return False

@@ -50,12 +50,8 @@ def scan_log(path: Path, topics: Iterable[str] | None, *, times_only: bool = Fal
     except LogReadError:
         raise
     except MemoryError as exc:
-        raise LogReadError(
-            f"{path}: damaged {kind} log: a size field asks for too much memory"
-        ) from exc
-    except Exception as exc:
-        # Damaged bytes that the format checks did not anticipate (a library's own exception
-        # type, e.g. lz4's RuntimeError): still one line naming the file, never a traceback.
+        raise LogReadError(f"{path}: damaged {kind} log: a size asks for too much memory") from exc
+    except Exception as exc:  # damage the format checks did not foresee: still one line
         raise LogReadError(
             f"{path}: damaged {kind} log: {type(exc).__name__}: {one_line(exc)}"
         ) from exc
@@ -164,16 +160,15 @@ def _unzstd(src: Path, tmp: Path) -> Path:
 
 def _merge_logs(path: Path, logs: list[RawLog]) -> RawLog:
     """One RawLog from the split files of a rosbag2 (topics concatenated in file order)."""
-    return RawLog(
-        path,
-        merge_infos(i for lg in logs for i in lg.topics),
-        merge_topics(t for lg in logs for t in lg.raw.values()),
-        sum(lg.lost_bytes for lg in logs),
-        [x for lg in logs for x in lg.notes],
-        [x for lg in logs for x in lg.warnings],
-        next((lg.unclean for lg in logs if lg.unclean), ""),
-        "; ".join(lg.cut_detail for lg in logs if lg.cut_detail),
-    )
+    log = RawLog(path, merge_infos(i for lg in logs for i in lg.topics), {})
+    log.raw = merge_topics(t for lg in logs for t in lg.raw.values())
+    for lg in logs:
+        log.lost_bytes += lg.lost_bytes
+        log.notes += lg.notes
+        log.warnings += lg.warnings
+        log.unclean = log.unclean or lg.unclean
+    log.cut_detail = "; ".join(lg.cut_detail for lg in logs if lg.cut_detail)
+    return log
 
 
 def _check_counts(bagdir: Path, info: dict[str, Any], log: RawLog) -> None:
@@ -397,26 +392,16 @@ class _Db3Reader:
                 self.builders[self.topic_of[tid]].drop("damaged_row", bad[tid])
         total = sum(bad.values())
         sel = ",".join(map(str, self.topic_of))
-        rows = (
-            con.execute(
-                "SELECT id, typeof(topic_id), typeof(timestamp), typeof(data) FROM messages WHERE "
-                f"NOT ({_KEYS_OK}) OR (topic_id IN ({sel}) AND typeof(data) != 'blob') LIMIT 3"
-            ).fetchall()
-            if total
-            else []
-        )
-        for rid, *kinds in rows:
-            col, kind, should = next(
-                x for x in zip(_COLUMNS, kinds, _SHOULD, strict=True) if x[1] != x[2]
-            )
+        named = "SELECT id, typeof(topic_id), typeof(timestamp), typeof(data) FROM messages"
+        where = f"NOT ({_KEYS_OK}) OR (topic_id IN ({sel}) AND typeof(data) != 'blob') LIMIT 3"
+        for rid, *kinds in con.execute(f"{named} WHERE {where}").fetchall() if total else []:
+            col, kind, should = next(x for x in zip(_COLUMNS, kinds, _SHOULD) if x[1] != x[2])  # noqa: B905
             self.warnings.append(
                 f"{self.name}: messages row {rid}: {col} is of type {kind}, not {should}; "
                 "the row was skipped"
             )
         if total > 3:
-            self.warnings.append(
-                f"{self.name}: {total - 3} more messages rows of wrong types skipped"
-            )
+            self.warnings.append(f"{self.name}: {total - 3} more rows of wrong types skipped")
         found = {tid: (n, lo, hi) for tid, n, lo, hi, *_ in per_id}
         return [
             TopicInfo(name, ttype, *(int(x or 0) for x in found.get(tid, (0, 0, 0))))
