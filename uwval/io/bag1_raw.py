@@ -11,6 +11,7 @@ read by a walk over its records and reported.
 from __future__ import annotations
 
 import bz2
+import contextlib
 import mmap
 import struct
 from collections.abc import Iterable
@@ -118,7 +119,8 @@ def scan_bag1(path: Path, topics: Iterable[str] | None, *, times_only: bool = Fa
     try:
         return _Bag(path, mm, want, times_only).read()
     finally:
-        mm.close()
+        with contextlib.suppress(BufferError):  # an empty payload may still view the map
+            mm.close()
 
 
 @dataclass
@@ -304,13 +306,10 @@ class _Bag:
         for cid, (offs, lens, stamps) in found.items():
             t = np.asarray(stamps, dtype=np.int64)
             self.times.setdefault(cid, []).append(t)
-            if cid in self.builders and not self.times_only:
-                self.builders[cid].add(
-                    buf, np.asarray(offs, np.int64), np.asarray(lens, np.int64), t
-                )
-            elif cid in self.builders:
-                z = np.zeros_like(t)
-                self.builders[cid].add(np.zeros(0, np.uint8), z, z, t, copy=False)
+            if cid in self.builders:
+                keep = 0 if self.times_only else 1  # times only: no payload bytes
+                o, n = np.asarray(offs, np.int64) * keep, np.asarray(lens, np.int64) * keep
+                self.builders[cid].add(buf, o, n, t)
 
     def _lost(
         self, cp: int, expected: dict[int, int], lost: dict[int, int], cause: str, why: str
@@ -331,25 +330,13 @@ class _Bag:
 
     def _walk(self, pos: int, unclean: str) -> RawLog:
         """Read a bag without a usable index by walking its records from ``pos``; the walk
-        stops at the first damaged record, the bytes after it are reported as lost."""
-        mm = self.mm
-        stop, at = "", pos
-        while at < len(mm) and not stop:  # one top-level record at a time: bytes, not the map
-            try:
-                _h, _ds, _dl, nxt = _record(mm, at, len(mm))
-            except DAMAGE as exc:
-                stop = f"record at byte {at} is damaged ({_why(exc)})"
-                break
-            stop, _ = self._records(bytes(mm[at:nxt]), 0)
-            if stop:
-                stop = f"record at byte {at}: {stop}"
-                break
-            at = nxt
-        lost = len(mm) - at if stop else 0
+        stops at the first damaged record, the bytes from it on are reported as lost."""
+        stop, at = self._records(self.mm, pos)
+        lost = len(self.mm) - at if stop else 0
         if lost and not unclean:
             self.warnings.append(
-                f"{self.path}: the linear walk stopped at a damaged {stop}; the {lost} bytes "
-                "after it could not be read"
+                f"{self.path}: the linear walk stopped: {stop}; the {lost} bytes from there "
+                "on could not be read"
             )
             lost = 0
         return self._log(lost, unclean)

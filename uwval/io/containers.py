@@ -60,15 +60,13 @@ def scan_log(path: Path, topics: Iterable[str] | None, *, times_only: bool = Fal
 def _scan_kind(path: Path, kind: str, topics: Iterable[str] | None, times_only: bool) -> RawLog:
     topic_list = None if topics is None else list(topics)
     if kind == "mcap":
-        from uwval.io.mcap_raw import scan_mcap
-
-        return scan_mcap(path, topic_list, times_only=times_only)
-    if kind == "bag":
-        from uwval.io.bag1_raw import scan_bag1
-
-        return scan_bag1(path, topic_list, times_only=times_only)
+        from uwval.io.mcap_raw import scan_mcap as scan
+    elif kind == "bag":
+        from uwval.io.bag1_raw import scan_bag1 as scan
+    if kind in ("mcap", "bag"):
+        return scan(path, topic_list, times_only=times_only)
     if kind == "db3":
-        return scan_db3(path, path, topic_list, times_only=times_only)
+        return scan_db3(path, path, topic_list, times_only=times_only, zstd_rows=False)
     if kind == "rosbag2":
         return _scan_rosbag2(path.parent if path.is_file() else path, topic_list, times_only)
     raise LogReadError(f"{path}: not a ROS log ({kind}); read it with read_stream instead")
@@ -203,12 +201,7 @@ DB3_BATCH = 1 << 15
 
 
 def scan_db3(
-    name: Path,
-    path: Path,
-    topics: Iterable[str] | None,
-    *,
-    times_only: bool = False,
-    zstd_rows: bool = False,
+    name: Path, path: Path, topics: Iterable[str] | None, *, times_only: bool, zstd_rows: bool
 ) -> RawLog:
     """A rosbag2 sqlite3 storage file ``path`` (reported as ``name``), opened read-only.
 
@@ -220,8 +213,8 @@ def scan_db3(
     sides = {s: real.with_name(real.name + s) for s in ("-wal", "-shm", "-journal")}
     pending = [s for s in ("-wal", "-journal") if sides[s].is_file() and sides[s].stat().st_size]
     if not pending:
-        reader = _Db3Reader(name, real.as_uri() + "?mode=ro&immutable=1", topics, zstd_rows)
-        return reader.read(times_only)
+        uri = real.as_uri() + "?mode=ro&immutable=1"
+        return _Db3Reader(name, uri, topics, zstd_rows, times_only).read()
     import shutil
     import tempfile
 
@@ -231,7 +224,7 @@ def scan_db3(
         for suffix, side in sides.items():
             if side.is_file():
                 shutil.copyfile(side, copy.with_name(copy.name + suffix))
-        log = _Db3Reader(name, copy.as_uri(), topics, zstd_rows).read(times_only)
+        log = _Db3Reader(name, copy.as_uri(), topics, zstd_rows, times_only).read()
     log.unclean = (
         "the sqlite write-ahead log was not checkpointed: the writer did not finish"
         if "-wal" in pending
@@ -256,13 +249,13 @@ class _Db3Reader:
     uri: str
     topics: Iterable[str] | None
     zstd_rows: bool
+    times_only: bool
     warnings: list[str] = field(default_factory=list)
     builders: dict[str, TopicBuilder] = field(default_factory=dict)
     topic_of: dict[int, str] = field(default_factory=dict)  # selected topic ids -> name
     fetched: dict[int, int] = field(default_factory=dict)  # rows read per selected id
-    times_only: bool = False
 
-    def read(self, times_only: bool) -> RawLog:
+    def read(self) -> RawLog:
         """The storage's topics and the selected topics' messages."""
         from concurrent.futures import ThreadPoolExecutor
 
@@ -278,8 +271,7 @@ class _Db3Reader:
             # its own connection and thread (it releases the GIL) while this one fetches.
             with ThreadPoolExecutor(1, thread_name_prefix="uwval-db3-stats") as pool:
                 stats = pool.submit(_table_stats, self.uri)
-                self.times_only = times_only
-                self._fetch(con, times_only)
+                self._fetch(con)
                 per_id, index_agrees = stats.result()
             infos = self._check(con, tops, per_id, index_agrees)
         except sqlite3.DatabaseError as exc:
@@ -317,23 +309,23 @@ class _Db3Reader:
                 )
         return out
 
-    def _fetch(self, con: sqlite3.Connection, times_only: bool) -> None:
+    def _fetch(self, con: sqlite3.Connection) -> None:
         """The selected rows, in table order, into the builders, :data:`DB3_BATCH` at a time."""
         sel = sorted(self.topic_of)
         if not sel:
             return
         ids_of = {n: [t for t in sel if self.topic_of[t] == n] for n in self.builders}
         cur = con.execute(
-            f"SELECT topic_id, timestamp, {'NULL' if times_only else 'data'} FROM messages "
+            f"SELECT topic_id, timestamp, {'NULL' if self.times_only else 'data'} FROM messages "
             f"NOT INDEXED WHERE topic_id IN ({','.join('?' * len(sel))}) AND {_KEYS_OK}"
-            + ("" if times_only else " AND typeof(data) = 'blob'"),
+            + ("" if self.times_only else " AND typeof(data) = 'blob'"),
             sel,
         )
         while rows := cur.fetchmany(DB3_BATCH):
             tids_t, stamps_t, datas = zip(*rows, strict=True)
             del rows
             tids, stamps = np.array(tids_t, np.int64), np.array(stamps_t, np.int64)
-            if times_only:
+            if self.times_only:
                 datas = (b"",) * len(datas)
             elif self.zstd_rows:
                 datas = tuple(self._decompress(datas))
@@ -353,13 +345,10 @@ class _Db3Reader:
         """rosbag2's message compression: each row's data is one zstd frame."""
         import zstandard
 
-        dec = zstandard.ZstdDecompressor()
         try:
-            return [dec.decompress(x) for x in datas]
+            return list(map(zstandard.ZstdDecompressor().decompress, datas))
         except zstandard.ZstdError as exc:
-            raise LogReadError(
-                f"{self.name}: a message's zstd data cannot be decompressed: {one_line(exc)}"
-            ) from exc
+            raise LogReadError(f"{self.name}: a message's zstd data is damaged: {exc}") from exc
 
     def _check(
         self,
