@@ -110,9 +110,8 @@ def _decompress(hdr: dict[str, bytes], data: bytes) -> bytes:
 
 
 def scan_bag1(path: Path, topics: Iterable[str] | None, *, times_only: bool = False) -> RawLog:
-    """Read a ROS 1 bag: topic infos and raw messages of ``topics`` (None: all).
-
-    ``times_only``: the selected topics' log times alone (no payloads), for listings."""
+    """Topic infos and raw messages of ``topics`` (None: all; ``times_only``: log times
+    alone, no payloads) of a ROS 1 bag."""
     want = None if topics is None else {norm_topic(t) for t in topics}
     with open(path, "rb") as fh:
         mm = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)

@@ -1,19 +1,16 @@
-"""Container readers: return a :class:`RawLog` for the format :func:`log_kind` names.
+"""Container readers: a :class:`RawLog` of an MCAP file (:mod:`uwval.io.mcap_raw`), a ROS 1
+bag (:mod:`uwval.io.bag1_raw`), a rosbag2 directory (``metadata.yaml`` through ruamel.yaml;
+sqlite3 or MCAP storage, split files, zstd file or message compression) or a bare ``.db3``.
 
-* ``.mcap`` (ROS 2 or ROS 1 encoded): :mod:`uwval.io.mcap_raw`.
-* ``.bag`` (ROS 1): :mod:`uwval.io.bag1_raw` (a numpy walk of the bag's index).
-* rosbag2 directory (``metadata.yaml`` read by ruamel.yaml; sqlite3 or MCAP storage, split
-  files, zstd file or message compression) and bare ``.db3``: Python's sqlite3, read-only
-  (a leftover -wal or -journal is replayed on a private copy, the original left untouched).
-
-The sqlite3 reader never trusts what it cannot check: rows are read in table order (not
-through the timestamp index, whose damage sqlite's quick_check does not see) and ordered by
-their own timestamps; rows whose columns have the wrong type are named and skipped; one
-topic listed under several ids or spellings is read whole and said so.
+sqlite3 storage is read with Python's sqlite3 and trusted no further than it is checked:
+rows in table order (not through the timestamp index, whose damage sqlite's quick_check
+misses), ordered by their own timestamps; rows of wrong column types named and skipped; one
+topic under several ids or spellings read whole and said so.
 """
 
 from __future__ import annotations
 
+import contextlib
 import sqlite3
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -111,16 +108,13 @@ def _scan_rosbag2(bagdir: Path, topics: list[str] | None, times_only: bool) -> R
     storage = str((info or {}).get("storage_identifier", ""))
     comp_mode = str((info or {}).get("compression_mode", "") or "").upper()
     comp_fmt = str((info or {}).get("compression_format", "") or "")
-    if comp_mode and comp_mode not in ("FILE", "MESSAGE", "NONE"):
-        raise LogReadError(f"{bagdir / 'metadata.yaml'}: unknown compression_mode {comp_mode!r}")
-    if comp_mode in ("FILE", "MESSAGE") and comp_fmt != "zstd":
-        raise LogReadError(f"{bagdir}: unsupported compression {comp_fmt!r}")
-    if not files:
-        raise LogReadError(f"{bagdir}: rosbag2 directory lists no storage files")
     missing = [f.name for f in files if not f.exists()]
-    if missing:
-        raise LogReadError(f"{bagdir}: storage files missing: {', '.join(missing)}")
-    import tempfile  # a scratch folder only for compressed storage files
+    compressed = comp_mode in ("FILE", "MESSAGE")
+    if comp_mode not in ("", "NONE") and (not compressed or comp_fmt != "zstd"):
+        raise LogReadError(f"{bagdir}: unsupported compression {comp_mode!r} {comp_fmt!r}")
+    if not files or missing:
+        raise LogReadError(f"{bagdir}: storage files missing: {', '.join(missing) or 'all'}")
+    import tempfile
 
     logs: list[RawLog] = []
     with tempfile.TemporaryDirectory(prefix="uwval-rosbag2-") as tmp:
@@ -178,20 +172,16 @@ def _check_counts(bagdir: Path, info: dict[str, Any], log: RawLog) -> None:
     found = {i.name: i.count for i in log.topics}
     expected: dict[str, int] = {}
     for entry in listed:
-        try:
+        with contextlib.suppress(KeyError, TypeError, ValueError):
             name = norm_topic(str(entry["topic_metadata"]["name"]))
             expected[name] = expected.get(name, 0) + int(entry["message_count"])
-        except (KeyError, TypeError, ValueError):
-            continue
     for name, want in expected.items():
-        got = found.get(name, 0)
-        if got != want:
+        if (got := found.get(name, 0)) != want:
             log.warnings.append(
                 f"{bagdir / 'metadata.yaml'}: lists {want} messages on {name}, "
                 f"the storage holds {got}"
             )
-        raw = log.raw.get(name)
-        if raw is not None and got < want:
+        if (raw := log.raw.get(name)) is not None and got < want:
             raw.dropped["missing"] = raw.dropped.get("missing", 0) + want - got
 
 
@@ -272,8 +262,7 @@ class _Db3Reader:
             with ThreadPoolExecutor(1, thread_name_prefix="uwval-db3-stats") as pool:
                 stats = pool.submit(_table_stats, self.uri)
                 self._fetch(con)
-                per_id, index_agrees = stats.result()
-            infos = self._check(con, tops, per_id, index_agrees)
+                infos = self._check(con, tops, stats.result())
         except sqlite3.DatabaseError as exc:
             raise LogReadError(f"{self.name}: damaged sqlite3 storage: {one_line(exc)}") from exc
         finally:
@@ -350,16 +339,11 @@ class _Db3Reader:
         except zstandard.ZstdError as exc:
             raise LogReadError(f"{self.name}: a message's zstd data is damaged: {exc}") from exc
 
-    def _check(
-        self,
-        con: sqlite3.Connection,
-        tops: list[tuple[int, str, str]],
-        per_id: list[Any],
-        index_agrees: bool,
-    ) -> list[TopicInfo]:
+    def _check(self, con: sqlite3.Connection, tops: list[Any], stats: Any) -> list[TopicInfo]:
         """Count and log-time span per topic from :func:`_table_stats`, and a warning for
         each thing found wrong: the timestamp index, rows of topic ids the topics table
         lacks, rows of wrong column types (the first three named, counted per topic)."""
+        per_id, index_agrees = stats
         if not index_agrees:
             self.warnings.append(
                 f"{self.name}: the timestamp index disagrees with the messages table "
@@ -384,9 +368,10 @@ class _Db3Reader:
         named = "SELECT id, typeof(topic_id), typeof(timestamp), typeof(data) FROM messages"
         where = f"NOT ({_KEYS_OK}) OR (topic_id IN ({sel}) AND typeof(data) != 'blob') LIMIT 3"
         for rid, *kinds in con.execute(f"{named} WHERE {where}").fetchall() if total else []:
-            col, kind, should = next(x for x in zip(_COLUMNS, kinds, _SHOULD) if x[1] != x[2])  # noqa: B905
+            should = ("integer", "integer", "blob")  # typeof() of each, as rosbag2 writes them
+            col, kind, want = next(x for x in zip(_COLUMNS, kinds, should) if x[1] != x[2])  # noqa: B905
             self.warnings.append(
-                f"{self.name}: messages row {rid}: {col} is of type {kind}, not {should}; "
+                f"{self.name}: messages row {rid}: {col} is of type {kind}, not {want}; "
                 "the row was skipped"
             )
         if total > 3:
@@ -399,7 +384,6 @@ class _Db3Reader:
 
 
 _COLUMNS = ("topic_id", "timestamp", "data")
-_SHOULD = ("integer", "integer", "blob")  # typeof() of each, as rosbag2 writes them
 
 
 def _table_stats(uri: str) -> tuple[list[Any], bool]:
