@@ -25,7 +25,15 @@ from numpy.typing import NDArray
 from uwval.errors import LogReadError
 from uwval.io.fastdecode import gather
 from uwval.io.mcap_chunk import unaligned
-from uwval.io.raw import RawLog, TopicBuilder, TopicInfo, merge_infos, merge_topics, norm_topic
+from uwval.io.raw import (
+    RawLog,
+    TopicBuilder,
+    TopicInfo,
+    merge_infos,
+    merge_topics,
+    norm_topic,
+    one_line,
+)
 from uwval.io.ros import normalize_type_name
 
 MAGIC = b"#ROSBAG V2.0\n"
@@ -72,15 +80,6 @@ def _u32(v: bytes) -> int:
     return int(_U32.unpack(v[:4])[0])
 
 
-def _stamp(v: bytes) -> int:
-    sec, nsec = struct.unpack("<II", v[:8])
-    return int(sec) * 1_000_000_000 + int(nsec)
-
-
-def _why(exc: BaseException) -> str:
-    return " ".join(str(exc).split()) or type(exc).__name__
-
-
 def _conn(b: Any, hdr: dict[str, bytes], ds: int, dl: int) -> tuple[int, str, str, str]:
     """A connection record's id and topic (header), type and definition (data); text that
     is not UTF-8, or no md5sum, is damage (rosbags refuses both too)."""
@@ -103,7 +102,7 @@ def _decompress(hdr: dict[str, bytes], data: bytes) -> bytes:
 
             data = bytes(lz4.frame.decompress(data))
     except Exception as exc:  # bz2: OSError/ValueError; lz4: RuntimeError
-        raise BagFormatError(f"{comp} data cannot be decompressed ({_why(exc)})") from exc
+        raise BagFormatError(f"{comp} data cannot be decompressed ({one_line(exc)})") from exc
     if len(data) != size:
         raise BagFormatError(f"chunk decompresses to {len(data)} bytes, its header says {size}")
     return data
@@ -147,7 +146,7 @@ class _Bag:
             index_pos = struct.unpack("<Q", hdr["index_pos"][:8])[0]
             counts = (_u32(hdr["conn_count"]), _u32(hdr["chunk_count"]))
         except DAMAGE as exc:  # nothing can be located without the bag header
-            raise LogReadError(f"{self.path}: cannot read ROS 1 bag: {_why(exc)}") from exc
+            raise LogReadError(f"{self.path}: cannot read ROS 1 bag: {one_line(exc)}") from exc
         if index_pos == 0 or index_pos >= size:  # never closed (recorder killed) or cut short
             return self._walk(first, "no index: the writer did not finish")
         try:
@@ -155,7 +154,7 @@ class _Bag:
         except DAMAGE as exc:
             self.conns, self.builders, self.times = {}, {}, {}
             self.warnings.append(
-                f"{self.path}: the index section at byte {index_pos} is damaged ({_why(exc)}); "
+                f"{self.path}: the index section at byte {index_pos} is damaged ({one_line(exc)}); "
                 "read by a linear walk over the records"
             )
             return self._walk(first, "")
@@ -164,7 +163,7 @@ class _Bag:
                 self._chunk(cp, chunks[cp])
             except DAMAGE as exc:
                 lost = chunks[cp]
-                self._lost(cp, lost, lost, "damaged_chunk", f" is damaged ({_why(exc)})")
+                self._lost(cp, lost, lost, "damaged_chunk", f" is damaged ({one_line(exc)})")
         return self._log(0, "")
 
     def _index(self, pos: int, counts: tuple[int, int]) -> dict[int, dict[int, int]]:
@@ -215,7 +214,7 @@ class _Bag:
         except DAMAGE as exc:
             self.warnings.append(
                 f"{self.path}: index data after the ROS 1 chunk at byte {cp} is damaged "
-                f"({_why(exc)}); read the chunk by walking its records"
+                f"({one_line(exc)}); read the chunk by walking its records"
             )
             entries = None
         wanted = [c for c in expected if c in self.builders]
@@ -236,17 +235,15 @@ class _Bag:
                 f"{self.path}: the index of the ROS 1 chunk at byte {cp} disagrees with its "
                 f"records (connection {bad}); read the chunk by walking its records"
             )
-        before = {c: self._count(c) for c in expected}
+        before = {c: len(self.times.get(c, [])) for c in expected}  # arrays, not messages
         stop, _at = self._records(data, 0)
-        lost = {c: n - self._count(c) + before[c] for c, n in expected.items()}
+        got = {c: sum(x.size for x in self.times.get(c, [])[before[c] :]) for c in expected}
+        lost = {c: n - got[c] for c, n in expected.items()}
         if stop or any(n > 0 for n in lost.values()):
             why = f": {stop or 'records missing'}"
             self._lost(
                 cp, expected, {c: n for c, n in lost.items() if n > 0}, "damaged_record", why
             )
-
-    def _count(self, cid: int) -> int:
-        return sum(x.size for x in self.times.get(cid, []))
 
     def _take(self, cid: int, buf: Any, t: I64, e: NDArray[np.uint32] | None = None) -> None:
         """Log times of ``cid``'s messages; their payloads too when it is read (``e``: the
@@ -286,7 +283,7 @@ class _Bag:
                     m = found.setdefault(_u32(h["conn"]), ([], [], []))
                     m[0].append(ds)
                     m[1].append(dl)
-                    m[2].append(_stamp(h["time"]))
+                    m[2].append(_u32(h["time"]) * 1_000_000_000 + _u32(h["time"][4:]))
                 elif op == OP_CHUNK:
                     self._flush(b, found)
                     found = {}
@@ -294,7 +291,7 @@ class _Bag:
                     if stop:
                         raise BagFormatError(stop)
             except DAMAGE as exc:
-                stop = f"record at byte {pos} is damaged ({_why(exc)})"
+                stop = f"record at byte {pos} is damaged ({one_line(exc)})"
                 break
             pos = nxt
         self._flush(b, found)
@@ -346,14 +343,8 @@ class _Bag:
             t = [x for x in self.times.get(cid, []) if x.size]
             lo, hi = (min(int(x.min()) for x in t), max(int(x.max()) for x in t)) if t else (0, 0)
             infos.append(TopicInfo(name, msgtype, sum(x.size for x in t), lo, hi))
-        log = RawLog(
-            self.path,
-            merge_infos(infos),
-            merge_topics(b.build() for b in self.builders.values()),
-            lost_bytes=lost_bytes,
-            warnings=self.warnings,
-            unclean=unclean,
-        )
+        topics = merge_topics(b.build() for b in self.builders.values())
+        log = RawLog(self.path, merge_infos(infos), topics, lost_bytes, [], self.warnings, unclean)
         if not infos:
             log.notes.append("bag has no connections and no messages")
         return log
@@ -372,8 +363,10 @@ def _index_ok(buf: NDArray[np.uint8], cid: int, e: NDArray[np.uint32]) -> bool |
         return False
     u32 = unaligned(buf, "<u4")
     hl = u32[rec].astype(np.int64)
-    if int(hl.min()) != int(hl.max()) or int((rec + 8 + hl).max()) > size:
+    if int(hl.min()) != int(hl.max()):
         return None
+    if int((rec + 8 + hl).max()) > size:
+        return False
     h0 = int(hl[0])
     heads = gather(buf, rec + 4, h0)
     try:

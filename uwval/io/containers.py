@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import sqlite3
 from collections.abc import Iterable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -39,11 +40,23 @@ def scan_log(path: Path, topics: Iterable[str] | None, *, times_only: bool = Fal
     """Raw messages of ``topics`` (``None``: all) and the list of topics of a ROS log.
 
     ``times_only``: the selected topics' log times alone (no payloads), for listings."""
-    kind = log_kind(path)
+    kind, want = log_kind(path), None if topics is None else list(topics)
     if path.is_file() and path.stat().st_size == 0:
         raise LogReadError(f"{path}: file is empty (0 bytes)")
+    if kind not in ("mcap", "bag", "db3", "rosbag2"):
+        raise LogReadError(f"{path}: not a ROS log ({kind}); read it with read_stream instead")
     try:
-        return _scan_kind(path, kind, topics, times_only)
+        if kind == "mcap":
+            from uwval.io.mcap_raw import scan_mcap
+
+            return scan_mcap(path, want, times_only=times_only)
+        if kind == "bag":
+            from uwval.io.bag1_raw import scan_bag1
+
+            return scan_bag1(path, want, times_only=times_only)
+        if kind == "db3":
+            return scan_db3(path, path, want, times_only=times_only, zstd_rows=False)
+        return _scan_rosbag2(path.parent if path.is_file() else path, want, times_only)
     except LogReadError:
         raise
     except MemoryError as exc:
@@ -52,21 +65,6 @@ def scan_log(path: Path, topics: Iterable[str] | None, *, times_only: bool = Fal
         raise LogReadError(
             f"{path}: damaged {kind} log: {type(exc).__name__}: {one_line(exc)}"
         ) from exc
-
-
-def _scan_kind(path: Path, kind: str, topics: Iterable[str] | None, times_only: bool) -> RawLog:
-    topic_list = None if topics is None else list(topics)
-    if kind == "mcap":
-        from uwval.io.mcap_raw import scan_mcap as scan
-    elif kind == "bag":
-        from uwval.io.bag1_raw import scan_bag1 as scan
-    if kind in ("mcap", "bag"):
-        return scan(path, topic_list, times_only=times_only)
-    if kind == "db3":
-        return scan_db3(path, path, topic_list, times_only=times_only, zstd_rows=False)
-    if kind == "rosbag2":
-        return _scan_rosbag2(path.parent if path.is_file() else path, topic_list, times_only)
-    raise LogReadError(f"{path}: not a ROS log ({kind}); read it with read_stream instead")
 
 
 # ---------------------------------------------------------------- rosbag2 directory
@@ -152,12 +150,11 @@ def _unzstd(src: Path, tmp: Path) -> Path:
 
 def _merge_logs(path: Path, logs: list[RawLog]) -> RawLog:
     """One RawLog from the split files of a rosbag2 (topics concatenated in file order)."""
-    log = RawLog(path, merge_infos(i for lg in logs for i in lg.topics), {})
-    log.raw = merge_topics(t for lg in logs for t in lg.raw.values())
+    raw = merge_topics(t for lg in logs for t in lg.raw.values())
+    log = RawLog(path, merge_infos(i for lg in logs for i in lg.topics), raw)
     for lg in logs:
         log.lost_bytes += lg.lost_bytes
-        log.notes += lg.notes
-        log.warnings += lg.warnings
+        log.notes, log.warnings = log.notes + lg.notes, log.warnings + lg.warnings
         log.unclean = log.unclean or lg.unclean
     log.cut_detail = "; ".join(lg.cut_detail for lg in logs if lg.cut_detail)
     return log
@@ -196,9 +193,8 @@ def scan_db3(
     """A rosbag2 sqlite3 storage file ``path`` (reported as ``name``), opened read-only.
 
     The real path is resolved first (a symlinked .db3 keeps its -wal beside its target); a
-    non-empty -wal or -journal means the writer did not finish: sqlite replays it on a private
-    copy and the log is reported as not closed cleanly. ``zstd_rows``: each row's data is
-    zstd-compressed (rosbag2's message compression)."""
+    non-empty -wal or -journal (the writer did not finish) is replayed by sqlite on a private
+    copy. ``zstd_rows``: each row's data is zstd-compressed."""
     real = path.resolve()
     sides = {s: real.with_name(real.name + s) for s in ("-wal", "-shm", "-journal")}
     pending = [s for s in ("-wal", "-journal") if sides[s].is_file() and sides[s].stat().st_size]
@@ -215,19 +211,14 @@ def scan_db3(
             if side.is_file():
                 shutil.copyfile(side, copy.with_name(copy.name + suffix))
         log = _Db3Reader(name, copy.as_uri(), topics, zstd_rows, times_only).read()
-    log.unclean = (
-        "the sqlite write-ahead log was not checkpointed: the writer did not finish"
-        if "-wal" in pending
-        else "a sqlite rollback journal was left: the writer did not finish"
-    )
+    left = "write-ahead log" if "-wal" in pending else "rollback journal"
+    log.unclean = f"the sqlite {left} was not merged into the file: the writer did not finish"
     return log
 
 
-#: A row's keys as rosbag2 writes them (and its data a blob, checked on the rows read only:
-#: typeof(data) loads the data); other rows are named in a warning and skipped.
+#: A row's keys as rosbag2 writes them (data a blob: checked on rows read, typeof loads it)
 _KEYS_OK = "typeof(topic_id) = 'integer' AND typeof(timestamp) = 'integer'"
-#: A timestamp's two 32-bit halves summed: a flipped bit changes one sum (SUM of whole
-#: nanosecond stamps would overflow sqlite's int64 and raise).
+#: A timestamp's 32-bit halves summed (whole stamps would overflow sqlite's int64 SUM)
 _HALVES = "SUM(timestamp & 4294967295), SUM(timestamp >> 32)"
 
 
@@ -247,8 +238,6 @@ class _Db3Reader:
 
     def read(self) -> RawLog:
         """The storage's topics and the selected topics' messages."""
-        from concurrent.futures import ThreadPoolExecutor
-
         try:
             con = sqlite3.connect(self.uri, uri=True)
         except sqlite3.Error as exc:
@@ -316,7 +305,7 @@ class _Db3Reader:
             tids, stamps = np.array(tids_t, np.int64), np.array(stamps_t, np.int64)
             if self.times_only:
                 datas = (b"",) * len(datas)
-            elif self.zstd_rows:
+            elif self.zstd_rows:  # rosbag2's message compression: one zstd frame per row
                 datas = tuple(self._decompress(datas))
             lens = np.fromiter(map(len, datas), dtype=np.int64, count=len(datas))
             buf = np.frombuffer(b"".join(datas), dtype=np.uint8)
@@ -331,7 +320,6 @@ class _Db3Reader:
                 self.builders[name].add(buf, offs[pick], lens[pick], stamps[pick])
 
     def _decompress(self, datas: Iterable[bytes]) -> list[bytes]:
-        """rosbag2's message compression: each row's data is one zstd frame."""
         import zstandard
 
         try:
