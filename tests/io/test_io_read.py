@@ -496,20 +496,37 @@ def test_old_type_names_without_msg_are_normalised() -> None:
     ],
 )
 def test_fast_ros1_scanner_equals_rosbags_reader(name: str) -> None:
-    """uwval's chunk/index scanner returns the same topics, times and payloads as rosbags."""
+    """uwval's chunk/index reader returns the same topics (type, count, span), log times and
+    payloads as rosbags' rosbag1 reader alone."""
+    from rosbags.rosbag1 import Reader
+
     from uwval.io.bag1_raw import scan_bag1
-    from uwval.io.containers import _scan_bag1_rosbags
+    from uwval.io.raw import norm_topic
+    from uwval.io.ros import normalize_type_name
 
     path = BAGS / name
     fast = scan_bag1(path, None)
-    ref = _scan_bag1_rosbags(path, None, False)
-    assert sorted(fast.topics, key=lambda i: i.name) == sorted(ref.topics, key=lambda i: i.name)
-    assert fast.raw.keys() == ref.raw.keys()
-    for n, a in fast.raw.items():
-        b = ref.raw[n]
-        ka = sorted(zip(a.log_time.tolist(), (a.payload(i) for i in range(len(a))), strict=True))
-        kb = sorted(zip(b.log_time.tolist(), (b.payload(i) for i in range(len(b))), strict=True))
-        assert ka == kb, n
+    ref: dict[str, list[tuple[int, bytes]]] = {}
+    types: dict[str, str] = {}
+    with Reader(path) as reader:
+        for conn in reader.connections:
+            ref.setdefault(norm_topic(conn.topic), [])
+            types[norm_topic(conn.topic)] = normalize_type_name(conn.msgtype)
+        for conn, t, data in reader.messages():
+            ref[norm_topic(conn.topic)].append((t, bytes(data)))
+    infos = {i.name: i for i in fast.topics}
+    assert infos.keys() == ref.keys() == fast.raw.keys()
+    for n, msgs in ref.items():
+        times = [t for t, _ in msgs]
+        span = (min(times), max(times)) if times else (0, 0)
+        assert (infos[n].type, infos[n].count, infos[n].start_ns, infos[n].end_ns) == (
+            types[n],
+            len(msgs),
+            *span,
+        ), n
+        a = fast.raw[n]
+        got = sorted(zip(a.log_time.tolist(), (a.payload(i) for i in range(len(a))), strict=True))
+        assert got == sorted(msgs), n
 
 
 def test_damaged_mcap_bytes_never_leak_a_traceback(tmp_path: Path) -> None:

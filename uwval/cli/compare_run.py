@@ -537,14 +537,6 @@ def _run_compare(
 ) -> None:
     """What ``uwval compare`` does for one log or one pair of files: compare, print, save."""
     from uwval.cli.notes import warnings_as_notes
-
-    if log_b is None and fmt is None:
-        # a sqlite3 bag's messages table can be read on another thread while numpy and the
-        # comparison code load (uwval.io.early; the read below takes it if it is the same)
-        from uwval.io.early import start
-        from uwval.topics import log_topics
-
-        start(log_a, log_topics(pairs, gazebo_topic, unity_topic)[0])
     from uwval.comparison.logs import compare_logs
 
     mode = _align_mode(align, evo_align, correct_scale, align_origin)

@@ -4,13 +4,13 @@ run :func:`uwval.comparison.compare` per topic pair (vehicle and camera), collec
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from uwval.comparison.engine import ComparisonResult, compare
-from uwval.cpus import second_cpu_free
 from uwval.errors import LogReadError
 from uwval.io.formats import INPUT_FORMATS, is_tum  # noqa: F401 - INPUT_FORMATS re-exported
 from uwval.posestream import PoseStream
@@ -254,13 +254,12 @@ def _compare_pairs(
     first pair's error, in order, as when the pairs are compared one after the other.
     """
     big = [j for j in jobs if min(len(j[1]), len(j[2])) >= PARALLEL_MIN_SAMPLES]
-    if len(big) < 2 or not second_cpu_free():
+    if len(big) < 2 or (os.cpu_count() or 1) < 2:
         return [compare(ref, oth, frame=fr, **opts) for _, ref, oth, fr, opts, _ in jobs]
+    from concurrent.futures import ThreadPoolExecutor
     from functools import partial
 
-    from uwval.workers import Workers
-
-    pool = Workers(2, "uwval-compare")
+    pool = ThreadPoolExecutor(2, thread_name_prefix="uwval-compare")
     try:
         done = [
             pool.submit(partial(compare, ref, oth, frame=fr, **opts))
@@ -269,7 +268,7 @@ def _compare_pairs(
         return [d.result() for d in done]
     finally:
         # on an error or Ctrl-C, pairs not started yet are dropped
-        pool.shutdown(cancel=True)
+        pool.shutdown(cancel_futures=True)
 
 
 def _recorded_clock_offset(path: str | Path) -> float | None:

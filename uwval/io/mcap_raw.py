@@ -80,7 +80,8 @@ from uwval.io.raw import (
 )
 
 if TYPE_CHECKING:
-    from uwval.workers import Job, Workers
+    from concurrent.futures import Future as Job
+    from concurrent.futures import ThreadPoolExecutor as Workers
 
 try:  # the optional C check of a chunk against its index (uwval/io/_mcapwalk.c)
     from uwval.io import _mcapwalk
@@ -235,9 +236,8 @@ def scan_mcap(path: Path, topics: Iterable[str] | None, *, times_only: bool = Fa
         try:
             return scanner.run()
         finally:
-            mcap_runs.discard_started()
             if scanner.pool is not None:  # no job may read the map once it is closed
-                scanner.pool.shutdown(cancel=True)
+                scanner.pool.shutdown(cancel_futures=True)
     finally:
         # Payloads are compacted copies, so the map can go.
         with contextlib.suppress(BufferError):  # a numpy view may still reference it
@@ -417,45 +417,37 @@ class _Scanner:
         return self.scan_maps[2]
 
     def _scan(self, pos: int, end: int) -> int | None:
-        """Read the runs of chunks from ``pos`` on by one ``_mcapwalk.scan_chunks`` call (or
-        take the runs :mod:`uwval.io.early` began, when they are exactly these); where the
+        """Read the runs of chunks from ``pos`` on by one ``_mcapwalk.scan_chunks`` call; where the
         reader goes on, or None when nothing was read (the chunk at ``pos`` is then read by
         the batched path)."""
         assert _mcapwalk is not None
         if self.batch or self.sealed:
             self.flush()  # chunks are read in file order
         maps = self._maps()
-        results = mcap_runs.take_started(self.path, pos, end, maps, not self.times_only, BATCH_MAX)
-        if results is not None:
-            # read on the early thread, with its own map: nothing of this one to drop
-            self.released = max(self.released, pos - pos % mmap.PAGESIZE)
-        else:
-            if not self.scan_threads:
-                from uwval.cpus import second_cpu_free
-
-                self.scan_threads = 2 if second_cpu_free() else 1
-            if self.scan_ws is None:
-                self.scan_ws = _mcapwalk.scan_workspace()
-            # run after run in one call, until SCAN_HOLD_BYTES of results are held (their
-            # memory is then reused by the next call's); each run drops the map pages read
-            # before it while its other thread decompresses
-            results, released = _mcapwalk.scan_chunks(
-                self.scan_ws,
-                self.mm,
-                pos,
-                end,
-                maps,
-                SCAN_FILE_BYTES,
-                SCAN_SLOT_BYTES,
-                self.scan_threads,
-                not self.times_only,
-                BATCH_MAX,
-                self.released,
-                0,
-                True,
-                SCAN_HOLD_BYTES,
-            )
-            self.released = max(self.released, released)
+        if not self.scan_threads:
+            self.scan_threads = 2 if (os.cpu_count() or 1) > 1 else 1
+        if self.scan_ws is None:
+            self.scan_ws = _mcapwalk.scan_workspace()
+        # run after run in one call, until SCAN_HOLD_BYTES of results are held (their
+        # memory is then reused by the next call's); each run drops the map pages read
+        # before it while its other thread decompresses
+        results, released = _mcapwalk.scan_chunks(
+            self.scan_ws,
+            self.mm,
+            pos,
+            end,
+            maps,
+            SCAN_FILE_BYTES,
+            SCAN_SLOT_BYTES,
+            self.scan_threads,
+            not self.times_only,
+            BATCH_MAX,
+            self.released,
+            0,
+            True,
+            SCAN_HOLD_BYTES,
+        )
+        self.released = max(self.released, released)
         stop, nxt = results[-1][:2]
         n = sum(r[2] for r in results)
         if n:
@@ -587,13 +579,12 @@ class _Scanner:
         if not work:
             return
         if self.pool is None:
-            from uwval.cpus import second_cpu_free
-            from uwval.workers import Workers
+            from concurrent.futures import ThreadPoolExecutor
 
-            # with a free second CPU, two threads decompress (and walk) while this one
-            # reads: chunks of compressible poses make decompression most of the work
-            self.inflaters = 2 if second_cpu_free() else 1
-            self.pool = Workers(self.inflaters, "uwval-mcap-inflate")
+            # with a second CPU, two threads decompress (and walk) while this one reads:
+            # chunks of compressible poses make decompression most of the work
+            self.inflaters = 2 if (os.cpu_count() or 1) > 1 else 1
+            self.pool = ThreadPoolExecutor(self.inflaters, thread_name_prefix="uwval-mcap-inflate")
         step = -(-len(work) // self.inflaters)
         jobs = [
             self.pool.submit(self._inflate_all, work[i : i + step])

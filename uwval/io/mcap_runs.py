@@ -18,7 +18,6 @@ from __future__ import annotations
 import mmap
 import os
 from collections.abc import Iterable, Mapping
-from pathlib import Path
 from typing import Any
 
 from uwval.io.mcap_records import (
@@ -32,7 +31,6 @@ from uwval.io.mcap_records import (
     parse_schema,
     summary_start,
 )
-from uwval.io.started import StartedReads
 
 #: file bytes a run reads at most (their map pages are dropped from RSS by the next run)
 SCAN_FILE_BYTES = 8 << 20
@@ -171,35 +169,3 @@ def _read_runs(mm: mmap.mmap, plan: tuple[int, int, bytes], threads: int) -> lis
         True,
     )
     return out[0]
-
-
-#: the runs started and not taken yet. Their key holds no budget: runs of any size add up
-#: to the same messages, counts and warnings (tests/test_mcap_scan.py reads with small runs
-#: against the chunk-by-chunk read)
-_started: StartedReads[list[ScanResult]] = StartedReads()
-
-
-def start_scan(path: Path, want: set[str], threads: int) -> None:
-    """Begin the C runs of the MCAP file ``path`` for the normalised topics ``want`` (as the
-    read will do them, with payloads) on another thread, when :func:`plan_early` finds the
-    log in the usual form; else do nothing."""
-    with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
-        plan = plan_early(mm, want)
-    if plan is None:
-        return
-    args = (*plan, True, MAX_CHUNK)
-    _started.start(path, args, lambda mm: _read_runs(mm, plan, threads), "uwval-early-mcap")
-
-
-def discard_started() -> None:
-    """Drop every started read not taken (a read that never asked for one has happened)."""
-    _started.clear()
-
-
-def take_started(
-    path: Path, pos: int, end: int, maps: bytes, payloads: bool, max_chunk: int
-) -> list[ScanResult] | None:
-    """The results of the runs :func:`start_scan` began of ``path`` (unchanged since) with
-    exactly these arguments, waiting for them to end; None when there are none (or they
-    failed). Every start not taken is then dropped: a read happened."""
-    return _started.take(path, (pos, end, maps, payloads, max_chunk))
