@@ -468,3 +468,122 @@ def latency_stats(other: PoseStream, offset_s: float = 0.0) -> dict[str, Any] | 
         "p95_ms": percentiles(lat, (95.0,))[0],
         "offset_applied_s": offset_s,
     }
+
+
+#: Windows of the lag's trend over a run (drift from the motion): at most this many, each
+#: at least DRIFT_WINDOW_MIN_S long; fewer than DRIFT_MIN_WINDOWS moving windows pin nothing.
+DRIFT_MAX_WINDOWS = 20
+DRIFT_WINDOW_MIN_S = 5.0
+DRIFT_MIN_WINDOWS = 4
+#: A drift is removed (and warned about) only when it is this many standard errors from 0.
+DRIFT_SIGNIFICANCE = 3.0
+
+
+@dataclass(frozen=True)
+class DriftFit:
+    """The other clock's rate error against the reference clock.
+
+    ``ppm``: parts per million (> 0: the other clock runs fast, its stamps run ahead by
+    ``ppm * 1e-6`` s per second); ``se_ppm`` its standard error; ``source``:
+    ``applied_stamps`` (the other stamp minus the reference stamp it showed, against time)
+    or ``motion`` (the trend of the lag fitted in windows); ``n`` the points of the fit.
+    """
+
+    ppm: float
+    se_ppm: float
+    source: str
+    n: int
+
+    @property
+    def significant(self) -> bool:
+        """Whether the drift stands out from its own uncertainty (and is removed)."""
+        return bool(abs(self.ppm) > DRIFT_SIGNIFICANCE * self.se_ppm)
+
+    @property
+    def removed_ppm(self) -> float:
+        """The drift compare removes: the fitted one when significant, else 0."""
+        return self.ppm if self.significant else 0.0
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "fitted_ppm": self.ppm,
+            "se_ppm": self.se_ppm,
+            "source": self.source,
+            "n": self.n,
+            "removed": self.significant,
+        }
+
+
+def _line_fit(x: F64, y: F64) -> tuple[float, float]:
+    """Least-squares slope of y on x and its standard error (units of y per unit of x)."""
+    n = x.size
+    xc = x - x.mean()
+    sxx = float(np.dot(xc, xc))
+    if n < 3 or sxx <= 0.0:
+        return math.nan, math.inf
+    slope = float(np.dot(xc, y - y.mean())) / sxx
+    resid = y - y.mean() - slope * xc
+    se = math.sqrt(float(np.dot(resid, resid)) / (n - 2) / sxx)
+    return slope, se
+
+
+def drift_from_applied_stamps(reference: PoseStream, other: PoseStream) -> DriftFit | None:
+    """Drift from the recorded clocks: (other stamp - applied reference stamp) grows by the
+    drift per second of the run, whatever the motion. None without applied stamps on the
+    reference's clock (most inside its span) or with fewer than 8 of them."""
+    applied = other.applied_stamp
+    if applied is None or len(reference) < 2:
+        return None
+    inside = (applied >= reference.t[0]) & (applied <= reference.t[-1])
+    n = int(inside.sum())
+    if n < 8 or n < 0.5 * len(other):
+        return None
+    u = other.t[inside]
+    x = (u - u[0]).astype(np.float64) * 1e-9
+    d = (u - applied[inside]).astype(np.float64) * 1e-9
+    slope, se = _line_fit(x, d)
+    if not math.isfinite(slope):
+        return None
+    return DriftFit(slope * 1e6, se * 1e6, "applied_stamps", n)
+
+
+def drift_from_motion(t_s: F64, reference_xyz: F64, other_xyz: F64) -> DriftFit | None:
+    """Drift from the motion: the lag (:mod:`uwval.comparison.lag`) fitted in equal windows
+    of the aligned samples (t_s seconds, positions m, drift not removed) grows by the drift
+    per second. None when fewer than DRIFT_MIN_WINDOWS windows move enough to fit a lag."""
+    from uwval.comparison.lag import MIN_SPEED, lag_least_squares, rates
+
+    t = np.asarray(t_s, dtype=np.float64)
+    if t.size < 16:
+        return None
+    duration = float(t[-1] - t[0])
+    n_win = min(DRIFT_MAX_WINDOWS, int(duration // DRIFT_WINDOW_MIN_S))
+    if n_win < DRIFT_MIN_WINDOWS:
+        return None
+    vel = rates(t, np.asarray(reference_xyz, dtype=np.float64))
+    err = np.asarray(other_xyz, dtype=np.float64) - reference_xyz
+    edges = np.searchsorted(t, t[0] + duration * np.arange(n_win + 1) / n_win)
+    mids, lags = [], []
+    for k in range(n_win):  # a handful of windows, each vectorised
+        lo, hi = int(edges[k]), int(edges[k + 1])
+        v, e = vel[lo:hi], err[lo:hi]
+        if hi - lo < 8 or float(np.sqrt((v * v).sum() / v.shape[0])) <= MIN_SPEED["position"]:
+            continue
+        mids.append(float(t[lo:hi].mean()))
+        lags.append(lag_least_squares(v, e))
+    if len(lags) < DRIFT_MIN_WINDOWS:
+        return None
+    slope, se = _line_fit(np.array(mids), np.array(lags))
+    if not math.isfinite(slope):
+        return None
+    return DriftFit(slope * 1e6, se * 1e6, "motion", len(lags))
+
+
+def remove_drift(stream: PoseStream, ppm: float) -> PoseStream:
+    """``stream`` with its stamps' drift removed: t' = t - ppm 1e-6 (t - t[0]) (int64 ns;
+    applied stamps, on the reference clock, are kept)."""
+    if ppm == 0.0 or len(stream) < 2:
+        return stream
+    rel = (stream.t - stream.t[0]).astype(np.float64)
+    t = stream.t - np.round(rel * (ppm * 1e-6)).astype(np.int64)
+    return stream.with_(t=t)
