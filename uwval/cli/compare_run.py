@@ -218,7 +218,11 @@ def _print_table(doc: dict[str, Any], title: str) -> None:
     if doc.get("latency"):
         lat = doc["latency"]
         line += f"; latency {num(lat['mean_ms'])} ms mean, {num(lat['p95_ms'])} ms p95"
+    if off.get("drift_ppm"):
+        line += f"; clock drift {off['drift_ppm']:+.2f} ppm removed"
     lines.append(_Line(line))
+    if doc.get("lag"):  # the study's answer (uwval.comparison.lag)
+        lines.append(_Line(doc["lag"]["sentence"], markup=False, highlight=False))
     lines += [_Line(w, highlight=False, warning=True) for w in doc.get("warnings", [])]
     if plain:
         text = _table_text(title, cols, rows, lines)

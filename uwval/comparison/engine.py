@@ -627,7 +627,7 @@ def _compare_once(reference: PoseStream, other: PoseStream, s: CompareSettings) 
             "latency; give --offset S (the known clock offset) for absolute "
             "latency"
         )
-    lag = _lag_fit(t, ref_pos, ref_quat, oth_pos, oth_quat, s, latency, estimate) if s.lag else None
+    lag = _lag_fit(samples, oth_pos, oth_quat, s, other, clock, latency) if s.lag else None
     sync_info = samples.sync_info
     stats: dict[str, Any] = {
         "schema": JSON_SCHEMA_VERSION,
@@ -689,40 +689,57 @@ def _compare_once(reference: PoseStream, other: PoseStream, s: CompareSettings) 
 
 
 def _lag_fit(
-    t: I64,
-    ref_pos: F64,
-    ref_quat: F64,
+    samples: AlignedSamples,
     oth_pos: F64,
     oth_quat: F64,
     s: CompareSettings,
+    other: PoseStream,
+    clock: ClockSetting,
     latency: dict[str, Any] | None,
-    estimate: OffsetEstimate | None,
 ) -> LagFit | None:
-    """The lag fitted from the aligned poses (thinned to MAX_FIT_SAMPLES), with the mean
-    latency measured from applied stamps attached when the log has them."""
+    """The lag fitted from the aligned poses (thinned to MAX_FIT_SAMPLES), with the latency
+    measured from applied stamps at the same samples when the log has them and the clock
+    offset was not estimated (an estimate absorbs the latency)."""
+    t = samples.t
     n = int(t.shape[0])
     step = max(1, math.ceil(n / MAX_FIT_SAMPLES))
     rows = slice(None, None, step)
-    tq = (t[rows] - t[0]).astype(np.float64) * 1e-9
+    t_fit = t[rows]
+    tq = (t_fit - t[0]).astype(np.float64) * 1e-9
     if tq.size < 8 or not bool(np.all(np.diff(tq) > 0)):
         return None
     ref_angles, errs, _ = _angle_errors(
-        np.ascontiguousarray(ref_quat[rows]), np.ascontiguousarray(oth_quat[rows])
+        np.ascontiguousarray(samples.ref_quat[rows]), np.ascontiguousarray(oth_quat[rows])
     )
     ref_rpy = np.column_stack([_unwrap_deg(a, in_place=True) for a in ref_angles])
-    fit = fit_lag(tq, ref_pos[rows], oth_pos[rows], ref_rpy, np.column_stack(errs), seed=s.lag_seed)
+    age = None
+    if other.applied_stamp is not None and clock.estimate is None and len(other) >= 2:
+        # each frame's age (its stamp on the reference clock minus the stamp it showed),
+        # lerped at the samples as the other's poses are
+        frame_t = other.t + np.int64(_offset_ns(clock.offset_s))
+        frame_age = (frame_t - other.applied_stamp).astype(np.float64) * 1e-9
+        age = np.interp(
+            (t_fit - t[0]).astype(np.float64), (frame_t - t[0]).astype(np.float64), frame_age
+        )
+    fit = fit_lag(
+        tq,
+        samples.ref_pos[rows],
+        oth_pos[rows],
+        ref_rpy,
+        np.column_stack(errs),
+        age_s=age,
+        seed=s.lag_seed,
+    )
     if fit is None:
         return None
     notes: list[str] = []
-    if estimate is not None:
+    if clock.estimate is not None:
         notes.append(
             "the clock offset was estimated (from the motion or applied stamps) and absorbs "
             "most of the lag: give --offset S (the known clock offset) to see the lag itself"
         )
-    measured = None
-    if latency is not None and estimate is None:
-        measured = float(latency["mean_ms"]) * 1e-3
-    return replace(fit, measured_s=measured, notes=notes)
+    mean = float(latency["mean_ms"]) * 1e-3 if latency and clock.estimate is None else None
+    return replace(fit, measured_mean_s=mean, notes=notes)
 
 
 def _fit_drift(reference: PoseStream, other: PoseStream, s: CompareSettings) -> DriftFit:

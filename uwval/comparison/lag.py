@@ -68,7 +68,11 @@ class LagFit:
         speed: mean |rate| per axis of the reference (m/s for x y z, deg/s for the angles).
         residual: per axis, the error once the lag is removed.
         raw_mae: per axis, the MAE of the samples the fit used (before removing the lag).
-        measured_s: the mean latency measured from applied stamps (s), when known.
+        measured_s: the latency measured from applied stamps (s), when known: the age of the
+            pose the other stream shows at the fitted samples, weighted as the fit weights
+            them (by the squared speed), so that it is the same quantity as ``fitted_s``.
+        measured_mean_s: the plain mean of that latency over the other stream's frames (s).
+        notes: caveats (e.g. an estimated clock offset absorbs the lag).
     """
 
     fitted_s: float
@@ -82,6 +86,7 @@ class LagFit:
     residual: dict[str, AxisResidual]
     raw_mae: dict[str, float]
     measured_s: float | None = None
+    measured_mean_s: float | None = None
     notes: list[str] = field(default_factory=list)
 
     @property
@@ -93,10 +98,6 @@ class LagFit:
         inside = lo <= self.measured_s <= hi
         close = abs(self.fitted_s - self.measured_s) <= AGREE_FRACTION * abs(self.measured_s)
         return bool(inside or close)
-
-    def with_measured(self, measured_s: float | None) -> LagFit:
-        """This fit with the latency measured from applied stamps (s) attached."""
-        return LagFit(**{**self.__dict__, "measured_s": measured_s})
 
     def to_json(self) -> dict[str, Any]:
         """The ``lag`` section of the compare JSON (docs/analysis.md)."""
@@ -111,7 +112,9 @@ class LagFit:
             "speed": dict(self.speed),
             "residual": {a: {"mae": r.mae, "rmse": r.rmse} for a, r in self.residual.items()},
             "measured_s": self.measured_s,
+            "measured_mean_s": self.measured_mean_s,
             "agrees": self.agrees,
+            "notes": list(self.notes),
             "sentence": lag_sentence(self),
         }
 
@@ -193,6 +196,7 @@ def fit_lag(
     reference_rpy_deg: F64 | None = None,
     angle_error_deg: F64 | None = None,
     *,
+    age_s: F64 | None = None,
     seed: int = 0,
     n_boot: int = N_BOOT,
 ) -> LagFit | None:
@@ -203,6 +207,8 @@ def fit_lag(
         reference_xyz, other_xyz: (N, 3) positions (m) on those stamps, one frame.
         reference_rpy_deg: (N, 3) the reference's roll, pitch, yaw (deg), unwrapped.
         angle_error_deg: (N, 3) other - reference angles (deg, wrapped to (-180, 180]).
+        age_s: (N,) the latency measured from applied stamps at each sample (s), if known:
+            gives ``measured_s``, weighted as the fit weights the samples.
         seed, n_boot: the bootstrap's seed and number of resamples.
 
     Returns None when neither the position nor the angles move enough to fit a lag.
@@ -250,7 +256,15 @@ def fit_lag(
                 math.sqrt(float(np.dot(r[:, j], r[:, j])) / r.shape[0]),
             )
             raw_mae[axis] = float(np.abs(ge[:, j]).mean())
+    measured = None
+    if age_s is not None:
+        weight = np.einsum("ij,ij->i", v, v)
+        age = np.asarray(age_s, dtype=np.float64)[::step]
+        ok = np.isfinite(age)
+        if float(weight[ok].sum()) > 0.0:
+            measured = float(np.dot(age[ok], weight[ok]) / weight[ok].sum())
     return LagFit(
+        measured_s=measured,
         fitted_s=fitted,
         ci95_s=ci,
         explained=explained,
@@ -293,7 +307,13 @@ def lag_sentence(fit: LagFit, axis: str = "x") -> str:
     text += "."
     if fit.measured_s is not None:
         verdict = "the two agree" if fit.agrees else "they disagree"
+        mean = (
+            f"; {_ms(fit.measured_mean_s)} ms averaged over Unity's frames"
+            if fit.measured_mean_s is not None
+            else ""
+        )
         text += (
-            f" The applied stamps measure a mean latency of {_ms(fit.measured_s)} ms: {verdict}."
+            f" The applied stamps measure {_ms(fit.measured_s)} ms at the same samples"
+            f"{mean}: {verdict}."
         )
     return text
