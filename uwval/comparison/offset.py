@@ -60,7 +60,14 @@ class OffsetEstimate:
                 else f"{self.signal} cross-correlation + golden-section least squares"
             ),
             "note": self.note,
+            "pinned": self.pinned,
         }
+
+    @property
+    def pinned(self) -> bool:
+        """Whether the data pin the offset (no doubt was noted: no rival minimum, no flat
+        or edge-bound cost curve)."""
+        return self.note is None
 
 
 def _rel_seconds(t: NDArray[np.int64], t0: int) -> F64:
@@ -143,7 +150,15 @@ def estimate_offset(
     vb = _velocity_on_grid(other, t0_oth, dt, n_oth, span)
     moving = float(np.abs(va).max()) > 1e-9 and float(np.abs(vb).max()) > 1e-9
     if same_frame and moving:
-        lag, corr, rival = _best_lag_mse(va, vb, max_lag, base)
+        _refuse_unexcited(va, vb)
+        lag, corr, rival, depth = _best_lag_mse(va, vb, max_lag, base)
+        if depth < MIN_COST_DEPTH:
+            raise AlignmentError(
+                "cannot estimate the clock offset from the motion: no offset fits clearly "
+                f"better than the others (the best lowers the velocity mismatch by only "
+                f"{depth * 100:.0f} % of its typical value), so any answer would be a guess; "
+                "give --offset S (the known clock offset) or log applied stamps"
+            )
         coarse = (t0_ref - t0_oth) * 1e-9 + lag * dt
         overlap = min(reference.duration, other.duration)
         window = max(2 * max(dt, per_oth, per_ref) * span, 0.005 * overlap)
@@ -151,10 +166,13 @@ def estimate_offset(
         if rival is not None:
             other_s = (t0_ref - t0_oth) * 1e-9 + rival * dt
             note = (
-                f"the motion repeats: offsets {coarse:.10g} s and {other_s:.10g} s fit almost "
-                "equally well, so the estimate may be wrong; give --offset S or bound the "
-                "search with --max-offset S" + (f" ({note})" if note else "")
+                f"--offset auto is NOT pinned: the motion repeats, offsets {coarse:.10g} s and "
+                f"{other_s:.10g} s fit almost equally well, so the estimate may be wrong by "
+                f"{abs(other_s - coarse):.6g} s; give --offset S or bound the search with "
+                "--max-offset S" + (f" ({note})" if note else "")
             )
+            # the honest uncertainty is the distance to the rival, not the local curvature
+            sigma = max(sigma, abs(other_s - coarse))
         return OffsetEstimate(fine, sigma, coarse, corr, "velocity", dt, note)
     signal = "speed"
     a = _speed_on_grid(reference, t0_ref, dt, n_ref, False, span)
@@ -163,6 +181,12 @@ def estimate_offset(
         signal = "angular_speed"
         a = _speed_on_grid(reference, t0_ref, dt, n_ref, True, span)
         b = _speed_on_grid(other, t0_oth, dt, n_oth, True, span)
+    if 0.0 < _excitation(a[:, None]) < MIN_EXCITATION and _excitation(b[:, None]) > 0.0:
+        raise AlignmentError(
+            "cannot estimate the clock offset from the motion: the reference's speed is "
+            "almost constant, so every offset fits about as well; give --offset S (the "
+            "known clock offset) or log applied stamps"
+        )
     if float(np.std(a)) < 1e-12 or float(np.std(b)) < 1e-12:
         raise AlignmentError(
             "cannot estimate a clock offset: the speed profile of "
@@ -221,12 +245,14 @@ def _lag_axis(na: int, nb: int, size: int) -> tuple[NDArray[np.int64], NDArray[n
 
 def _best_lag_mse(
     a: F64, b: F64, max_lag: int | None, base: float
-) -> tuple[int, float, int | None]:
+) -> tuple[int, float, int | None, float]:
     """Lag L minimising the mean of |a[k + L] - b[k]|^2 over the overlap (vector signals).
 
     Cross terms by FFT, squared norms over each overlap by cumulative sums: O(n log n).
-    Returns the lag, the correlation-like score 1 - mse / (mean|a|^2 + mean|b|^2) and a
-    rival lag that fits almost as well (see :func:`_rival_lag`), if any.
+    Returns the lag, the correlation-like score 1 - mse / (mean|a|^2 + mean|b|^2), a
+    rival lag that fits almost as well (see :func:`_rival_lag`), if any, and the depth of
+    the best minimum: (median mse over the allowed lags - best) / median (near 1 for a sharp
+    minimum, near 0 when every lag fits about as well: the motion cannot pin the offset).
     """
     na, nb = a.shape[0], b.shape[0]
     size = 1 << math.ceil(math.log2(na + nb))
@@ -253,7 +279,9 @@ def _best_lag_mse(
     j = int(np.argmin(mse))
     scale = max(1e-300, float((sa[j] + sb[j]) / cnt[j]))
     score = 1.0 - float(mse[j]) / scale
-    return int(lags[j]), score, _rival_lag(lags, mse, j, scale)
+    typical = median(mse[ok])
+    depth = (typical - float(mse[j])) / typical if typical > 0 else 0.0
+    return int(lags[j]), score, _rival_lag(lags, mse, j, scale), depth
 
 
 def _rival_lag(lags: NDArray[np.int64], mse: F64, j: int, scale: float) -> int | None:
@@ -276,6 +304,39 @@ def _rival_lag(lags: NDArray[np.int64], mse: F64, j: int, scale: float) -> int |
         return None
     k = int(np.flatnonzero(near)[np.argmin(m[near])])
     return int(lags[order[k]])
+
+
+#: Below this excitation (:func:`_excitation`) the reference moves at an almost constant
+#: velocity: shifting it in time only shifts it in space, which the search cannot see.
+MIN_EXCITATION = 1e-3
+#: Below this depth of the best minimum of the velocity mismatch (:func:`_best_lag_mse`)
+#: no offset fits clearly better than the others.
+MIN_COST_DEPTH = 0.5
+
+
+def _refuse_unexcited(va: F64, vb: F64) -> None:
+    """An AlignmentError when the reference (or the other) velocity barely changes."""
+    for name, v in (("reference", va), ("other stream", vb)):
+        ex = _excitation(v)
+        if ex < MIN_EXCITATION:
+            raise AlignmentError(
+                f"cannot estimate the clock offset from the motion: the {name} moves at an "
+                f"almost constant velocity (it varies by {math.sqrt(ex) * 100:.2g} % of its "
+                "size), and a time shift of such a motion is only a shift in space, so every "
+                "offset fits about as well; give --offset S (the known clock offset) or log "
+                "applied stamps"
+            )
+
+
+def _excitation(v: F64) -> float:
+    """How much a velocity signal (n, k) changes: the variance of its components around
+    their means over its mean squared norm (0 for a constant velocity, ~1 for a motion
+    that goes back and forth)."""
+    total = float(np.einsum("ij,ij->", v, v))
+    if total <= 0.0:
+        return 0.0
+    c = v - v.mean(axis=0)
+    return float(np.einsum("ij,ij->", c, c)) / total
 
 
 def _highpass(x: F64, width: int) -> F64:
