@@ -524,6 +524,7 @@ def _run_compare(
     offset: str = "0",
     recorded_clock: bool = False,
     max_offset: float | None = None,
+    drift: str = "off",
     align: str = "none",
     evo_align: bool = False,
     correct_scale: bool = False,
@@ -576,6 +577,7 @@ def _run_compare(
             max_diff=max_diff,
             offset=_parse_offset(offset),
             max_offset=max_offset,
+            drift=drift,
             align=mode,
             n_to_align=n_to_align,
             pairs=pairs,
@@ -707,6 +709,14 @@ COMPARE_OPTIONS: tuple[CompareOption, ...] = (
         "(--t_offset is evo's spelling, same sign)",
     ),
     CompareOption("max_offset", ("--max-offset",), float, None, "Bound for --offset auto (s)"),
+    CompareOption(
+        "drift",
+        ("--drift",),
+        str,
+        "off",
+        "Clock drift of the second stream: auto fits it (ppm; applied stamps, else the "
+        "lag's trend) and removes it; off leaves it (a long drifting run gets a warning)",
+    ),
     CompareOption(
         "align",
         ("--align",),
