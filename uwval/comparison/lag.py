@@ -33,7 +33,7 @@ POSITION_AXES = ("x", "y", "z")
 ANGLE_AXES = ("roll", "pitch", "yaw")
 #: Samples the fit uses at most (evenly thinned beyond): the lag of a long log is pinned long
 #: before a million samples, and the bootstrap's cost grows with the sample count.
-MAX_FIT_SAMPLES = 50_000
+MAX_FIT_SAMPLES = 20_000
 #: Bootstrap resamples of the 95 % CI.
 N_BOOT = 400
 #: Mean speed below which an axis group does not move enough to fit a lag (m/s, deg/s).
