@@ -111,6 +111,8 @@ def _by_hand(y: np.ndarray, design: pd.DataFrame) -> dict[str, dict[str, float]]
             "p": float(stats.f.sf(f_stat, dof[term], df_res)),
             "df": dof[term],
             "df_res": df_res,
+            "ss": s,
+            "total": float(((y - grand) ** 2).sum()),
         }
     return out
 
@@ -129,6 +131,7 @@ def test_partial_eta_squared_f_and_p_match_a_hand_computation() -> None:
         assert got[term]["f"] == pytest.approx(e["f"], rel=1e-9)
         assert got[term]["p"] == pytest.approx(e["p"], rel=1e-6, abs=1e-300)
         assert got[term]["df"] == e["df"]
+        assert got[term]["eta_sq"] == pytest.approx(e["ss"] / e["total"], rel=1e-9)
     assert cell["df_residual"] == expected["force"]["df_res"]
     # current dominates x MAE, as built
     assert got["current"]["partial_eta_sq"] > 0.9
@@ -179,7 +182,7 @@ def test_lag_summary_and_answer_sentence() -> None:
     assert lag["fitted_s_mean"] == pytest.approx(0.0124, abs=2e-4)
     assert doc["answer"] == answer_sentence(doc)
     assert doc["answer"].startswith("Unity shows Gazebo's pose 12.")
-    assert "Partial eta^2 of x MAE: current" in doc["answer"]
+    assert "Of the variation of x MAE across runs: current" in doc["answer"]
 
 
 def test_no_replicates_leaves_f_p_and_eta_undefined() -> None:

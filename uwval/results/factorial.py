@@ -91,8 +91,10 @@ def anova_terms(values: pd.Series, design: pd.DataFrame, factors: Sequence[str])
     index aligned with ``design``'s): OLS, Type II sums of squares.
 
     Each term: ``term``, ``df``,
-    ``sum_sq``, ``f``, ``p``, ``partial_eta_sq`` = SS / (SS + SS_residual); F, p and eta^2
-    are NaN with a note when the design leaves no residual variation to test against.
+    ``sum_sq``, ``f``, ``p``, ``partial_eta_sq`` = SS / (SS + SS_residual) and ``eta_sq`` =
+    SS / SS_total (the term's share of the variation across runs: with near-deterministic
+    replicates every partial eta^2 nears 1, the share still ranks the terms); F, p and
+    partial eta^2 are NaN with a note when the design leaves no residual to test against.
     """
     import statsmodels.formula.api as smf
     from statsmodels.stats.anova import anova_lm
@@ -129,6 +131,7 @@ def anova_terms(values: pd.Series, design: pd.DataFrame, factors: Sequence[str])
             if df_res <= 0
             else "the model fits every run exactly: F, p and partial eta^2 undefined"
         )
+    total = float(np.sum((y - y.mean()) ** 2))
     terms = []
     for name, row in table.drop(index="Residual").iterrows():
         ss = float(row["sum_sq"])
@@ -140,6 +143,7 @@ def anova_terms(values: pd.Series, design: pd.DataFrame, factors: Sequence[str])
                 "f": float(row["F"]) if testable else math.nan,
                 "p": float(row["PR(>F)"]) if testable else math.nan,
                 "partial_eta_sq": ss / (ss + ss_res) if testable else math.nan,
+                "eta_sq": ss / total,
             }
         )
     return AnovaFit(terms, df_res, ss_res, note)
@@ -328,12 +332,20 @@ def answer_sentence(doc: dict[str, Any], *, axis: str = "x", metric: str = "mae"
         parts.append(text + ".")
     cell = ((doc["topics"][topic].get(axis) or {}).get(metric)) or {}
     ranked = sorted(
-        (t for t in cell.get("terms", []) if t.get("partial_eta_sq") is not None),
-        key=lambda t: -t["partial_eta_sq"],
+        (t for t in cell.get("terms", []) if t.get("eta_sq") is not None),
+        key=lambda t: -t["eta_sq"],
     )
     if ranked:
-        listed = ", ".join(f"{t['term']} {t['partial_eta_sq']:.2f}" for t in ranked[:3])
-        parts.append(f"Partial eta^2 of {axis} {metric.upper()}: {listed}.")
+        listed = ", ".join(
+            f"{t['term']} {t['eta_sq'] * 100:.0f} %"
+            + (
+                f" (partial eta^2 {t['partial_eta_sq']:.2f})"
+                if t.get("partial_eta_sq") is not None
+                else ""
+            )
+            for t in ranked[:3]
+        )
+        parts.append(f"Of the variation of {axis} {metric.upper()} across runs: {listed}.")
     elif cell.get("note"):
         parts.append(f"{axis} {metric.upper()}: {cell['note']}.")
     return " ".join(parts) if parts else "No lag and no factor effect could be estimated."
