@@ -136,3 +136,10 @@ def test_real_clocks_with_an_offset_are_pinned_without_a_warning(
     # 3 s of clock offset plus the mean delay the motion cannot tell from it (50 ms + frames)
     assert -3.1 < est["offset_s"] < -3.05
     assert not any("pinned" in w for w in res.warnings)
+
+
+def test_a_vehicle_that_only_jitters_in_place_is_refused() -> None:
+    """No motion but measurement noise: every offset fits as badly as any other."""
+    ref, oth = _pair(lambda t: np.zeros((t.size, 3)))
+    with pytest.raises(AlignmentError, match="cannot estimate the clock offset"):
+        estimate_offset(ref, oth)
