@@ -3,6 +3,8 @@ and the stamp conversion that removes it."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -106,3 +108,18 @@ def test_remove_drift_scales_every_interval_and_keeps_the_first_stamp(
     # int64 nanoseconds: each stamp within half a nanosecond of the exact conversion
     assert np.all(np.abs((out.t - t[0]).astype(np.float64) - expected) <= 0.5 + 1e-9 * rel)
     assert np.all(np.diff(out.t) > 0)
+
+
+def test_cli_refuses_an_unknown_drift_mode_in_one_line(tmp_path: Path) -> None:
+    from cli_runner import run_uwval
+
+    from uwval.io.tum import write_tum
+
+    ref, other = _drifting_pair(0.0, duration=5.0)
+    a, b = tmp_path / "a.tum", tmp_path / "b.tum"
+    write_tum(a, ref)
+    write_tum(b, other)
+    res = run_uwval("compare", a, b, "--drift", "sometimes")
+    assert res.returncode != 0
+    assert "Traceback" not in res.stderr
+    assert "unknown drift mode 'sometimes'" in res.stderr

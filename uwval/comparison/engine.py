@@ -1,14 +1,20 @@
 """The compare engine: two pose streams in, aligned samples, per-axis errors and statistics out.
 
-Pipeline (DESIGN.md sections 3 and 7, issue 3): frame conversion of both streams into the
-canonical ENU/FLU convention (``frame='auto'`` asks the frame doctor) -> clock offset (given
-or estimated from the motion) -> time association (``interp``: lerp/slerp of the other stream
-at the reference stamps, never extrapolated, gaps masked; ``nearest``: evo's association) ->
-optional spatial alignment (evo's Umeyama / origin) -> signed errors other - reference per
-axis, position-error norm, geodesic angle -> statistics and the JSON contract.
+Pipeline (DESIGN.md sections 3 and 7, issues 3 and 31): clock drift (``drift='auto'``: fitted
+and removed from the other stream's stamps) -> frame conversion of both streams into the
+canonical ENU/FLU convention (``frame='auto'`` asks the frame doctor) -> clock offset (given,
+or estimated from applied stamps or the motion, refused when the motion cannot pin it) ->
+time association (``interp``: lerp/slerp of the other stream at the reference stamps, never
+extrapolated, gaps masked; ``nearest``: evo's association) -> optional spatial alignment
+(evo's Umeyama / origin) -> signed errors other - reference per axis, position-error norm,
+geodesic angle -> statistics, the lag fitted from the poses (:mod:`uwval.comparison.lag`)
+and the JSON contract.
 
-Size: one module on purpose: :func:`compare` is one pipeline whose steps share the
-validated inputs and the JSON contract; the steps themselves live in sync, align, offset, stats.
+:func:`compare` reads its options into a :class:`CompareSettings`; each step is a function
+of its own (:func:`_settle_clock`, :func:`_associate_interp` / :func:`_associate_nearest`,
+:func:`_spatial_alignment`, :func:`_lag_fit`) passing small frozen dataclasses
+(:class:`ClockSetting`, :class:`AlignedSamples`); the numerics live in sync, align, offset,
+stats and lag.
 """
 
 from __future__ import annotations
