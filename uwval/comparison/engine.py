@@ -383,15 +383,7 @@ def compare(
     if s.drift == "auto":
         drift = _fit_drift(reference, other, s)
         other = remove_drift(other, drift.removed_ppm)
-    result = _compare_once(reference, other, s)
-    offset_json = result.stats["offset"]
-    offset_json["drift_ppm"] = drift.removed_ppm if drift else 0.0
-    offset_json["drift"] = drift.to_json() if drift else None
-    if drift is None:
-        unremoved = _unremoved_drift(reference, other, result)
-        if unremoved:
-            result.warnings.append(unremoved)
-    return result
+    return _compare_once(reference, other, s, drift)
 
 
 def _checked_settings(s: CompareSettings) -> CompareSettings:
@@ -594,9 +586,12 @@ def _spatial_alignment(s: CompareSettings, a: AlignedSamples) -> Alignment:
     return _alignment(str(align), n_to_align, a.ref_pos, a.ref_quat, a.oth_pos, a.oth_quat)
 
 
-def _compare_once(reference: PoseStream, other: PoseStream, s: CompareSettings) -> ComparisonResult:
+def _compare_once(
+    reference: PoseStream, other: PoseStream, s: CompareSettings, drift: DriftFit | None = None
+) -> ComparisonResult:
     """One pass of the pipeline (frame, offset, association, alignment, statistics) with the
-    other stream's clock as given (drift, if any, already removed)."""
+    other stream's clock as given (``drift``, if fitted, already removed from it). With
+    ``drift='off'`` a long run whose clocks drift apart gets a warning."""
     warnings = _input_warnings(reference, other)
     frame_source = (
         "argument" if s.frame not in (None, "auto") else ("auto" if s.frame else "stream")
@@ -634,6 +629,10 @@ def _compare_once(reference: PoseStream, other: PoseStream, s: CompareSettings) 
             "latency"
         )
     lag = _lag_fit(samples, oth_pos, oth_quat, s, other, clock, latency) if s.lag else None
+    if s.drift == "off":
+        unremoved = _unremoved_drift(reference, other, t, ref_pos, oth_pos)
+        if unremoved:
+            warnings.append(unremoved)
     sync_info = samples.sync_info
     stats: dict[str, Any] = {
         "schema": JSON_SCHEMA_VERSION,
@@ -653,6 +652,8 @@ def _compare_once(reference: PoseStream, other: PoseStream, s: CompareSettings) 
             "applied_s": offset_s,
             "source": "auto" if estimate else "argument",
             "estimate": estimate.to_json() if estimate else None,
+            "drift_ppm": drift.removed_ppm if drift else 0.0,
+            "drift": drift.to_json() if drift else None,
         },
         "latency": latency,
         "lag": lag.to_json() if lag else None,
@@ -755,7 +756,9 @@ def _fit_drift(reference: PoseStream, other: PoseStream, s: CompareSettings) -> 
     if from_stamps is not None:
         return from_stamps
     first = _compare_once(
-        reference, other, replace(s, lag=False, drift="off", sync="interp", align="none")
+        reference,
+        other,
+        replace(s, lag=False, sync="interp", align="none"),  # no drift check
     )
     fit = drift_from_motion(
         (first.t - first.t[0]).astype(np.float64) * 1e-9,
@@ -770,18 +773,17 @@ def _fit_drift(reference: PoseStream, other: PoseStream, s: CompareSettings) -> 
     return fit
 
 
-def _unremoved_drift(reference: PoseStream, other: PoseStream, result: ComparisonResult) -> str:
-    """A warning when a long run shows a clock drift that was not removed, else ""."""
-    duration = result.n_samples and (int(result.t[-1]) - int(result.t[0])) * 1e-9
-    if not duration or duration < DRIFT_WARN_MIN_S:
+def _unremoved_drift(
+    reference: PoseStream, other: PoseStream, t: I64, ref_pos: F64, oth_pos: F64
+) -> str:
+    """A warning when a long run (aligned stamps ``t``, positions on them) shows a clock drift
+    that was not removed, else ""."""
+    duration = (int(t[-1]) - int(t[0])) * 1e-9 if t.shape[0] else 0.0
+    if duration < DRIFT_WARN_MIN_S:
         return ""
     fit = drift_from_applied_stamps(reference, other)
     if fit is None:
-        fit = drift_from_motion(
-            (result.t - result.t[0]).astype(np.float64) * 1e-9,
-            result.reference.position,
-            result.other.position,
-        )
+        fit = drift_from_motion((t - t[0]).astype(np.float64) * 1e-9, ref_pos, oth_pos)
     if fit is None or not fit.significant:
         return ""
     total_ms = abs(fit.ppm) * 1e-6 * duration * 1e3
