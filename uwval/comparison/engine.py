@@ -619,7 +619,7 @@ def _compare_once(
     axes, position_norm_stats, rotation_stats = _axis_statistics(
         ref_pos, ref_quat, oth_pos, oth_quat
     )
-    latency = latency_stats(other, offset_s)
+    latency = latency_stats(other, offset_s, (int(reference.t[0]), int(reference.t[-1])))
     estimate = clock.estimate
     if latency is not None and estimate is not None:
         # the motion cannot tell a clock offset from a delay: the estimate absorbs both

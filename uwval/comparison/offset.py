@@ -509,18 +509,32 @@ def _refine(
     return best, math.sqrt(sigma2 / info), note
 
 
-def latency_stats(other: PoseStream, offset_s: float = 0.0) -> dict[str, Any] | None:
+def latency_stats(
+    other: PoseStream, offset_s: float = 0.0, within_ns: tuple[int, int] | None = None
+) -> dict[str, Any] | None:
     """Latency (ms) from the reference stamp a Unity frame showed to the frame's own stamp.
 
     Needs ``other.applied_stamp`` (reference clock); ``offset_s`` converts the other clock
-    to the reference clock first. None when the stream carries no applied stamps.
+    to the reference clock first. ``within_ns``: the reference stream's span (ns, reference
+    clock); frames outside it are not counted (after the last reference pose a frame still
+    shows it, ever older: not a latency) and are reported as ``n_outside``. None when the
+    stream carries no applied stamps or no frame falls in the span.
     """
     if other.applied_stamp is None or len(other) == 0:
         return None
     lat_ns = (other.t - other.applied_stamp).astype(np.float64) + offset_s * 1e9
+    n_outside = 0
+    if within_ns is not None:
+        t_ref = other.t.astype(np.float64) + offset_s * 1e9
+        inside = (t_ref >= within_ns[0]) & (t_ref <= within_ns[1])
+        n_outside = int(lat_ns.size - np.count_nonzero(inside))
+        lat_ns = lat_ns[inside]
+        if lat_ns.size == 0:
+            return None
     lat = lat_ns * 1e-6
     return {
         "n": int(lat.size),
+        "n_outside": n_outside,
         "mean_ms": float(lat.mean()),
         "median_ms": median(lat),
         "std_ms": float(lat.std()),
