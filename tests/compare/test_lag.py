@@ -170,3 +170,11 @@ def test_t_quantile_matches_scipy(df: int) -> None:
 
     tol = 0.01 if df < 10 else 0.002
     assert t_quantile_975(df) == pytest.approx(float(stats.t.ppf(0.975, df)), rel=tol)
+
+
+def test_engine_says_why_there_is_no_lag() -> None:
+    tg = np.arange(0, 5, 1 / F)
+    still = np.zeros((tg.size, 3))
+    doc = compare(_stream(tg, still), _stream(tg, still + 0.001)).to_json()
+    assert doc["lag"] is None
+    assert "does not move enough" in doc["lag_reason"]

@@ -664,7 +664,10 @@ def _compare_once(
         "warnings": warnings,
     }
     if s.lag and lag is None:
-        stats["lag_reason"] = "the reference does not move enough to fit a lag"
+        stats["lag_reason"] = (
+            "no lag fitted: the reference does not move enough (or fewer than 8 samples, or "
+            "repeated stamps)"
+        )
     aligned_ref = PoseStream(
         t=t,
         position=ref_pos,
