@@ -177,7 +177,10 @@ def unit_for(axis: str, metric: str) -> str:
         return "m^2" if axis == "position_norm" else ""
     if axis in AXIS_UNITS:
         return AXIS_UNITS[axis]
+    if axis == "lag":
+        return _lag_unit(metric)
     for suffix, unit in (
+        ("_ppm", "ppm"),
         ("_ns", "ns"),
         ("_ms", "ms"),
         ("_s", "s"),
@@ -187,6 +190,20 @@ def unit_for(axis: str, metric: str) -> str:
     ):
         if metric.endswith(suffix):
             return unit
+    return ""
+
+
+def _lag_unit(metric: str) -> str:
+    """Units of the compare JSON's ``lag`` section (uwval.comparison.lag): seconds for the
+    lag and its CI, the axis's unit per second for ``speed.<axis>``, the axis's unit for
+    ``residual.<axis>.<stat>``; none for fractions and counts."""
+    parts = metric.split(".")
+    if parts[0] == "speed" and len(parts) == 2 and parts[1] in AXIS_UNITS:
+        return f"{AXIS_UNITS[parts[1]]}/s"
+    if parts[0] == "residual" and len(parts) == 3 and parts[1] in AXIS_UNITS:
+        return AXIS_UNITS[parts[1]]
+    if metric.endswith(("_s", "_s_low", "_s_high")):
+        return "s"
     return ""
 
 
