@@ -218,7 +218,11 @@ def _print_table(doc: dict[str, Any], title: str) -> None:
     if doc.get("latency"):
         lat = doc["latency"]
         line += f"; latency {num(lat['mean_ms'])} ms mean, {num(lat['p95_ms'])} ms p95"
+    if off.get("drift_ppm"):
+        line += f"; clock drift {off['drift_ppm']:+.2f} ppm removed"
     lines.append(_Line(line))
+    if doc.get("lag"):  # the study's answer (uwval.comparison.lag)
+        lines.append(_Line(doc["lag"]["sentence"], markup=False, highlight=False))
     lines += [_Line(w, highlight=False, warning=True) for w in doc.get("warnings", [])]
     if plain:
         text = _table_text(title, cols, rows, lines)
@@ -520,6 +524,7 @@ def _run_compare(
     offset: str = "0",
     recorded_clock: bool = False,
     max_offset: float | None = None,
+    drift: str = "off",
     align: str = "none",
     evo_align: bool = False,
     correct_scale: bool = False,
@@ -564,6 +569,7 @@ def _run_compare(
             max_diff=max_diff,
             offset=_parse_offset(offset),
             max_offset=max_offset,
+            drift=drift,
             align=mode,
             n_to_align=n_to_align,
             pairs=pairs,
@@ -695,6 +701,14 @@ COMPARE_OPTIONS: tuple[CompareOption, ...] = (
         "(--t_offset is evo's spelling, same sign)",
     ),
     CompareOption("max_offset", ("--max-offset",), float, None, "Bound for --offset auto (s)"),
+    CompareOption(
+        "drift",
+        ("--drift",),
+        str,
+        "off",
+        "Clock drift of the second stream: auto fits it (ppm; applied stamps, else the "
+        "lag's trend) and removes it; off leaves it (a long drifting run gets a warning)",
+    ),
     CompareOption(
         "align",
         ("--align",),

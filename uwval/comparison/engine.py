@@ -1,21 +1,27 @@
 """The compare engine: two pose streams in, aligned samples, per-axis errors and statistics out.
 
-Pipeline (DESIGN.md sections 3 and 7, issue 3): frame conversion of both streams into the
-canonical ENU/FLU convention (``frame='auto'`` asks the frame doctor) -> clock offset (given
-or estimated from the motion) -> time association (``interp``: lerp/slerp of the other stream
-at the reference stamps, never extrapolated, gaps masked; ``nearest``: evo's association) ->
-optional spatial alignment (evo's Umeyama / origin) -> signed errors other - reference per
-axis, position-error norm, geodesic angle -> statistics and the JSON contract.
+Pipeline (DESIGN.md sections 3 and 7, issues 3 and 31): clock drift (``drift='auto'``: fitted
+and removed from the other stream's stamps) -> frame conversion of both streams into the
+canonical ENU/FLU convention (``frame='auto'`` asks the frame doctor) -> clock offset (given,
+or estimated from applied stamps or the motion, refused when the motion cannot pin it) ->
+time association (``interp``: lerp/slerp of the other stream at the reference stamps, never
+extrapolated, gaps masked; ``nearest``: evo's association) -> optional spatial alignment
+(evo's Umeyama / origin) -> signed errors other - reference per axis, position-error norm,
+geodesic angle -> statistics, the lag fitted from the poses (:mod:`uwval.comparison.lag`)
+and the JSON contract.
 
-Size: one module on purpose: :func:`compare` is one pipeline whose steps share the
-validated inputs and the JSON contract; the steps themselves live in sync, align, offset, stats.
+:func:`compare` reads its options into a :class:`CompareSettings`; each step is a function
+of its own (:func:`_settle_clock`, :func:`_associate_interp` / :func:`_associate_nearest`,
+:func:`_spatial_alignment`, :func:`_lag_fit`) passing small frozen dataclasses
+(:class:`ClockSetting`, :class:`AlignedSamples`); the numerics live in sync, align, offset,
+stats and lag.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -23,7 +29,16 @@ from numpy.typing import NDArray
 
 from uwval.comparison.align import Alignment, AlignMode, estimate_alignment
 from uwval.comparison.doctor import FrameDiagnosis, diagnose, thinning_step
-from uwval.comparison.offset import OffsetEstimate, estimate_offset, latency_stats
+from uwval.comparison.lag import MAX_FIT_SAMPLES, LagFit, fit_lag
+from uwval.comparison.offset import (
+    DriftFit,
+    OffsetEstimate,
+    drift_from_applied_stamps,
+    drift_from_motion,
+    estimate_offset,
+    latency_stats,
+    remove_drift,
+)
 from uwval.comparison.relations import RELATION_UNITS
 from uwval.comparison.stats import axis_stats, norm_stats
 from uwval.comparison.sync import (
@@ -93,6 +108,7 @@ class ComparisonResult:
     offset_estimate: OffsetEstimate | None = None
     diagnosis: FrameDiagnosis | None = None
     warnings: list[str] = field(default_factory=list)
+    lag: LagFit | None = None
 
     _errors: dict[str, F64] | None = field(default=None, repr=False)
 
@@ -263,66 +279,160 @@ def _offset_ns(offset_s: float) -> int:
     return round(offset_s * 1e9)
 
 
+class DriftMode(StrEnum):
+    """Clock drift handling (a StrEnum: each equals its CLI string)."""
+
+    OFF = "off"
+    AUTO = "auto"
+
+
+DRIFT_MODES = tuple(m.value for m in DriftMode)
+
+#: A run at least this long (s) whose clocks drift apart by at least DRIFT_WARN_PPM, and by at
+#: least DRIFT_WARN_MS over the run, gets a warning when the drift is not removed.
+DRIFT_WARN_MIN_S = 60.0
+DRIFT_WARN_PPM = 5.0
+DRIFT_WARN_MS = 1.0
+
+
+@dataclass(frozen=True)
+class CompareSettings:
+    """How :func:`compare` lines the streams up and what it computes (its doc says each)."""
+
+    frame: str | None = None
+    sync: SyncMethod | str = SyncMethod.INTERP
+    max_gap: float | None = None
+    max_diff: float = 0.01
+    offset: float | str = 0.0
+    max_offset: float | None = None
+    align: AlignMode | str = AlignMode.NONE
+    min_samples: int = 2
+    check_frame: bool | None = None
+    n_to_align: int = -1
+    drift: DriftMode | str = DriftMode.OFF
+    lag: bool = True
+    lag_seed: int = 0
+
+
+@dataclass(frozen=True)
+class AlignedSamples:
+    """The two streams' poses on common stamps (ENU world / FLU body, reference clock).
+
+    ``t`` int64 ns; positions (M, 3) m; orientations (M, 4) xyzw; ``sync_info`` the JSON
+    ``sync`` section (what matched, what was masked or dropped)."""
+
+    t: I64
+    ref_pos: F64
+    ref_quat: F64
+    oth_pos: F64
+    oth_quat: F64
+    sync_info: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class ClockSetting:
+    """The frame and clock offset compare settled on for the other stream."""
+
+    configured: str
+    raw_other: PoseStream
+    offset_s: float
+    estimate: OffsetEstimate | None
+    diagnosis: FrameDiagnosis | None
+    period_ns: int
+
+
 def compare(
     reference: PoseStream,
     other: PoseStream,
-    *,
-    frame: str | None = None,
-    sync: SyncMethod | str = SyncMethod.INTERP,
-    max_gap: float | None = None,
-    max_diff: float = 0.01,
-    offset: float | str = 0.0,
-    max_offset: float | None = None,
-    align: AlignMode | str = AlignMode.NONE,
-    min_samples: int = 2,
-    check_frame: bool | None = None,
-    n_to_align: int = -1,
+    settings: CompareSettings | None = None,
+    **options: Any,
 ) -> ComparisonResult:
     """Compare ``other`` (e.g. Unity) against ``reference`` (Gazebo, the truth).
 
-    Args:
-        reference: the reference stream (its ``frame`` is honoured; normally ``enu``).
-        other: the stream under test, in the convention ``frame`` (default: ``other.frame``,
-            read from the log); ``"auto"`` lets the frame doctor pick it.
-        sync: ``"interp"`` (lerp + slerp of other at the reference stamps, no extrapolation,
-            samples in gaps longer than ``max_gap`` seconds masked; default 5 nominal periods)
-            or ``"nearest"`` (evo's association within ``max_diff`` seconds).
-        offset: seconds added to the other stream's stamps (evo's ``offset_2`` sign), or
-            ``"auto"`` to estimate it from the motion (bounded by ``max_offset`` if given).
-        align: ``none``, ``se3``, ``sim3`` (Umeyama, as evo), ``origin``, or ``scale``
-            (evo's ``-s`` alone: the Sim(3) scale only, no rotation or translation).
-        n_to_align: fit the alignment on the first ``n_to_align`` aligned samples only
-            (evo's ``--n_to_align``; -1: all), then apply it to every sample.
-        min_samples: fewer aligned samples than this is an :class:`AlignmentError`.
-        check_frame: run the frame doctor (cheap, subsampled) and warn when the configured
-            convention fits worse than another one; default: when the other stream is in a
-            Unity (left-handed) convention, where a wrong To<...>() map is the common bug.
+    ``options`` are fields of :class:`CompareSettings` (they override ``settings``):
+
+    - ``frame``: the other stream's convention (default: ``other.frame``, read from the log);
+      ``"auto"`` lets the frame doctor pick it.
+    - ``sync``: ``"interp"`` (lerp + slerp of other at the reference stamps, no
+      extrapolation, samples in gaps longer than ``max_gap`` seconds masked; default 5
+      nominal periods) or ``"nearest"`` (evo's association within ``max_diff`` seconds).
+    - ``offset``: seconds added to the other stream's stamps (evo's ``offset_2`` sign), or
+      ``"auto"`` to estimate it (applied stamps, else the motion; bounded by
+      ``max_offset``); refused when the motion cannot pin it (constant velocity, no
+      excitation), a warning when it repeats.
+    - ``drift``: ``"auto"`` fits the other clock's rate error (ppm; applied stamps, else the
+      lag's trend over the run) and removes it before the offset; ``"off"`` (default) leaves
+      it and warns when a long run shows one.
+    - ``align``: ``none``, ``se3``, ``sim3`` (Umeyama, as evo), ``origin``, or ``scale``
+      (evo's ``-s`` alone); ``n_to_align``: fit it on the first samples only (-1: all).
+    - ``min_samples``: fewer aligned samples than this is an :class:`AlignmentError`.
+    - ``check_frame``: run the frame doctor and warn when another convention fits better;
+      default: when the other stream is in a Unity (left-handed) convention.
+    - ``lag``: fit the lag from the poses (:mod:`uwval.comparison.lag`), seeded by
+      ``lag_seed``; its JSON section is ``lag``.
     """
-    if sync not in SYNC_METHODS:
+    s = settings or CompareSettings()
+    if options:
+        unknown = sorted(set(options) - set(CompareSettings.__dataclass_fields__))
+        if unknown:
+            raise TypeError(f"compare() got unexpected keyword argument(s) {unknown}")
+        s = replace(s, **options)
+    s = _checked_settings(s)
+    _check_streams(reference, other)
+    drift: DriftFit | None = None
+    if s.drift == "auto":
+        drift = _fit_drift(reference, other, s)
+        other = remove_drift(other, drift.removed_ppm)
+    return _compare_once(reference, other, s, drift)
+
+
+def _checked_settings(s: CompareSettings) -> CompareSettings:
+    """The settings with their enums as plain strings, or an AlignmentError naming what is
+    wrong."""
+    if s.sync not in SYNC_METHODS:
         raise AlignmentError(
-            f"unknown sync method {sync!r}; choose one of {', '.join(SYNC_METHODS)}"
+            f"unknown sync method {s.sync!r}; choose one of {', '.join(SYNC_METHODS)}"
         )
-    sync = SyncMethod(sync).value  # a plain str from here on (it goes into the JSON)
-    if len(reference) < 1 or len(other) < 1:
-        raise AlignmentError("cannot compare an empty stream")
-    if max_gap is not None and not (max_gap > 0 and max_gap <= MAX_SECONDS):
+    if s.drift not in DRIFT_MODES:
         raise AlignmentError(
-            f"max_gap must be a positive number of seconds up to {MAX_SECONDS:.4g}, got {max_gap}"
+            f"unknown drift mode {s.drift!r}; choose one of {', '.join(DRIFT_MODES)}"
         )
-    if not (max_diff >= 0 and max_diff <= MAX_SECONDS):
+    if s.max_gap is not None and not (s.max_gap > 0 and s.max_gap <= MAX_SECONDS):
+        raise AlignmentError(
+            f"max_gap must be a positive number of seconds up to {MAX_SECONDS:.4g}, got {s.max_gap}"
+        )
+    if not (s.max_diff >= 0 and s.max_diff <= MAX_SECONDS):
         raise AlignmentError(
             f"max_diff must be a non-negative number of seconds up to {MAX_SECONDS:.4g}, "
-            f"got {max_diff}"
+            f"got {s.max_diff}"
         )
+    offset = s.offset
+    if isinstance(offset, str) and offset != "auto":
+        try:
+            offset = float(offset)
+        except ValueError:
+            raise AlignmentError(f"offset must be seconds or 'auto', got {offset!r}") from None
     if isinstance(offset, int | float):
         _check_offset(offset)
-    if max_offset is not None and not max_offset > 0:  # NaN fails too
+        offset = float(offset)
+    if s.max_offset is not None and not s.max_offset > 0:  # NaN fails too
         raise AlignmentError(
-            f"max_offset must be a positive number of seconds (or none), got {max_offset}"
+            f"max_offset must be a positive number of seconds (or none), got {s.max_offset}"
         )
-    for s in (reference, other):
-        check_pose_values(s)
-    # What the readers found wrong with either source travels with the result (never silent).
+    # plain strs from here on (they go into the JSON)
+    return replace(s, sync=SyncMethod(s.sync).value, drift=DriftMode(s.drift).value, offset=offset)
+
+
+def _check_streams(reference: PoseStream, other: PoseStream) -> None:
+    if len(reference) < 1 or len(other) < 1:
+        raise AlignmentError("cannot compare an empty stream")
+    for stream in (reference, other):
+        check_pose_values(stream)
+
+
+def _input_warnings(reference: PoseStream, other: PoseStream) -> list[str]:
+    """What the readers found wrong with either source (it travels with the result: never
+    silent), messages not used, and a frame_id mismatch."""
     # (dict.fromkeys: once each, in order: two topics of one log carry the same log warning)
     warnings: list[str] = list(dict.fromkeys(w for s in (reference, other) for w in s.warnings))
     for s in (reference, other):
@@ -334,42 +444,39 @@ def compare(
     mismatch = frame_id_mismatch(reference, other)
     if mismatch:
         warnings.append(mismatch)
-    frame_source = "argument" if frame not in (None, "auto") else ("auto" if frame else "stream")
-    configured = other.frame if frame in (None, "auto") else get_convention(frame).name
-    ref_c = _to_canonical(reference)
-    raw_other = other.with_(frame=configured) if configured != other.frame else other
+    return warnings
 
-    # ---- clock offset (redone after a frame change: the velocity match is frame-dependent)
+
+def _settle_clock(
+    ref_c: PoseStream, other: PoseStream, s: CompareSettings, warnings: list[str]
+) -> ClockSetting:
+    """The other stream's frame (given, from the log, or the doctor's) and clock offset
+    (given or estimated; redone after a frame change: the velocity match depends on it)."""
+    frame = s.frame
+    configured = other.frame if frame in (None, "auto") else get_convention(frame).name
+    raw_other = other.with_(frame=configured) if configured != other.frame else other
     estimate: OffsetEstimate | None = None
-    if isinstance(offset, str) and offset != "auto":
-        try:
-            offset = float(offset)
-        except ValueError:
-            raise AlignmentError(f"offset must be seconds or 'auto', got {offset!r}") from None
-        _check_offset(offset)
-    if offset == "auto":
+    if s.offset == "auto":
         if frame == "auto":
             # the frame is unknown yet: estimate under every known convention, keep the
             # one whose velocities agree best (the doctor then confirms the frame)
             trials = [
                 estimate_offset(
-                    ref_c, _to_canonical(other.with_(frame=name)), max_offset=max_offset
+                    ref_c, _to_canonical(other.with_(frame=name)), max_offset=s.max_offset
                 )
                 for name in CONVENTIONS
             ]
             estimate = max(trials, key=lambda e: e.correlation)
         else:
-            estimate = estimate_offset(ref_c, _to_canonical(raw_other), max_offset=max_offset)
+            estimate = estimate_offset(ref_c, _to_canonical(raw_other), max_offset=s.max_offset)
         offset_s = estimate.offset
     else:
-        offset_s = float(offset)
-
+        offset_s = float(s.offset)
     # the other stream's nominal period (its stamps' median step; frame and offset do not
     # change it): the default gap limit of both interpolations and a sync_info entry
     period_ns = nominal_period_ns(other.t)
-
-    # ---- frame doctor on interpolated raw samples
     diagnosis: FrameDiagnosis | None = None
+    check_frame = s.check_frame
     if check_frame is None:
         check_frame = get_convention(configured).left_handed
     if (frame == "auto" or check_frame) and len(other) >= 2 and len(ref_c) >= 2:
@@ -380,94 +487,187 @@ def compare(
                 raw_other = other.with_(frame=configured)
                 if estimate is not None:
                     estimate = estimate_offset(
-                        ref_c, _to_canonical(raw_other), max_offset=max_offset
+                        ref_c, _to_canonical(raw_other), max_offset=s.max_offset
                     )
                     offset_s = estimate.offset
             elif diagnosis.warning:
                 warnings.append(diagnosis.warning)
-    oth_c = _to_canonical(raw_other)
     if estimate is not None and estimate.note:
         warnings.append(estimate.note)
+    return ClockSetting(configured, raw_other, offset_s, estimate, diagnosis, period_ns)
 
-    # ---- time association
-    sync_info: dict[str, Any] = {"method": sync, "n_reference": len(ref_c), "n_other": len(oth_c)}
-    if sync == "interp":
-        max_gap_ns = 5 * period_ns if max_gap is None else round(max_gap * 1e9)
-        interp = interpolate_at(
-            oth_c, ref_c.t, max_gap_ns=max_gap_ns, offset_ns=-_offset_ns(offset_s)
+
+def _associate_interp(
+    ref_c: PoseStream,
+    oth_c: PoseStream,
+    s: CompareSettings,
+    clock: ClockSetting,
+    warnings: list[str],
+) -> AlignedSamples:
+    """The other stream interpolated at the reference stamps (gaps masked)."""
+    sync_info: dict[str, Any] = {"method": s.sync, "n_reference": len(ref_c), "n_other": len(oth_c)}
+    max_gap_ns = 5 * clock.period_ns if s.max_gap is None else round(s.max_gap * 1e9)
+    interp = interpolate_at(
+        oth_c, ref_c.t, max_gap_ns=max_gap_ns, offset_ns=-_offset_ns(clock.offset_s)
+    )
+    # valid samples are usually one run (invalid ones only outside the other's span):
+    # take the rows as views then, not copies (as nearest does; streams are not mutated)
+    rows = index_or_slice(np.flatnonzero(interp.valid))
+    sync_info.update(
+        matched=int(interp.valid.sum()),
+        masked=interp.in_gap,
+        dropped=interp.outside,
+        max_gap_s=interp.max_gap_ns * 1e-9,
+        other_nominal_period_s=clock.period_ns * 1e-9,
+    )
+    if interp.in_gap:
+        warnings.append(
+            f"{interp.in_gap} reference samples fall in gaps of the other stream "
+            f"longer than {interp.max_gap_ns * 1e-9:.6g} s and were masked"
         )
-        valid = interp.valid
-        n_valid = int(valid.sum())
-        # valid samples are usually one run (invalid ones only outside the other's span):
-        # take the rows as views then, not copies (as nearest does; streams are not mutated)
-        rows = index_or_slice(np.flatnonzero(valid))
-        t = ref_c.t[rows]
-        ref_pos, ref_quat = ref_c.position[rows], ref_c.orientation[rows]
-        oth_pos, oth_quat = interp.position[rows], interp.orientation[rows]
-        sync_info.update(
-            matched=n_valid,
-            masked=interp.in_gap,
-            dropped=interp.outside,
-            max_gap_s=interp.max_gap_ns * 1e-9,
-            other_nominal_period_s=period_ns * 1e-9,
-        )
-        if interp.in_gap:
-            warnings.append(
-                f"{interp.in_gap} reference samples fall in gaps of the other stream "
-                f"longer than {interp.max_gap_ns * 1e-9:.6g} s and were masked"
-            )
+    return AlignedSamples(
+        ref_c.t[rows],
+        ref_c.position[rows],
+        ref_c.orientation[rows],
+        interp.position[rows],
+        interp.orientation[rows],
+        sync_info,
+    )
+
+
+def _associate_nearest(
+    ref_c: PoseStream, oth_c: PoseStream, s: CompareSettings, offset_s: float
+) -> AlignedSamples:
+    """evo's nearest-stamp association within ``max_diff``."""
+    match = associate_nearest(ref_c, oth_c, max_diff=s.max_diff, offset=offset_s)
+    ref_sel, oth_sel = index_or_slice(match.ref_idx), index_or_slice(match.other_idx)
+    if match.reference_drives:
+        t = ref_c.t[ref_sel]
     else:
-        match = associate_nearest(ref_c, oth_c, max_diff=max_diff, offset=offset_s)
-        ref_sel, oth_sel = index_or_slice(match.ref_idx), index_or_slice(match.other_idx)
-        if match.reference_drives:
-            t = ref_c.t[ref_sel]
-        else:
-            t = oth_c.t[oth_sel]
-            if _offset_ns(offset_s):
-                t = t + np.int64(_offset_ns(offset_s))
-        ref_pos, ref_quat = ref_c.position[ref_sel], ref_c.orientation[ref_sel]
-        oth_pos, oth_quat = oth_c.position[oth_sel], oth_c.orientation[oth_sel]
-        matched = int(match.ref_idx.size)
-        sync_info.update(
-            matched=matched,
-            masked=0,
-            dropped=match.n_candidates - matched,
-            max_diff_s=max_diff,
-            driving_stream="reference" if match.reference_drives else "other",
-            reused_reference=_repeats(match.ref_idx),
-            reused_other=_repeats(match.other_idx),
-        )
-        del match  # its index arrays are not needed any more (rows are taken above)
-    n = int(t.shape[0])
-    if n < max(1, min_samples):
-        raise AlignmentError(
-            f"only {n} aligned samples between {reference.describe()} and {other.describe()} "
-            f"(need {min_samples}; offset {offset_s:g} s, sync {sync}): "
-            + _overlap_hint(reference, other, offset_s)
-        )
+        t = oth_c.t[oth_sel]
+        if _offset_ns(offset_s):
+            t = t + np.int64(_offset_ns(offset_s))
+    matched = int(match.ref_idx.size)
+    sync_info: dict[str, Any] = {"method": s.sync, "n_reference": len(ref_c), "n_other": len(oth_c)}
+    sync_info.update(
+        matched=matched,
+        masked=0,
+        dropped=match.n_candidates - matched,
+        max_diff_s=s.max_diff,
+        driving_stream="reference" if match.reference_drives else "other",
+        reused_reference=_repeats(match.ref_idx),
+        reused_other=_repeats(match.other_idx),
+    )
+    return AlignedSamples(
+        t,
+        ref_c.position[ref_sel],
+        ref_c.orientation[ref_sel],
+        oth_c.position[oth_sel],
+        oth_c.orientation[oth_sel],
+        sync_info,
+    )
 
-    # ---- spatial alignment
+
+def _spatial_alignment(s: CompareSettings, a: AlignedSamples) -> Alignment:
+    """The spatial alignment of the other poses onto the reference (evo's options)."""
+    align, n_to_align = s.align, s.n_to_align
     if align == "scale_origin":  # evo_ape -s --align_origin: the scale, then the origin
         from uwval.comparison.rpe import _alignment
 
-        scale = _alignment("scale", n_to_align, ref_pos, ref_quat, oth_pos, oth_quat)
-        p1, q1 = scale.apply(oth_pos, oth_quat)
-        origin = estimate_alignment("origin", ref_pos, ref_quat, p1, q1)
+        scale = _alignment("scale", n_to_align, a.ref_pos, a.ref_quat, a.oth_pos, a.oth_quat)
+        p1, q1 = scale.apply(a.oth_pos, a.oth_quat)
+        origin = estimate_alignment("origin", a.ref_pos, a.ref_quat, p1, q1)
         # R (s p) + t = s R p + t: one similarity transform
-        alignment = Alignment("scale_origin", origin.rotation, origin.translation, scale.scale)
-    elif n_to_align == -1 and align != "scale":
-        alignment = estimate_alignment(align, ref_pos, ref_quat, oth_pos, oth_quat)
-    else:  # evo's -s alone / --n_to_align: the same helper as uwval rpe
-        from uwval.comparison.rpe import _alignment
+        return Alignment("scale_origin", origin.rotation, origin.translation, scale.scale)
+    if n_to_align == -1 and align != "scale":
+        return estimate_alignment(align, a.ref_pos, a.ref_quat, a.oth_pos, a.oth_quat)
+    from uwval.comparison.rpe import _alignment  # evo's -s alone / --n_to_align
 
-        alignment = _alignment(str(align), n_to_align, ref_pos, ref_quat, oth_pos, oth_quat)
-    oth_pos, oth_quat = alignment.apply(oth_pos, oth_quat)
+    return _alignment(str(align), n_to_align, a.ref_pos, a.ref_quat, a.oth_pos, a.oth_quat)
 
-    # ---- errors: statistics axis by axis; the series themselves are recomputed on demand
+
+def _compare_once(
+    reference: PoseStream, other: PoseStream, s: CompareSettings, drift: DriftFit | None = None
+) -> ComparisonResult:
+    """One pass of the pipeline (frame, offset, association, alignment, statistics) with the
+    other stream's clock as given (``drift``, if fitted, already removed from it). With
+    ``drift='off'`` a long run whose clocks drift apart gets a warning."""
+    warnings = _input_warnings(reference, other)
+    frame_source = (
+        "argument" if s.frame not in (None, "auto") else ("auto" if s.frame else "stream")
+    )
+    ref_c = _to_canonical(reference)
+    clock = _settle_clock(ref_c, other, s, warnings)
+    oth_c = _to_canonical(clock.raw_other)
+    offset_s = clock.offset_s
+    if s.sync == "interp":
+        samples = _associate_interp(ref_c, oth_c, s, clock, warnings)
+    else:
+        samples = _associate_nearest(ref_c, oth_c, s, offset_s)
+    t = samples.t
+    n = int(t.shape[0])
+    if n < max(1, s.min_samples):
+        raise AlignmentError(
+            f"only {n} aligned samples between {reference.describe()} and {other.describe()} "
+            f"(need {s.min_samples}; offset {offset_s:g} s, sync {s.sync}): "
+            + _overlap_hint(reference, other, offset_s)
+        )
+    alignment = _spatial_alignment(s, samples)
+    oth_pos, oth_quat = alignment.apply(samples.oth_pos, samples.oth_quat)
+    ref_pos, ref_quat = samples.ref_pos, samples.ref_quat
+    # errors: statistics axis by axis; the series themselves are recomputed on demand
     axes, position_norm_stats, rotation_stats = _axis_statistics(
         ref_pos, ref_quat, oth_pos, oth_quat
     )
-
+    latency = latency_stats(other, offset_s, (int(reference.t[0]), int(reference.t[-1])))
+    estimate = clock.estimate
+    if latency is not None and estimate is not None:
+        # the motion cannot tell a clock offset from a delay: the estimate absorbs both
+        latency["note"] = (
+            "the offset was estimated from the motion and absorbs the mean "
+            "latency; give --offset S (the known clock offset) for absolute "
+            "latency"
+        )
+    lag = _lag_fit(samples, oth_pos, oth_quat, s, other, clock, latency) if s.lag else None
+    if s.drift == "off":
+        unremoved = _unremoved_drift(reference, other, t, ref_pos, oth_pos)
+        if unremoved:
+            warnings.append(unremoved)
+    sync_info = samples.sync_info
+    stats: dict[str, Any] = {
+        "schema": JSON_SCHEMA_VERSION,
+        "n_samples": n,
+        "reference": _stream_info(reference),
+        "other": _stream_info(other),
+        "frame": {
+            "configured": clock.configured,
+            "source": frame_source,
+            "reference": get_convention(reference.frame).name,
+            "compared_in": "enu",
+        },
+        "frame_doctor": clock.diagnosis.to_json() if clock.diagnosis else None,
+        "sync": sync_info,
+        "counts": {k: sync_info[k] for k in ("matched", "masked", "dropped")},
+        "offset": {
+            "applied_s": offset_s,
+            "source": "auto" if estimate else "argument",
+            "estimate": estimate.to_json() if estimate else None,
+            "drift_ppm": drift.removed_ppm if drift else 0.0,
+            "drift": drift.to_json() if drift else None,
+        },
+        "latency": latency,
+        "lag": lag.to_json() if lag else None,
+        "alignment": alignment.to_json(),
+        "axes": axes,
+        "position_error_norm": position_norm_stats,
+        "rotation_error_deg": rotation_stats,
+        "warnings": warnings,
+    }
+    if s.lag and lag is None:
+        stats["lag_reason"] = (
+            "no lag fitted: the reference does not move enough (or fewer than 8 samples, or "
+            "repeated stamps)"
+        )
     aligned_ref = PoseStream(
         t=t,
         position=ref_pos,
@@ -484,44 +684,6 @@ def compare(
         topic=other.topic,
         source=other.source,
     )
-    latency = latency_stats(other, offset_s, (int(reference.t[0]), int(reference.t[-1])))
-    if latency is not None and estimate is not None:
-        # the motion cannot tell a clock offset from a delay: the estimate absorbs both
-        latency["note"] = (
-            "the offset was estimated from the motion and absorbs the mean "
-            "latency; give --offset S (the known clock offset) for absolute "
-            "latency"
-        )
-    stats: dict[str, Any] = {
-        "schema": JSON_SCHEMA_VERSION,
-        "n_samples": n,
-        "reference": _stream_info(reference),
-        "other": _stream_info(other),
-        "frame": {
-            "configured": configured,
-            "source": frame_source,
-            "reference": get_convention(reference.frame).name,
-            "compared_in": "enu",
-        },
-        "frame_doctor": diagnosis.to_json() if diagnosis else None,
-        "sync": sync_info,
-        "counts": {
-            "matched": sync_info["matched"],
-            "masked": sync_info["masked"],
-            "dropped": sync_info["dropped"],
-        },
-        "offset": {
-            "applied_s": offset_s,
-            "source": "auto" if estimate else "argument",
-            "estimate": estimate.to_json() if estimate else None,
-        },
-        "latency": latency,
-        "alignment": alignment.to_json(),
-        "axes": axes,
-        "position_error_norm": position_norm_stats,
-        "rotation_error_deg": rotation_stats,
-        "warnings": warnings,
-    }
     return ComparisonResult(
         t=t,
         reference=aligned_ref,
@@ -530,8 +692,109 @@ def compare(
         alignment=alignment,
         offset_s=offset_s,
         offset_estimate=estimate,
-        diagnosis=diagnosis,
+        diagnosis=clock.diagnosis,
         warnings=warnings,
+        lag=lag,
+    )
+
+
+def _lag_fit(
+    samples: AlignedSamples,
+    oth_pos: F64,
+    oth_quat: F64,
+    s: CompareSettings,
+    other: PoseStream,
+    clock: ClockSetting,
+    latency: dict[str, Any] | None,
+) -> LagFit | None:
+    """The lag fitted from the aligned poses (thinned to MAX_FIT_SAMPLES), with the latency
+    measured from applied stamps at the same samples when the log has them and the clock
+    offset was not estimated (an estimate absorbs the latency)."""
+    t = samples.t
+    n = int(t.shape[0])
+    step = max(1, math.ceil(n / MAX_FIT_SAMPLES))
+    rows = slice(None, None, step)
+    t_fit = t[rows]
+    tq = (t_fit - t[0]).astype(np.float64) * 1e-9
+    if tq.size < 8 or not bool(np.all(np.diff(tq) > 0)):
+        return None
+    ref_angles, errs, _ = _angle_errors(
+        np.ascontiguousarray(samples.ref_quat[rows]), np.ascontiguousarray(oth_quat[rows])
+    )
+    ref_rpy = np.column_stack([_unwrap_deg(a, in_place=True) for a in ref_angles])
+    age = None
+    if other.applied_stamp is not None and clock.estimate is None and len(other) >= 2:
+        # each frame's age (its stamp on the reference clock minus the stamp it showed),
+        # lerped at the samples as the other's poses are
+        frame_t = other.t + np.int64(_offset_ns(clock.offset_s))
+        frame_age = (frame_t - other.applied_stamp).astype(np.float64) * 1e-9
+        age = np.interp(
+            (t_fit - t[0]).astype(np.float64), (frame_t - t[0]).astype(np.float64), frame_age
+        )
+    fit = fit_lag(
+        tq,
+        samples.ref_pos[rows],
+        oth_pos[rows],
+        ref_rpy,
+        np.column_stack(errs),
+        age_s=age,
+        seed=s.lag_seed,
+    )
+    if fit is None:
+        return None
+    notes: list[str] = []
+    if clock.estimate is not None:
+        notes.append(
+            "the clock offset was estimated (from the motion or applied stamps) and absorbs "
+            "most of the lag: give --offset S (the known clock offset) to see the lag itself"
+        )
+    mean = float(latency["mean_ms"]) * 1e-3 if latency and clock.estimate is None else None
+    return replace(fit, measured_mean_s=mean, notes=notes)
+
+
+def _fit_drift(reference: PoseStream, other: PoseStream, s: CompareSettings) -> DriftFit:
+    """The other clock's drift: from applied stamps when the log has them (on the reference
+    clock), else from the trend of the lag fitted in windows of one drift-free pass."""
+    from_stamps = drift_from_applied_stamps(reference, other)
+    if from_stamps is not None:
+        return from_stamps
+    first = _compare_once(
+        reference,
+        other,
+        replace(s, lag=False, sync="interp", align="none"),  # no drift check
+    )
+    fit = drift_from_motion(
+        (first.t - first.t[0]).astype(np.float64) * 1e-9,
+        first.reference.position,
+        first.other.position,
+    )
+    if fit is None:
+        raise AlignmentError(
+            "--drift auto: the log has no applied stamps and the motion cannot pin a drift "
+            "(too short or too little motion in its windows); give --drift off"
+        )
+    return fit
+
+
+def _unremoved_drift(
+    reference: PoseStream, other: PoseStream, t: I64, ref_pos: F64, oth_pos: F64
+) -> str:
+    """A warning when a long run (aligned stamps ``t``, positions on them) shows a clock drift
+    that was not removed, else ""."""
+    duration = (int(t[-1]) - int(t[0])) * 1e-9 if t.shape[0] else 0.0
+    if duration < DRIFT_WARN_MIN_S:
+        return ""
+    fit = drift_from_applied_stamps(reference, other)
+    if fit is None:
+        fit = drift_from_motion((t - t[0]).astype(np.float64) * 1e-9, ref_pos, oth_pos)
+    if fit is None or not fit.significant:
+        return ""
+    total_ms = abs(fit.ppm) * 1e-6 * duration * 1e3
+    if abs(fit.ppm) < DRIFT_WARN_PPM or total_ms < DRIFT_WARN_MS:
+        return ""
+    return (
+        f"the other clock drifts by {fit.ppm:+.1f} ppm against the reference ({fit.source}): "
+        f"{total_ms:.1f} ms over the run's {duration:.0f} s, not removed; give --drift auto"
     )
 
 

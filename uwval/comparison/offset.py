@@ -60,7 +60,14 @@ class OffsetEstimate:
                 else f"{self.signal} cross-correlation + golden-section least squares"
             ),
             "note": self.note,
+            "pinned": self.pinned,
         }
+
+    @property
+    def pinned(self) -> bool:
+        """Whether the data pin the offset (no doubt was noted: no rival minimum, no flat
+        or edge-bound cost curve)."""
+        return self.note is None
 
 
 def _rel_seconds(t: NDArray[np.int64], t0: int) -> F64:
@@ -143,7 +150,15 @@ def estimate_offset(
     vb = _velocity_on_grid(other, t0_oth, dt, n_oth, span)
     moving = float(np.abs(va).max()) > 1e-9 and float(np.abs(vb).max()) > 1e-9
     if same_frame and moving:
-        lag, corr, rival = _best_lag_mse(va, vb, max_lag, base)
+        _refuse_unexcited(va, vb)
+        lag, corr, rival, depth = _best_lag_mse(va, vb, max_lag, base)
+        if depth < MIN_COST_DEPTH:
+            raise AlignmentError(
+                "cannot estimate the clock offset from the motion: no offset fits clearly "
+                f"better than the others (the best lowers the velocity mismatch by only "
+                f"{depth * 100:.0f} % of its typical value), so any answer would be a guess; "
+                "give --offset S (the known clock offset) or log applied stamps"
+            )
         coarse = (t0_ref - t0_oth) * 1e-9 + lag * dt
         overlap = min(reference.duration, other.duration)
         window = max(2 * max(dt, per_oth, per_ref) * span, 0.005 * overlap)
@@ -151,10 +166,13 @@ def estimate_offset(
         if rival is not None:
             other_s = (t0_ref - t0_oth) * 1e-9 + rival * dt
             note = (
-                f"the motion repeats: offsets {coarse:.10g} s and {other_s:.10g} s fit almost "
-                "equally well, so the estimate may be wrong; give --offset S or bound the "
-                "search with --max-offset S" + (f" ({note})" if note else "")
+                f"--offset auto is NOT pinned: the motion repeats, offsets {coarse:.10g} s and "
+                f"{other_s:.10g} s fit almost equally well, so the estimate may be wrong by "
+                f"{abs(other_s - coarse):.6g} s; give --offset S or bound the search with "
+                "--max-offset S" + (f" ({note})" if note else "")
             )
+            # the honest uncertainty is the distance to the rival, not the local curvature
+            sigma = max(sigma, abs(other_s - coarse))
         return OffsetEstimate(fine, sigma, coarse, corr, "velocity", dt, note)
     signal = "speed"
     a = _speed_on_grid(reference, t0_ref, dt, n_ref, False, span)
@@ -163,6 +181,12 @@ def estimate_offset(
         signal = "angular_speed"
         a = _speed_on_grid(reference, t0_ref, dt, n_ref, True, span)
         b = _speed_on_grid(other, t0_oth, dt, n_oth, True, span)
+    if 0.0 < _excitation(a[:, None]) < MIN_EXCITATION and _excitation(b[:, None]) > 0.0:
+        raise AlignmentError(
+            "cannot estimate the clock offset from the motion: the reference's speed is "
+            "almost constant, so every offset fits about as well; give --offset S (the "
+            "known clock offset) or log applied stamps"
+        )
     if float(np.std(a)) < 1e-12 or float(np.std(b)) < 1e-12:
         raise AlignmentError(
             "cannot estimate a clock offset: the speed profile of "
@@ -221,12 +245,14 @@ def _lag_axis(na: int, nb: int, size: int) -> tuple[NDArray[np.int64], NDArray[n
 
 def _best_lag_mse(
     a: F64, b: F64, max_lag: int | None, base: float
-) -> tuple[int, float, int | None]:
+) -> tuple[int, float, int | None, float]:
     """Lag L minimising the mean of |a[k + L] - b[k]|^2 over the overlap (vector signals).
 
     Cross terms by FFT, squared norms over each overlap by cumulative sums: O(n log n).
-    Returns the lag, the correlation-like score 1 - mse / (mean|a|^2 + mean|b|^2) and a
-    rival lag that fits almost as well (see :func:`_rival_lag`), if any.
+    Returns the lag, the correlation-like score 1 - mse / (mean|a|^2 + mean|b|^2), a
+    rival lag that fits almost as well (see :func:`_rival_lag`), if any, and the depth of
+    the best minimum: (median mse over the allowed lags - best) / median (near 1 for a sharp
+    minimum, near 0 when every lag fits about as well: the motion cannot pin the offset).
     """
     na, nb = a.shape[0], b.shape[0]
     size = 1 << math.ceil(math.log2(na + nb))
@@ -253,7 +279,9 @@ def _best_lag_mse(
     j = int(np.argmin(mse))
     scale = max(1e-300, float((sa[j] + sb[j]) / cnt[j]))
     score = 1.0 - float(mse[j]) / scale
-    return int(lags[j]), score, _rival_lag(lags, mse, j, scale)
+    typical = median(mse[ok])
+    depth = (typical - float(mse[j])) / typical if typical > 0 else 0.0
+    return int(lags[j]), score, _rival_lag(lags, mse, j, scale), depth
 
 
 def _rival_lag(lags: NDArray[np.int64], mse: F64, j: int, scale: float) -> int | None:
@@ -276,6 +304,39 @@ def _rival_lag(lags: NDArray[np.int64], mse: F64, j: int, scale: float) -> int |
         return None
     k = int(np.flatnonzero(near)[np.argmin(m[near])])
     return int(lags[order[k]])
+
+
+#: Below this excitation (:func:`_excitation`) the reference moves at an almost constant
+#: velocity: shifting it in time only shifts it in space, which the search cannot see.
+MIN_EXCITATION = 1e-3
+#: Below this depth of the best minimum of the velocity mismatch (:func:`_best_lag_mse`)
+#: no offset fits clearly better than the others.
+MIN_COST_DEPTH = 0.5
+
+
+def _refuse_unexcited(va: F64, vb: F64) -> None:
+    """An AlignmentError when the reference (or the other) velocity barely changes."""
+    for name, v in (("reference", va), ("other stream", vb)):
+        ex = _excitation(v)
+        if ex < MIN_EXCITATION:
+            raise AlignmentError(
+                f"cannot estimate the clock offset from the motion: the {name} moves at an "
+                f"almost constant velocity (it varies by {math.sqrt(ex) * 100:.2g} % of its "
+                "size), and a time shift of such a motion is only a shift in space, so every "
+                "offset fits about as well; give --offset S (the known clock offset) or log "
+                "applied stamps"
+            )
+
+
+def _excitation(v: F64) -> float:
+    """How much a velocity signal (n, k) changes: the variance of its components around
+    their means over its mean squared norm (0 for a constant velocity, ~1 for a motion
+    that goes back and forth)."""
+    total = float(np.einsum("ij,ij->", v, v))
+    if total <= 0.0:
+        return 0.0
+    c = v - v.mean(axis=0)
+    return float(np.einsum("ij,ij->", c, c)) / total
 
 
 def _highpass(x: F64, width: int) -> F64:
@@ -482,3 +543,122 @@ def latency_stats(
         "p95_ms": percentiles(lat, (95.0,))[0],
         "offset_applied_s": offset_s,
     }
+
+
+#: Windows of the lag's trend over a run (drift from the motion): at most this many, each
+#: at least DRIFT_WINDOW_MIN_S long; fewer than DRIFT_MIN_WINDOWS moving windows pin nothing.
+DRIFT_MAX_WINDOWS = 20
+DRIFT_WINDOW_MIN_S = 5.0
+DRIFT_MIN_WINDOWS = 4
+#: A drift is removed (and warned about) only when it is this many standard errors from 0.
+DRIFT_SIGNIFICANCE = 3.0
+
+
+@dataclass(frozen=True)
+class DriftFit:
+    """The other clock's rate error against the reference clock.
+
+    ``ppm``: parts per million (> 0: the other clock runs fast, its stamps run ahead by
+    ``ppm * 1e-6`` s per second); ``se_ppm`` its standard error; ``source``:
+    ``applied_stamps`` (the other stamp minus the reference stamp it showed, against time)
+    or ``motion`` (the trend of the lag fitted in windows); ``n`` the points of the fit.
+    """
+
+    ppm: float
+    se_ppm: float
+    source: str
+    n: int
+
+    @property
+    def significant(self) -> bool:
+        """Whether the drift stands out from its own uncertainty (and is removed)."""
+        return bool(abs(self.ppm) > DRIFT_SIGNIFICANCE * self.se_ppm)
+
+    @property
+    def removed_ppm(self) -> float:
+        """The drift compare removes: the fitted one when significant, else 0."""
+        return self.ppm if self.significant else 0.0
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "fitted_ppm": self.ppm,
+            "se_ppm": self.se_ppm,
+            "source": self.source,
+            "n": self.n,
+            "removed": self.significant,
+        }
+
+
+def _line_fit(x: F64, y: F64) -> tuple[float, float]:
+    """Least-squares slope of y on x and its standard error (units of y per unit of x)."""
+    n = x.size
+    xc = x - x.mean()
+    sxx = float(np.dot(xc, xc))
+    if n < 3 or sxx <= 0.0:
+        return math.nan, math.inf
+    slope = float(np.dot(xc, y - y.mean())) / sxx
+    resid = y - y.mean() - slope * xc
+    se = math.sqrt(float(np.dot(resid, resid)) / (n - 2) / sxx)
+    return slope, se
+
+
+def drift_from_applied_stamps(reference: PoseStream, other: PoseStream) -> DriftFit | None:
+    """Drift from the recorded clocks: (other stamp - applied reference stamp) grows by the
+    drift per second of the run, whatever the motion. None without applied stamps on the
+    reference's clock (most inside its span) or with fewer than 8 of them."""
+    applied = other.applied_stamp
+    if applied is None or len(reference) < 2:
+        return None
+    inside = (applied >= reference.t[0]) & (applied <= reference.t[-1])
+    n = int(inside.sum())
+    if n < 8 or n < 0.5 * len(other):
+        return None
+    u = other.t[inside]
+    x = (u - u[0]).astype(np.float64) * 1e-9
+    d = (u - applied[inside]).astype(np.float64) * 1e-9
+    slope, se = _line_fit(x, d)
+    if not math.isfinite(slope):
+        return None
+    return DriftFit(slope * 1e6, se * 1e6, "applied_stamps", n)
+
+
+def drift_from_motion(t_s: F64, reference_xyz: F64, other_xyz: F64) -> DriftFit | None:
+    """Drift from the motion: the lag (:mod:`uwval.comparison.lag`) fitted in equal windows
+    of the aligned samples (t_s seconds, positions m, drift not removed) grows by the drift
+    per second. None when fewer than DRIFT_MIN_WINDOWS windows move enough to fit a lag."""
+    from uwval.comparison.lag import MIN_SPEED, lag_least_squares, rates
+
+    t = np.asarray(t_s, dtype=np.float64)
+    if t.size < 16:
+        return None
+    duration = float(t[-1] - t[0])
+    n_win = min(DRIFT_MAX_WINDOWS, int(duration // DRIFT_WINDOW_MIN_S))
+    if n_win < DRIFT_MIN_WINDOWS:
+        return None
+    vel = rates(t, np.asarray(reference_xyz, dtype=np.float64))
+    err = np.asarray(other_xyz, dtype=np.float64) - reference_xyz
+    edges = np.searchsorted(t, t[0] + duration * np.arange(n_win + 1) / n_win)
+    mids, lags = [], []
+    for k in range(n_win):  # a handful of windows, each vectorised
+        lo, hi = int(edges[k]), int(edges[k + 1])
+        v, e = vel[lo:hi], err[lo:hi]
+        if hi - lo < 8 or float(np.sqrt((v * v).sum() / v.shape[0])) <= MIN_SPEED["position"]:
+            continue
+        mids.append(float(t[lo:hi].mean()))
+        lags.append(lag_least_squares(v, e))
+    if len(lags) < DRIFT_MIN_WINDOWS:
+        return None
+    slope, se = _line_fit(np.array(mids), np.array(lags))
+    if not math.isfinite(slope):
+        return None
+    return DriftFit(slope * 1e6, se * 1e6, "motion", len(lags))
+
+
+def remove_drift(stream: PoseStream, ppm: float) -> PoseStream:
+    """``stream`` with its stamps' drift removed: t' = t - ppm 1e-6 (t - t[0]) (int64 ns;
+    applied stamps, on the reference clock, are kept)."""
+    if ppm == 0.0 or len(stream) < 2:
+        return stream
+    rel = (stream.t - stream.t[0]).astype(np.float64)
+    t = stream.t - np.round(rel * (ppm * 1e-6)).astype(np.int64)
+    return stream.with_(t=t)

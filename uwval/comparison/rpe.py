@@ -19,7 +19,7 @@ doubling over the "next pair start" map.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -303,29 +303,48 @@ def _alignment(
     return estimate_alignment(mode, ref_pos, ref_quat, est_pos, est_quat)
 
 
+@dataclass(frozen=True)
+class RpeSettings:
+    """How :func:`rpe` pairs, aligns and measures (evo_rpe's options; see :func:`rpe`)."""
+
+    relation: str = "trans_part"
+    delta: float = 1.0
+    delta_unit: str = "f"
+    delta_tol: float = 0.1
+    all_pairs: bool = False
+    pairs_from_reference: bool = False
+    align: str = "none"
+    n_to_align: int = -1
+    sync: str = "nearest"
+    max_diff: float = 0.01
+    offset: float = 0.0
+
+
 def rpe(
     reference: PoseStream,
     other: PoseStream,
-    *,
-    relation: str = "trans_part",
-    delta: float = 1.0,
-    delta_unit: str = "f",
-    delta_tol: float = 0.1,
-    all_pairs: bool = False,
-    pairs_from_reference: bool = False,
-    align: str = "none",
-    n_to_align: int = -1,
-    sync: str = "nearest",
-    max_diff: float = 0.01,
-    offset: float = 0.0,
+    settings: RpeSettings | None = None,
+    **options: Any,
 ) -> RpeResult:
     """evo_rpe on two streams: associate (evo's nearest stamps), align, pick pairs, reduce.
 
-    ``sync='none'`` pairs poses by index (evo's behaviour for KITTI files, which have no
-    stamps) and refuses streams of different lengths. ``offset`` (s) is added to the other
-    stream's stamps for the association (evo's ``--t_offset``). ``other`` is converted from
-    its frame convention to ENU first, as ``compare`` does.
+    ``options`` are fields of :class:`RpeSettings` (they override ``settings``): evo's pose
+    ``relation``, ``delta`` in ``delta_unit`` within ``delta_tol``, ``all_pairs``,
+    ``pairs_from_reference``, ``align`` / ``n_to_align``, ``sync``, ``max_diff`` (s) and
+    ``offset`` (s). ``sync='none'`` pairs poses by index (evo's behaviour for KITTI files,
+    which have no stamps) and refuses streams of different lengths. ``offset`` (s) is added
+    to the other stream's stamps for the association (evo's ``--t_offset``). ``other`` is
+    converted from its frame convention to ENU first, as ``compare`` does.
     """
+    st = settings or RpeSettings()
+    if options:
+        unknown = sorted(set(options) - set(RpeSettings.__dataclass_fields__))
+        if unknown:
+            raise TypeError(f"rpe() got unexpected keyword argument(s) {unknown}")
+        st = replace(st, **options)
+    relation, delta, delta_unit, delta_tol = st.relation, st.delta, st.delta_unit, st.delta_tol
+    all_pairs, pairs_from_reference, align = st.all_pairs, st.pairs_from_reference, st.align
+    n_to_align, sync, max_diff, offset = st.n_to_align, st.sync, st.max_diff, st.offset
     if relation not in RELATION_UNITS:
         raise ConfigError(f"--pose-relation {relation!r}: choose one of {', '.join(RELATIONS)}")
     if not (max_diff >= 0 and math.isfinite(max_diff)):

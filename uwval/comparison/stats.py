@@ -193,6 +193,9 @@ def pearson(a: F64, b: F64, *, overwrite_b: bool = False) -> dict[str, Any]:
     Undefined (``r`` None with a ``reason``) for fewer than 3 samples or a constant series,
     instead of a division by zero. The p-value is P(|R| >= |r|) under independence, where R
     follows Beta(n/2 - 1, n/2 - 1) on [-1, 1] (identical to the t-test with n - 2 dof).
+    ``pearson_ci`` treats the samples as independent (scipy's); ``pearson_ci_eff`` is the same
+    interval from the effective sample size ``pearson_n_eff`` (:func:`effective_n`), the one
+    to trust for autocorrelated series such as trajectories.
     ``overwrite_b``: ``b`` is a scratch float64 array, centred in place (one temporary less).
     """
     x = np.asarray(a, dtype=np.float64)
@@ -203,6 +206,8 @@ def pearson(a: F64, b: F64, *, overwrite_b: bool = False) -> dict[str, Any]:
         "pearson_p": None,
         "pearson_ci": None,
         "pearson_n": n,
+        "pearson_n_eff": None,
+        "pearson_ci_eff": None,
         "pearson_reason": None,
     }
     if n < 3:
@@ -243,7 +248,36 @@ def pearson(a: F64, b: F64, *, overwrite_b: bool = False) -> dict[str, Any]:
         out["pearson_ci"] = [math.tanh(z - Z_975 * se), math.tanh(z + Z_975 * se)]
     elif abs(r) >= 1.0:
         out["pearson_ci"] = [r, r]
+    n_eff = effective_n(xm, ym, sxx, syy)
+    out["pearson_n_eff"] = n_eff
+    out["pearson_ci_eff"] = fisher_ci(r, n_eff)
     return out
+
+
+def effective_n(xm: F64, ym: F64, sxx: float, syy: float) -> float:
+    """Effective sample size of a correlation between two autocorrelated series (Bartlett,
+    AR(1) form): n (1 - rho_x rho_y) / (1 + rho_x rho_y), rho the lag-1 autocorrelations of
+    the centred series ``xm``, ``ym`` (sums of squares ``sxx``, ``syy``); at most n. Two
+    smooth trajectories (rho near 1) have few independent samples however densely sampled."""
+    n = int(xm.size)
+    if n < 3 or sxx <= 0.0 or syy <= 0.0:
+        return float(n)
+    rho_x = float(np.dot(xm[1:], xm[:-1])) / sxx
+    rho_y = float(np.dot(ym[1:], ym[:-1])) / syy
+    prod = max(-0.999999, min(0.999999, rho_x * rho_y))
+    return float(min(n, n * (1.0 - prod) / (1.0 + prod)))
+
+
+def fisher_ci(r: float, n: float) -> list[float]:
+    """95 % CI of a correlation ``r`` from ``n`` (effective) samples by Fisher's z; [-1, 1]
+    when n <= 3 (too few independent samples to say anything), [r, r] when |r| = 1."""
+    if abs(r) >= 1.0:
+        return [r, r]
+    if n <= 3.0:
+        return [-1.0, 1.0]
+    z = math.atanh(r)
+    se = 1.0 / math.sqrt(n - 3.0)
+    return [math.tanh(z - Z_975 * se), math.tanh(z + Z_975 * se)]
 
 
 def axis_stats(

@@ -5,7 +5,8 @@ Four parts, one module each:
 - :mod:`uwval.results.schema`: the compare JSON (the engine's one schema) -> rows;
   axes, units and the metric names every table uses.
 - :mod:`uwval.results.table`: :class:`ResultsTable`, its columns and its files.
-- :mod:`uwval.results.analysis`: summaries per level, main effects, ANOVA, two-way tables.
+- :mod:`uwval.results.analysis`: summaries per level, main effects, ANOVA, two-way tables;
+  :mod:`uwval.results.factorial`: the factorial analysis and ``analysis.json``.
 - :mod:`uwval.results.experiment`: loading a sweep's manifest, comparisons and tables.
 
 Every public name stays importable from ``uwval.results``.
@@ -17,12 +18,16 @@ from uwval.results.analysis import (
     ROUNDOFF_FLOOR,
     AnovaRow,
     anova_oneway,
+    answer_sentence,
     factor_levels,
+    factorial_analysis,
     main_effects,
+    read_analysis,
     roundoff_axes,
     summarize_by_level,
     two_way_pairs,
     two_way_table,
+    write_analysis,
 )
 from uwval.results.experiment import (
     ExperimentResults,
@@ -68,18 +73,22 @@ __all__ = [
     "ResultsTable",
     "RunRecord",
     "anova_oneway",
+    "answer_sentence",
     "compare_pending",
     "comparison_warnings",
     "factor_label",
     "factor_levels",
+    "factorial_analysis",
     "flatten_result",
     "load_experiment_results",
     "main_effects",
     "parquet_available",
+    "read_analysis",
     "read_manifest",
     "roundoff_axes",
     "summarize_by_level",
     "topic_results",
     "two_way_pairs",
     "two_way_table",
+    "write_analysis",
 ]

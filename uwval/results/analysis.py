@@ -1,6 +1,10 @@
 """Analysis of a results table per factor level: summaries, main effects, one-way ANOVA,
 two-way tables. Each function takes a :class:`ResultsTable` and returns a pandas DataFrame
-(the report builder plots them)."""
+(the report builder plots them).
+
+The factorial analysis (main effects and two-way interactions, partial eta^2, lag-normalised
+error, Pearson r's saturation) and ``analysis.json`` live in :mod:`uwval.results.factorial`;
+their functions are importable from here too (docs/analysis.md)."""
 
 from __future__ import annotations
 
@@ -13,8 +17,30 @@ import numpy as np
 import pandas as pd
 
 from uwval.errors import ConfigError
+from uwval.results.factorial import (
+    answer_sentence,
+    factorial_analysis,
+    read_analysis,
+    write_analysis,
+)
 from uwval.results.schema import AXES, PAPER_METRICS
 from uwval.results.table import ResultsTable
+
+__all__ = [
+    "ROUNDOFF_FLOOR",
+    "AnovaRow",
+    "anova_oneway",
+    "answer_sentence",
+    "factor_levels",
+    "factorial_analysis",
+    "main_effects",
+    "read_analysis",
+    "roundoff_axes",
+    "summarize_by_level",
+    "two_way_pairs",
+    "two_way_table",
+    "write_analysis",
+]
 
 #: An axis whose worst absolute error over all runs stays below this (m for x y z, deg for
 #: roll pitch yaw) carries no signal: float32 storage alone makes ~1e-7..1e-6 of it.

@@ -63,8 +63,19 @@ PAPER_METRICS: tuple[str, ...] = ("mae", "max", "pearson_r")
 #: Metrics that the engine leaves undefined on purpose, with a ``pearson_reason`` (fewer than
 #: 3 samples, a constant series). Every other metric must be a number.
 MAY_BE_UNDEFINED: frozenset[str] = frozenset(
-    {"pearson_r", "pearson_p", "pearson_ci_low", "pearson_ci_high"}
+    {
+        "pearson_r",
+        "pearson_p",
+        "pearson_ci_low",
+        "pearson_ci_high",
+        "pearson_n_eff",
+        "pearson_ci_eff_low",
+        "pearson_ci_eff_high",
+    }
 )
+#: Interval fields of an axis ([low, high] in the JSON), split into ``<name>_low`` and
+#: ``<name>_high`` rows.
+INTERVAL_FIELDS: tuple[str, ...] = ("pearson_ci", "pearson_ci_eff")
 #: Note of a NaN row whose value the compare JSON did not give (null or absent).
 MISSING_NOTE = "missing: the compare JSON gives no number"
 #: Columns every table has, before the factor columns.
@@ -75,7 +86,7 @@ SOURCES: tuple[str, ...] = ("reference", "other")
 ROTATION_SECTION = "rotation_error_deg"
 
 #: Count metrics of an axis (no unit): the number of samples Pearson r was computed on.
-COUNT_METRICS: frozenset[str] = frozenset({"pearson_n"})
+COUNT_METRICS: frozenset[str] = frozenset({"pearson_n", "pearson_n_eff"})
 #: Text fields of an axis that are not metrics: the reason Pearson r is undefined is carried
 #: in the ``note`` of the undefined rows, never as a row of its own.
 TEXT_FIELDS: frozenset[str] = frozenset({"pearson_reason"})
@@ -166,7 +177,10 @@ def unit_for(axis: str, metric: str) -> str:
         return "m^2" if axis == "position_norm" else ""
     if axis in AXIS_UNITS:
         return AXIS_UNITS[axis]
+    if axis == "lag":
+        return _lag_unit(metric)
     for suffix, unit in (
+        ("_ppm", "ppm"),
         ("_ns", "ns"),
         ("_ms", "ms"),
         ("_s", "s"),
@@ -176,6 +190,20 @@ def unit_for(axis: str, metric: str) -> str:
     ):
         if metric.endswith(suffix):
             return unit
+    return ""
+
+
+def _lag_unit(metric: str) -> str:
+    """Units of the compare JSON's ``lag`` section (uwval.comparison.lag): seconds for the
+    lag and its CI, the axis's unit per second for ``speed.<axis>``, the axis's unit for
+    ``residual.<axis>.<stat>``; none for fractions and counts."""
+    parts = metric.split(".")
+    if parts[0] == "speed" and len(parts) == 2 and parts[1] in AXIS_UNITS:
+        return f"{AXIS_UNITS[parts[1]]}/s"
+    if parts[0] == "residual" and len(parts) == 3 and parts[1] in AXIS_UNITS:
+        return AXIS_UNITS[parts[1]]
+    if metric.endswith(("_s", "_s_low", "_s_high")):
+        return "s"
     return ""
 
 
@@ -209,9 +237,9 @@ def flatten_result(res: Mapping[str, Any]) -> list[Row]:
         for metric, v in a.items():
             if metric in TEXT_FIELDS:
                 continue
-            if metric == "pearson_ci":
+            if metric in INTERVAL_FIELDS:
                 pair = v if isinstance(v, (list, tuple)) and len(v) == 2 else (None, None)
-                for m, x in zip(("pearson_ci_low", "pearson_ci_high"), pair, strict=True):
+                for m, x in zip((f"{metric}_low", f"{metric}_high"), pair, strict=True):
                     num = _number(x)
                     rows.append(
                         Row(
