@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from cli_runner import run_uwval
+
 from uwval.comparison import compare
 from uwval.comparison.align import umeyama
 from uwval.comparison.offset import estimate_offset
