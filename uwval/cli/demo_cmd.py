@@ -16,7 +16,7 @@ from rich.console import Console
 from rich.table import Table
 
 from uwval.cli import app
-from uwval.cli.compare_run import output_console
+from uwval.cli.console import output_console
 from uwval.cli.pipeline import SessionOptions
 from uwval.cli.simulate_cmd import run_experiment
 from uwval.resources import data_path
