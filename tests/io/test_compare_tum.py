@@ -408,59 +408,6 @@ def test_compare_of_large_tum_pair_is_parallel_and_unchanged(
     assert forked["counts"]["matched"] == 3000
 
 
-# ---- the light command-line path --------------------------------------------------------------
-
-
-def test_fast_compare_prints_what_typer_prints(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    from typer.testing import CliRunner
-
-    from uwval.cli import _register, app
-    from uwval.cli.compare_cmd import fast_compare
-
-    _register()
-    a, b = _pair(tmp_path, 400)
-    args = [
-        str(a),
-        str(b),
-        "--sync",
-        "nearest",
-        "--max-diff=0.005",
-        "--align",
-        "se3",
-        "--json",
-        "-o",
-        str(tmp_path / "out.json"),
-    ]
-    assert fast_compare(args)
-    fast_out = capsys.readouterr().out
-    fast_file = (tmp_path / "out.json").read_text()
-    result = CliRunner().invoke(app, ["compare", *args])
-    assert result.exit_code == 0, result.output
-    assert fast_out == result.stdout
-    assert fast_file == (tmp_path / "out.json").read_text()
-    assert '"matched"' in fast_out
-
-
-@pytest.mark.parametrize(
-    "args",
-    [
-        ["--help"],
-        ["a.tum", "b.tum", "--sync"],
-        ["a.tum", "b.tum", "--bogus", "1"],
-        ["a.tum", "b.tum", "--sync", "nearest", "--sync", "interp"],
-        ["a.tum", "b.tum", "--max-diff", "1_0"],
-        ["a.tum", "b.tum", "c.tum"],
-        [],
-    ],
-)
-def test_fast_compare_leaves_anything_unusual_to_typer(args: list[str]) -> None:
-    from uwval.cli.compare_cmd import fast_compare
-
-    assert fast_compare(args) is False
-
-
 def test_pair_is_read_in_this_process_when_other_threads_run(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -107,7 +107,7 @@ def test_the_early_path_loads_no_numpy() -> None:
     """The early scan overlaps numpy's import only if everything it needs loads without it."""
     code = (
         "import sys\n"
-        "import uwval.cli.compare_run, uwval.io.early, uwval.io.db3_pages, uwval.topics\n"
+        "import uwval.io.early, uwval.io.db3_pages, uwval.topics\n"
         "print('numpy' in sys.modules)\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

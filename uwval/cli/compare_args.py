@@ -12,6 +12,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import click
+from typer.core import TyperCommand
+
 from uwval.comparison.options import (
     AlignmentMode,
     ApeUnit,
@@ -24,6 +27,23 @@ from uwval.comparison.options import (
     TimeWindow,
 )
 from uwval.errors import ConfigError
+
+
+def evo_bare_align(args: list[str]) -> list[str]:
+    """evo's ``--align`` is a flag (SE(3)); uwval's takes a mode. ``--align`` last, or
+    followed by another option, is evo's flag: it becomes ``-a``."""
+    out = list(args)
+    for i, arg in enumerate(out):
+        if arg == "--align" and (i + 1 == len(out) or out[i + 1].startswith("-")):
+            out[i] = "-a"
+    return out
+
+
+class EvoCommand(TyperCommand):
+    """A typer command that also takes evo's bare ``--align`` flag (click's parse hook)."""
+
+    def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
+        return super().parse_args(ctx, evo_bare_align(args))  # type: ignore[no-any-return]
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,7 @@ from typing import Annotated, Any, Optional
 import typer
 
 from uwval.cli import app
-from uwval.cli.compare_args import COMPARE_OPTIONS, compare_options
+from uwval.cli.compare_args import COMPARE_OPTIONS, EvoCommand, compare_options
 from uwval.cli.console import error_console, output_console, warn
 from uwval.comparison.logs import LogComparison
 from uwval.comparison.options import CompareOptions
@@ -98,7 +98,7 @@ compare_command.__signature__ = _signature  # type: ignore[attr-defined]
 compare_command.__annotations__ = {p.name: p.annotation for p in _signature.parameters.values()} | {
     "return": None
 }
-app.command("compare")(compare_command)
+app.command("compare", cls=EvoCommand)(compare_command)
 
 
 def _check_outputs(kwargs: dict[str, Any]) -> None:

@@ -19,7 +19,7 @@ from typing import Annotated, Any, Optional
 import typer
 
 from uwval.cli import app
-from uwval.cli.compare_args import CliOption, _choice, read_positionals
+from uwval.cli.compare_args import CliOption, EvoCommand, _choice, read_positionals
 from uwval.cli.console import error_console, output_console, warn
 from uwval.comparison.logs import RpeComparison
 from uwval.comparison.options import (
@@ -294,7 +294,7 @@ rpe_command.__signature__ = _signature  # type: ignore[attr-defined]
 rpe_command.__annotations__ = {p.name: p.annotation for p in _signature.parameters.values()} | {
     "return": None
 }
-app.command("rpe")(rpe_command)
+app.command("rpe", cls=EvoCommand)(rpe_command)
 
 
 def _lines(found: RpeComparison, verbose: bool) -> list[str]:
