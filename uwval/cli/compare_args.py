@@ -12,7 +12,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import click
 from typer.core import TyperCommand
 
 from uwval.comparison.options import (
@@ -42,8 +41,10 @@ def evo_bare_align(args: list[str]) -> list[str]:
 class EvoCommand(TyperCommand):
     """A typer command that also takes evo's bare ``--align`` flag (click's parse hook)."""
 
-    def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
-        return super().parse_args(ctx, evo_bare_align(args))  # type: ignore[no-any-return]
+    def parse_args(self, ctx: Any, args: list[str]) -> list[str]:
+        # ctx is the click Context typer vendors: its type is private to typer
+        rest: list[str] = super().parse_args(ctx, evo_bare_align(args))
+        return rest
 
 
 @dataclass(frozen=True)

@@ -156,7 +156,9 @@ def read_pose_stream(
                 f"--unity-topic); pose topics: {listed}"
             )
         topic = poses[0]
-    return read_stream(path, topic, frame=frame)
+    # a TF child (TOPIC#CHILD) may hang under /tf_static transforms: chained when present
+    chain: dict[str, Any] = {"tf_static": None} if "#" in topic else {}
+    return read_stream(path, topic, frame=frame, **chain)
 
 
 def pair_label(gazebo_topic: str, unity_topic: str) -> str:
@@ -252,7 +254,7 @@ def compare_logs(
         frames: dict[str, str | None] = {}
         # one pass over the log for every topic of the pairs (uwval.topics decides which)
         topics, skip_missing = log_topics(pairs, gazebo_topic, unity_topic)
-        streams = read_streams(path_a, topics, skip_missing=skip_missing)
+        streams = read_streams(path_a, topics, skip_missing=skip_missing, tf_static=None)
         if pairs and not (gazebo_topic or unity_topic):
             pairs_l = [(p.name, p.reference, p.other) for p in pairs]
             frames = {p.name: p.frame for p in pairs}
@@ -507,7 +509,7 @@ def run_rpe(options: RpeOptions) -> RpeComparison:
             )
         from uwval.io import read_streams
 
-        streams = read_streams(inp.log_a, [inp.gazebo_topic, inp.unity_topic])
+        streams = read_streams(inp.log_a, [inp.gazebo_topic, inp.unity_topic], tf_static=None)
         ref, est = streams[inp.gazebo_topic], streams[inp.unity_topic]
     else:
         ref = read_pose_stream(inp.log_a, inp.gazebo_topic, fmt=fmt)

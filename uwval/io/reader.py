@@ -88,8 +88,9 @@ def read_stream(
             for Odometry / TransformStamped topics, filter on child / header frame.
         opts: ``time="header"|"log"`` (which stamp becomes ``t``); ``tf_static``: chain
             static transforms from ``/tf_static`` up to ``parent_frame`` and below
-            ``child_frame`` (default None: whenever the log has ``/tf_static``; True: require
-            it; False: never); CSV options are passed to :func:`uwval.io.csv_io.read_csv`.
+            ``child_frame`` (True: require it; None: whenever the log has ``/tf_static``, as
+            ``uwval compare`` reads; False, the default: never); CSV options are passed to
+            :func:`uwval.io.csv_io.read_csv`.
 
     The companion ``<topic>/applied_stamp`` topic, when present, fills ``applied_stamp``.
     Raises :class:`LogReadError` naming the file and the cause (missing topic: lists those
@@ -128,7 +129,7 @@ def read_streams(
     p = Path(path)
     _check_path(p)
     time_src = str(opts.pop("time", "header"))
-    tf_static_opt = opts.pop("tf_static", None)
+    tf_static_opt = opts.pop("tf_static", False)
     fast = bool(opts.pop("fast", True))
     skip_missing = bool(opts.pop("skip_missing", False))
     if opts:
