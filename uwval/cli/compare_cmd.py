@@ -51,6 +51,7 @@ def _parameters() -> list[inspect.Parameter]:
                     help="LOG (both sides), REF EST (two files), LOG /ref_topic /other_topic; "
                     "evo's shapes: tum|kitti|euroc REF EST, bag|bag2 LOG /ref_topic /other_topic",
                     show_default=False,
+                    metavar="INPUTS",
                 ),
             ],
         ),

@@ -181,6 +181,7 @@ def _parameters() -> list[inspect.Parameter]:
                     help="REF EST, or LOG with --ref-topic/--est-topic; evo's shapes: "
                     "tum|kitti|euroc REF EST, bag|bag2 LOG /ref_topic /est_topic",
                     show_default=False,
+                    metavar="INPUTS",
                 ),
             ],
         ),
