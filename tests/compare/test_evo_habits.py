@@ -241,3 +241,33 @@ def test_rpe_save_results_plot_and_verbose(evo_dir: Path) -> None:
         stats = json.loads(zf.read("stats.json"))
     doc = json.loads(run_uwval("rpe", evo_dir / GT, evo_dir / EST, "-as", "--json").stdout)
     assert stats == {k: doc["stats"][k] for k in stats}
+
+
+def _kitti_pair(folder: Path) -> tuple[Path, Path]:
+    """Two KITTI pose files (3 x 4 matrices, one a line), seeded: the reference and a noisy
+    copy. evo's numbers below were made from exactly these files (np.savetxt, '%.18e')."""
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(1)
+    n = 100
+    pos = np.cumsum(rng.normal(0, 0.1, (n, 3)), 0)
+    rot = Rotation.from_euler("z", np.linspace(0, 1, n)[:, None]).as_matrix()
+    paths = []
+    for name, noise in (("a.kitti", 0.0), ("b.kitti", 0.01)):
+        moved = pos + noise * rng.normal(size=(n, 3))
+        np.savetxt(folder / name, np.concatenate([rot, moved[:, :, None]], axis=2).reshape(n, 12))
+        paths.append(folder / name)
+    return paths[0], paths[1]
+
+
+def test_kitti_shape_pairs_by_index_as_evo(tmp_path: Path) -> None:
+    a, b = _kitti_pair(tmp_path)
+    # evo_ape kitti a.kitti b.kitti --save_results k.zip  ->  stats.json rmse
+    doc = _json("kitti", a, b)
+    assert doc["n_samples"] == 100
+    assert doc["position_error_norm"]["rmse"] == pytest.approx(0.018439118510730025, rel=1e-12)
+    # evo_rpe kitti a.kitti b.kitti  ->  rmse 0.026305 (printed with 6 decimals)
+    p = run_uwval("rpe", "kitti", a, b, "--json")
+    assert p.returncode == 0, p.stderr
+    assert json.loads(p.stdout)["stats"]["rmse"] == pytest.approx(0.026305, abs=5e-7)
