@@ -271,3 +271,22 @@ def test_kitti_shape_pairs_by_index_as_evo(tmp_path: Path) -> None:
     p = run_uwval("rpe", "kitti", a, b, "--json")
     assert p.returncode == 0, p.stderr
     assert json.loads(p.stdout)["stats"]["rmse"] == pytest.approx(0.026305, abs=5e-7)
+
+
+def test_p_writes_the_figures_here(evo_dir: Path) -> None:
+    p = run_uwval("compare", GT, EST, "-p", cwd=evo_dir)
+    assert p.returncode == 0, p.stderr
+    for kind in ("trajectory", "errors", "histogram", "errormap"):
+        png = evo_dir / f"uwval_trajectory_{kind}.png"
+        assert png.read_bytes()[:4] == b"\x89PNG"
+        assert f"wrote {png.name}" in p.stdout
+
+
+def test_rpe_takes_evos_bag_shape(shared_data: Path, tmp_path: Path) -> None:
+    log = tmp_path / "nav2.mcap"
+    shutil.copyfile(shared_data / "evo" / "nav2_turtlebot.mcap", log)
+    # /tf#base_link is odom->base_link, /odom's own pose: every relative error is ~0
+    p = run_uwval("rpe", "bag2", log, "/odom", "/tf#base_link", "--json")
+    assert p.returncode == 0, p.stderr
+    doc = json.loads(p.stdout)
+    assert doc["n_pairs"] > 2000 and doc["stats"]["max"] < 1e-9
