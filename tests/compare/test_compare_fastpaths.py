@@ -23,7 +23,6 @@ from uwval.comparison.offset import latency_stats
 from uwval.comparison.stats import axis_stats, norm_stats, pearson
 from uwval.comparison.sync import interpolate_at, nominal_period_ns
 from uwval.comparison.synthetic import unity_view, vehicle_motion, write_pair_log
-from uwval.cpus import second_cpu_free
 from uwval.errors import PoseStreamError
 from uwval.frames import convert_stream
 from uwval.io.mcap_meta import summary_metadata
@@ -420,7 +419,6 @@ def test_pairs_compared_in_threads_give_the_sequential_results(
     cam = camera_motion(g)
     cam_u = unity_view(cam, rate_hz=60.0, latency=0.02, seed=33, topic="/unity/gui_camera_pose")
     log = write_pair_log(tmp_path / "two.mcap", g, u, camera=(cam, cam_u))
-    monkeypatch.setattr(logs, "second_cpu_free", lambda: True)
     monkeypatch.setattr(logs, "PARALLEL_MIN_SAMPLES", 10**9)
     one_by_one = logs.compare_logs(log).to_json()
     threads: list[str] = []
@@ -454,21 +452,7 @@ def test_an_error_of_the_first_pair_is_raised_as_one_by_one(
         unity_view(g, seed=42),
         camera=(cam, unity_view(cam, seed=43, topic="/unity/gui_camera_pose")),
     )
-    monkeypatch.setattr(logs, "second_cpu_free", lambda: True)
     monkeypatch.setattr(logs, "PARALLEL_MIN_SAMPLES", 100)
     # an offset that leaves no overlap: both pairs fail, the vehicle pair's error is raised
     with pytest.raises(AlignmentError, match="model_rov_pose"):
         logs.compare_logs(log, offset=1e6)
-
-
-@pytest.mark.parametrize(
-    ("cpus", "load", "free"), [(2, 0.2, True), (2, 1.2, True), (2, 1.6, False), (1, 0.0, False)]
-)
-def test_threads_only_when_a_second_cpu_is_free(
-    monkeypatch: pytest.MonkeyPatch, cpus: int, load: float, free: bool
-) -> None:
-    import os
-
-    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(cpus)), raising=False)
-    monkeypatch.setattr(os, "getloadavg", lambda: (load, load, load))
-    assert second_cpu_free() is free

@@ -15,7 +15,6 @@ import pytest
 
 #: never loaded by a compare that prints its table (module: what loaded it, its cost)
 NOT_LOADED = (
-    "ruamel.yaml",  # rosbag2 metadata (uwval.io.bagmeta reads the usual form): ~8 ms
     "uwval.comparison.rpe",  # RPE code, for its relation names: ~2.5 ms
     "matplotlib",  # plots only with --plot
     "pandas",
@@ -23,7 +22,7 @@ NOT_LOADED = (
     "shutil",  # ~4 ms with the random module tempfile loads
 )
 #: never loaded by a compare of a single-file log (an MCAP file): rosbag2 directories only
-NOT_LOADED_FOR_A_FILE = ("uwval.io.bagmeta", "uwval.io.db3_pages", "uwval.io._db3pages")
+NOT_LOADED_FOR_A_FILE = ("ruamel.yaml",)
 
 
 def _loaded_at_start() -> set[str]:

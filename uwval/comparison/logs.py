@@ -8,6 +8,7 @@ when asked for); :func:`compare_logs` is the keyword form other modules call.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,7 +28,6 @@ from uwval.comparison.options import (
 )
 from uwval.comparison.relations import RELATION_UNITS
 from uwval.comparison.stats import norm_stats
-from uwval.cpus import second_cpu_free
 from uwval.errors import LogReadError
 from uwval.io.formats import INPUT_FORMATS, is_tum  # noqa: F401 - INPUT_FORMATS re-exported
 from uwval.posestream import PoseStream
@@ -333,7 +333,7 @@ def _compare_pairs(
     first pair's error, in order, as when the pairs are compared one after the other.
     """
     big = [j for j in jobs if min(len(j[1]), len(j[2])) >= PARALLEL_MIN_SAMPLES]
-    if len(big) < 2 or not second_cpu_free():
+    if len(big) < 2 or (os.cpu_count() or 1) < 2:
         return [compare(ref, oth, frame=fr, **opts) for _, ref, oth, fr, opts, _ in jobs]
     from concurrent.futures import ThreadPoolExecutor
     from functools import partial

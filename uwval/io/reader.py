@@ -11,6 +11,7 @@ Stamps are header stamps (``time="header"``, the default) or the log's receive t
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -18,7 +19,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from uwval.cpus import second_cpu_free
 from uwval.errors import LogReadError, PoseStreamError
 from uwval.frames import CONVENTIONS
 from uwval.io.containers import scan_log
@@ -184,13 +184,12 @@ def read_streams(
         return s.with_(topic=f"{raw.name}#{topic_child}") if topic_child else s
 
     big = sum(len(raw) for _, raw, _ in jobs) >= PARALLEL_DECODE_MIN
-    if len(jobs) > 1 and big and second_cpu_free():
+    if len(jobs) > 1 and big and (os.cpu_count() or 1) > 1:
         # Topics decode independently and numpy releases the GIL in their array work: two
-        # threads on two cores (on a busy second core they only cost switching). Results
-        # and the first error are taken in the order asked.
-        from uwval.workers import Workers
+        # threads on two cores. Results and the first error are taken in the order asked.
+        from concurrent.futures import ThreadPoolExecutor
 
-        with Workers(2, "uwval-decode") as pool:
+        with ThreadPoolExecutor(2, thread_name_prefix="uwval-decode") as pool:
             done = [pool.submit(stream, job) for job in jobs]
             return {job[0]: d.result() for job, d in zip(jobs, done, strict=True)}
     return {job[0]: stream(job) for job in jobs}
