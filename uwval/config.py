@@ -43,6 +43,7 @@ COMPARE_KEYS: dict[str, tuple[str, tuple[type, ...]]] = {
     "max_gap": ("max_gap", (int, float)),
     "offset": ("offset", (str, int, float)),
     "max_offset": ("max_offset", (int, float)),
+    "drift": ("drift", (str,)),
     "align": ("align", (str,)),
     "frame": ("frame", (str,)),
     "format": ("fmt", (str,)),

@@ -152,7 +152,7 @@ def test_contradicting_alignment_options_are_one_line_errors(fr1: tuple[Path, Pa
         (["--save-errors", str(folder)], f"{folder}: cannot write the per-sample errors"),
         (["--align", "se3", "-as"], "--align se3 contradicts -a -s"),
         (["-a", "--align_origin"], "--align_origin cannot be combined"),
-        (["-r", "angle"], "'angle': unknown pose relation; choose one of trans_part"),
+        (["-r", "angle"], "unknown pose relation 'angle'; choose one of trans_part"),
         (["-a", "--n_to_align", "0"], "--n_to_align must be >= 1"),
     ):
         p = run_uwval("compare", *fr1, *args)

@@ -20,6 +20,7 @@ from uwval.comparison.options import (
     ClockOffset,
     CompareInputs,
     CompareOptions,
+    DriftMode,
     InputFormat,
     PoseRelation,
     SyncMethod,
@@ -122,6 +123,15 @@ COMPARE_OPTIONS: tuple[CliOption, ...] = (
         "'auto' to estimate it",
     ),
     CliOption("max_offset", ("--max-offset",), float, None, "Bound for --offset auto (s)"),
+    CliOption(
+        "drift",
+        ("--drift",),
+        str,
+        None,
+        "Clock drift of the second stream: auto fits it (ppm; applied stamps, else the "
+        "lag's trend) and removes it; off (the default) leaves it (a long drifting run gets "
+        "a warning)",
+    ),
     CliOption(
         "align",
         ("--align",),
@@ -332,6 +342,7 @@ PROJECT_KEYS = (
     "max_gap",
     "offset",
     "max_offset",
+    "drift",
     "align",
     "frame",
     "fmt",
@@ -425,6 +436,7 @@ _ENUM_NAMES = {
     "PoseRelation": "pose relation",
     "InputFormat": "input format",
     "ApeUnit": "unit",
+    "DriftMode": "drift mode",
 }
 
 
@@ -435,7 +447,7 @@ def _choice(enum: Any, value: str, flag: str) -> Any:
     except ValueError:
         choices = ", ".join(m.value for m in enum)
         what = _ENUM_NAMES.get(enum.__name__, "value")
-        raise ConfigError(f"{flag} {value!r}: unknown {what}; choose one of {choices}") from None
+        raise ConfigError(f"{flag}: unknown {what} {value!r}; choose one of {choices}") from None
 
 
 def _sync(opts: dict[str, Any], max_diff_given: bool) -> SyncMethod | None:
@@ -517,6 +529,7 @@ def compare_options(given: dict[str, Any], project: Any = None) -> CompareOption
     relation = opts.get("pose_relation")
     unit = opts.get("change_unit")
     offset = opts.get("offset")
+    drift = opts.get("drift")
     return CompareOptions(
         inputs=inputs,
         frame=opts.get("frame"),
@@ -525,6 +538,7 @@ def compare_options(given: dict[str, Any], project: Any = None) -> CompareOption
         max_diff=float(opts.get("max_diff", 0.01)),
         offset=None if offset is None else ClockOffset.parse(str(offset)),
         max_offset=opts.get("max_offset"),
+        drift=_choice(DriftMode, drift, "--drift") if drift else None,
         align=_align_mode(opts),
         n_to_align=int(opts.get("n_to_align", -1)),
         pose_relation=_choice(PoseRelation, relation, "--pose_relation") if relation else None,

@@ -267,7 +267,7 @@ def _batch_options(
     }
     if sync is not None:
         out["sync"] = sync.value
-    for key in ("gazebo_topic", "unity_topic", "fmt", "frame", "max_gap", "max_offset"):
+    for key in ("gazebo_topic", "unity_topic", "fmt", "frame", "max_gap", "max_offset", "drift"):
         if kwargs[key] is not None:
             out[key] = kwargs[key]
     if kwargs["n_to_align"] != -1:

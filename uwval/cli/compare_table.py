@@ -107,7 +107,11 @@ def _lines(doc: dict[str, Any], full: bool) -> list[str]:
     if doc.get("latency"):
         lat = doc["latency"]
         line += f"; latency {num(lat['mean_ms'])} ms mean, {num(lat['p95_ms'])} ms p95"
+    if off.get("drift_ppm"):
+        line += f"; clock drift {off['drift_ppm']:+.2f} ppm removed"
     lines.append(line)
+    if doc.get("lag"):  # the study's answer in a sentence (uwval.comparison.lag)
+        lines.append(doc["lag"]["sentence"])
     return lines
 
 

@@ -23,6 +23,7 @@ __all__ = [
     "ClockOffset",
     "CompareInputs",
     "CompareOptions",
+    "DriftMode",
     "InputFormat",
     "PoseRelation",
     "RpeOptions",
@@ -44,6 +45,13 @@ class AlignmentMode(StrEnum):
     ORIGIN = "origin"
     SCALE = "scale"
     SCALE_ORIGIN = "scale_origin"
+
+
+class DriftMode(StrEnum):
+    """Clock drift of the other stream: ``auto`` fits (ppm) and removes it, ``off`` leaves it."""
+
+    AUTO = "auto"
+    OFF = "off"
 
 
 class PoseRelation(StrEnum):
@@ -195,6 +203,7 @@ class CompareOptions:
     ``max_diff`` s) for trajectory files, interpolation for logs. ``offset`` None means 0,
     and lets a log's recorded clock relation supply it (``uwval.clock`` metadata). ``frame``
     is the other stream's convention (None: from the log; ``"auto"``: the frame doctor).
+    ``drift`` None leaves the engine's default (off).
     ``pose_relation`` adds evo_ape's statistics of that relation (``change_unit``: in that
     unit). ``check_frame`` forces the frame doctor (``uwval doctor``).
     """
@@ -206,6 +215,7 @@ class CompareOptions:
     max_diff: float = 0.01
     offset: ClockOffset | None = None
     max_offset: float | None = None
+    drift: DriftMode | None = None
     align: AlignmentMode = AlignmentMode.NONE
     n_to_align: int = -1
     pose_relation: PoseRelation | None = None
@@ -249,6 +259,8 @@ class CompareOptions:
             out["offset"] = self.offset.engine_value()
         if self.check_frame is not None:
             out["check_frame"] = self.check_frame
+        if self.drift is not None:
+            out["drift"] = self.drift.value
         return out
 
     def with_(self, **changes: Any) -> CompareOptions:
