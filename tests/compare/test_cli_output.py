@@ -117,3 +117,12 @@ def test_an_existing_file_named_like_evos_word_is_a_file(
     p = run_uwval("compare", "tum", pair[1], "--format", "tum", "--json", cwd=tmp_path)
     assert p.returncode == 0, p.stderr
     assert json.loads(p.stdout)["sources"][0] == "tum"
+
+
+def test_the_html_page_says_how_the_numbers_were_made(
+    pair: tuple[Path, Path], tmp_path: Path
+) -> None:
+    page = tmp_path / "c.html"
+    p = run_uwval("compare", *pair, "--html", page, "-a")
+    assert p.returncode == 0, p.stderr
+    assert "sync nearest (max diff 0.01 s), align se3, frame enu" in page.read_text()

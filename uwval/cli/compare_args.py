@@ -407,7 +407,7 @@ def read_positionals(words: list[str]) -> Positionals:
     raise ConfigError(f"{len(words)} inputs given ({' '.join(words)}): {USAGE}")
 
 
-def _align_mode(given: dict[str, Any]) -> AlignmentMode:
+def align_mode(given: dict[str, Any]) -> AlignmentMode:
     """--align MODE and evo's flags (-a, -s, -as, --align_origin) -> one alignment mode."""
     align = str(given.get("align") or "none")
     evo_align, scale, origin = (
@@ -415,7 +415,7 @@ def _align_mode(given: dict[str, Any]) -> AlignmentMode:
     )
     flags = [f for f, on in (("-a", evo_align), ("-s", scale), ("--align_origin", origin)) if on]
     if not flags:
-        return _choice(AlignmentMode, align, "--align")
+        return choice(AlignmentMode, align, "--align")
     if origin and evo_align:
         raise ConfigError("--align_origin cannot be combined with -a (as in evo_ape)")
     if origin:
@@ -440,7 +440,7 @@ _ENUM_NAMES = {
 }
 
 
-def _choice(enum: Any, value: str, flag: str) -> Any:
+def choice(enum: Any, value: str, flag: str) -> Any:
     """``value`` as a member of ``enum``, or a one-line error listing the choices."""
     try:
         return enum(value.lower())
@@ -450,7 +450,7 @@ def _choice(enum: Any, value: str, flag: str) -> Any:
         raise ConfigError(f"{flag}: unknown {what} {value!r}; choose one of {choices}") from None
 
 
-def _sync(opts: dict[str, Any], max_diff_given: bool) -> SyncMethod | None:
+def sync_method(opts: dict[str, Any], max_diff_given: bool) -> SyncMethod | None:
     """--sync, or evo's --sync_method; a max diff given alone on the command line means
     evo's association (under interp it would be silently unused)."""
     evo = opts.get("sync_method")
@@ -468,7 +468,7 @@ def _sync(opts: dict[str, Any], max_diff_given: bool) -> SyncMethod | None:
             raise ConfigError(f"--sync {sync} contradicts --sync_method nearest_time")
         return SyncMethod.NEAREST
     if sync is not None:
-        return _choice(SyncMethod, str(sync), "--sync")
+        return choice(SyncMethod, str(sync), "--sync")
     if max_diff_given:
         return SyncMethod.NEAREST
     return None
@@ -519,7 +519,7 @@ def compare_options(given: dict[str, Any], project: Any = None) -> CompareOption
         )
     opts = merge_project(given, project)
     fmt_text = opts.get("fmt")
-    fmt = pos.fmt or (_choice(InputFormat, fmt_text, "--format") if fmt_text else None)
+    fmt = pos.fmt or (choice(InputFormat, fmt_text, "--format") if fmt_text else None)
     pairs = ()
     gazebo = pos.gazebo_topic or opts.get("gazebo_topic")
     unity = pos.unity_topic or opts.get("unity_topic")
@@ -533,15 +533,15 @@ def compare_options(given: dict[str, Any], project: Any = None) -> CompareOption
     return CompareOptions(
         inputs=inputs,
         frame=opts.get("frame"),
-        sync=_sync(opts, "max_diff" in given),
+        sync=sync_method(opts, "max_diff" in given),
         max_gap=opts.get("max_gap"),
         max_diff=float(opts.get("max_diff", 0.01)),
         offset=None if offset is None else ClockOffset.parse(str(offset)),
         max_offset=opts.get("max_offset"),
-        drift=_choice(DriftMode, drift, "--drift") if drift else None,
-        align=_align_mode(opts),
+        drift=choice(DriftMode, drift, "--drift") if drift else None,
+        align=align_mode(opts),
         n_to_align=int(opts.get("n_to_align", -1)),
-        pose_relation=_choice(PoseRelation, relation, "--pose_relation") if relation else None,
-        change_unit=_choice(ApeUnit, unit, "--change_unit") if unit else None,
+        pose_relation=choice(PoseRelation, relation, "--pose_relation") if relation else None,
+        change_unit=choice(ApeUnit, unit, "--change_unit") if unit else None,
         window=TimeWindow(opts.get("t_start"), opts.get("t_end"), opts.get("downsample")),
     )

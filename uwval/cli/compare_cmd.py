@@ -211,7 +211,7 @@ def _print_alignments(console: Any, result: LogComparison) -> None:
 def _batch(kwargs: dict[str, Any], given: dict[str, Any]) -> None:
     """``compare --batch``: every log of a sweep -> comparisons.json + the results table."""
     from uwval.batch import compare_batch
-    from uwval.cli.compare_args import _align_mode, _sync
+    from uwval.cli.compare_args import align_mode, sync_method
 
     if kwargs["config"] is not None:
         raise ConfigError(
@@ -231,7 +231,7 @@ def _batch(kwargs: dict[str, Any], given: dict[str, Any]) -> None:
         warn("with --batch, -o as the results folder is deprecated: use --results-dir")
         out_dir = kwargs["output"]
     options = _batch_options(
-        kwargs, given, _align_mode(given).value, _sync(given, "max_diff" in given)
+        kwargs, given, align_mode(given).value, sync_method(given, "max_diff" in given)
     )
     result = compare_batch(
         source,
@@ -292,7 +292,7 @@ def doctor_command(
     ] = None,
 ) -> None:
     """Name the frame convention the Unity stream is really in (tries every signed axis map)."""
-    from uwval.cli.compare_args import _choice
+    from uwval.cli.compare_args import choice
     from uwval.cli.compare_files import write_output
     from uwval.comparison.logs import run_comparison
     from uwval.comparison.options import ClockOffset, CompareInputs, InputFormat
@@ -302,7 +302,7 @@ def doctor_command(
         log_b,
         gazebo_topic,
         unity_topic,
-        _choice(InputFormat, fmt, "--format") if fmt else None,
+        choice(InputFormat, fmt, "--format") if fmt else None,
     )
     options = CompareOptions(
         inputs, frame=frame, offset=ClockOffset.parse(offset), check_frame=True

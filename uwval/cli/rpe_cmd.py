@@ -19,7 +19,7 @@ from typing import Annotated, Any, Optional
 import typer
 
 from uwval.cli import app
-from uwval.cli.compare_args import CliOption, EvoCommand, _choice, read_positionals
+from uwval.cli.compare_args import CliOption, EvoCommand, choice, read_positionals
 from uwval.cli.console import error_console, output_console, warn
 from uwval.comparison.logs import RpeComparison
 from uwval.comparison.options import (
@@ -221,7 +221,7 @@ def _align_mode(flags: _Flags) -> AlignmentMode:
     elif flags.correct_scale:
         mode = AlignmentMode.SCALE
     else:
-        return _choice(AlignmentMode, flags.align, "--align")
+        return choice(AlignmentMode, flags.align, "--align")
     if flags.align not in ("none", mode.value):
         raise ConfigError(f"--align {flags.align} contradicts evo's flags (which mean {mode})")
     return mode
@@ -230,7 +230,7 @@ def _align_mode(flags: _Flags) -> AlignmentMode:
 def rpe_options(kw: dict[str, Any]) -> RpeOptions:
     """The typed options of one ``uwval rpe`` from its command line."""
     pos = read_positionals(list(kw["words"]))
-    fmt = pos.fmt or (_choice(InputFormat, kw["fmt"], "--format") if kw["fmt"] else None)
+    fmt = pos.fmt or (choice(InputFormat, kw["fmt"], "--format") if kw["fmt"] else None)
     inputs = CompareInputs(
         pos.log_a,
         pos.log_b,
@@ -242,7 +242,7 @@ def rpe_options(kw: dict[str, Any]) -> RpeOptions:
     return RpeOptions(
         inputs=inputs,
         frame=kw["frame"],
-        relation=_choice(PoseRelation, kw["relation"], "--pose_relation"),
+        relation=choice(PoseRelation, kw["relation"], "--pose_relation"),
         delta=kw["delta"],
         delta_unit=kw["delta_unit"],
         delta_tol=kw["delta_tol"],
