@@ -28,7 +28,7 @@ def run_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
         (["--max-gap", "-1"], "max_gap"),
         (["--max-gap", "0"], "max_gap"),
         (["--sync", "nearest", "--max-diff", "-1"], "max_diff"),
-        (["--format", "foo"], "--format 'foo'"),
+        (["--format", "foo"], "unknown input format 'foo'"),
     ],
 )
 def test_bad_compare_options_are_clean_errors(run_log: Path, args: list[str], needle: str) -> None:
