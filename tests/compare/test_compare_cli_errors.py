@@ -28,7 +28,7 @@ def run_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
         (["--max-gap", "-1"], "max_gap"),
         (["--max-gap", "0"], "max_gap"),
         (["--sync", "nearest", "--max-diff", "-1"], "max_diff"),
-        (["--format", "foo"], "--format 'foo'"),
+        (["--format", "foo"], "unknown input format 'foo'"),
     ],
 )
 def test_bad_compare_options_are_clean_errors(run_log: Path, args: list[str], needle: str) -> None:
@@ -73,7 +73,10 @@ def test_streams_on_different_clocks_name_both_time_ranges_and_the_fix(tmp_path:
     unity = unity_view(gazebo, convention="enu", clock_offset=1000.0, rate_hz=50.0)
     write_tum(tmp_path / "gazebo.tum", gazebo)
     write_tum(tmp_path / "unity.tum", unity)
-    res = _uwval("compare", tmp_path / "gazebo.tum", tmp_path / "unity.tum")
+    nearest = _uwval("compare", tmp_path / "gazebo.tum", tmp_path / "unity.tum")
+    assert nearest.returncode == 2  # evo's association (the default for trajectory files)
+    assert "reference spans [0.000000, 29.980000] s, other [1000.000000, " in nearest.stderr
+    res = _uwval("compare", tmp_path / "gazebo.tum", tmp_path / "unity.tum", "--sync", "interp")
     assert res.returncode == 2
     message = res.stderr
     assert "Traceback" not in message
@@ -98,7 +101,8 @@ def test_the_table_header_says_how_the_streams_were_synchronised(tmp_path: Path)
     gazebo = vehicle_motion(500, 50.0, seed=4)
     write_tum(tmp_path / "gt.tum", gazebo)
     write_tum(tmp_path / "est.tum", unity_view(gazebo, convention="enu", rate_hz=50.0))
-    text = _uwval("compare", tmp_path / "gt.tum", tmp_path / "est.tum")
+    text = _uwval("compare", tmp_path / "gt.tum", tmp_path / "est.tum", "--sync", "interp")
     assert "(sync interp:" in " ".join(text.stdout.split())
-    text = _uwval("compare", tmp_path / "gt.tum", tmp_path / "est.tum", "--sync", "nearest")
+    # two trajectory files: evo's association by default, and the header says so
+    text = _uwval("compare", tmp_path / "gt.tum", tmp_path / "est.tum")
     assert "(sync nearest, max diff 0.01 s, as evo)" in " ".join(text.stdout.split())

@@ -132,14 +132,12 @@ def test_evo_alignment_flags_and_clusters(fr1: tuple[Path, Path]) -> None:
 
 
 def test_evo_flags_parse_the_same_through_typer(fr1: tuple[Path, Path]) -> None:
-    # the fast parser and typer (used for --help, usage errors, --batch) agree on -as, -va
+    # typer (the only parser) reads evo's clustered short flags -as as -a -s
     from typer.testing import CliRunner
 
     import uwval.cli.compare_cmd  # noqa: F401  (registers the command)
     from uwval.cli import app
-    from uwval.cli.compare_run import _expand_short_flags
 
-    assert _expand_short_flags(["-as", "-va", "-r", "x"]) == ["-a", "-s", "-v", "-a", "-r", "x"]
     args = ["compare", *map(str, fr1), "--sync", "nearest", "-as", "--t_max_diff", "0.01"]
     res = CliRunner().invoke(app, [*args, "--t_offset", "0", "--json"])
     assert res.exit_code == 0, res.output
@@ -154,7 +152,7 @@ def test_contradicting_alignment_options_are_one_line_errors(fr1: tuple[Path, Pa
         (["--save-errors", str(folder)], f"{folder}: cannot write the per-sample errors"),
         (["--align", "se3", "-as"], "--align se3 contradicts -a -s"),
         (["-a", "--align_origin"], "--align_origin cannot be combined"),
-        (["-r", "angle"], "--pose_relation 'angle': choose one of trans_part"),
+        (["-r", "angle"], "unknown pose relation 'angle'; choose one of trans_part"),
         (["-a", "--n_to_align", "0"], "--n_to_align must be >= 1"),
     ):
         p = run_uwval("compare", *fr1, *args)
@@ -219,7 +217,7 @@ def test_save_errors_csv_one_row_per_aligned_sample(fr1: tuple[Path, Path], tmp_
 
 
 def test_plot_file_names() -> None:
-    from uwval.cli.compare_run import plot_targets
+    from uwval.cli.compare_files import plot_targets
 
     assert plot_targets(["trajectory"], "trajectory", None) == [
         ("trajectory", Path("uwval_trajectory_trajectory.png"), Path("uwval_trajectory_errors.png"))
@@ -241,10 +239,10 @@ def test_plot_file_names() -> None:
 
 
 def test_bare_align_is_evos_se3_flag(fr1: tuple[Path, Path]) -> None:
-    from uwval.cli.compare_run import _bare_align
+    from uwval.cli.compare_args import evo_bare_align
 
-    assert _bare_align(["a", "b", "--align"]) == ["a", "b", "-a"]
-    assert _bare_align(["--align", "sim3", "--align", "--json"]) == [
+    assert evo_bare_align(["a", "b", "--align"]) == ["a", "b", "-a"]
+    assert evo_bare_align(["--align", "sim3", "--align", "--json"]) == [
         "--align",
         "sim3",
         "-a",

@@ -296,59 +296,6 @@ def test_pair_equals_two_reads_and_the_first_files_error_wins(tmp_path: Path) ->
         read_tum_pair(b.with_name("missing.tum"), b)
 
 
-# ---- the light command-line path --------------------------------------------------------------
-
-
-def test_fast_compare_prints_what_typer_prints(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    from typer.testing import CliRunner
-
-    from uwval.cli import _register, app
-    from uwval.cli.compare_cmd import fast_compare
-
-    _register()
-    a, b = _pair(tmp_path, 400)
-    args = [
-        str(a),
-        str(b),
-        "--sync",
-        "nearest",
-        "--max-diff=0.005",
-        "--align",
-        "se3",
-        "--json",
-        "-o",
-        str(tmp_path / "out.json"),
-    ]
-    assert fast_compare(args)
-    fast_out = capsys.readouterr().out
-    fast_file = (tmp_path / "out.json").read_text()
-    result = CliRunner().invoke(app, ["compare", *args])
-    assert result.exit_code == 0, result.output
-    assert fast_out == result.stdout
-    assert fast_file == (tmp_path / "out.json").read_text()
-    assert '"matched"' in fast_out
-
-
-@pytest.mark.parametrize(
-    "args",
-    [
-        ["--help"],
-        ["a.tum", "b.tum", "--sync"],
-        ["a.tum", "b.tum", "--bogus", "1"],
-        ["a.tum", "b.tum", "--sync", "nearest", "--sync", "interp"],
-        ["a.tum", "b.tum", "--max-diff", "1_0"],
-        ["a.tum", "b.tum", "c.tum"],
-        [],
-    ],
-)
-def test_fast_compare_leaves_anything_unusual_to_typer(args: list[str]) -> None:
-    from uwval.cli.compare_cmd import fast_compare
-
-    assert fast_compare(args) is False
-
-
 def test_a_carriage_return_inside_a_line_is_refused_not_read_as_space(tmp_path: Path) -> None:
     """Found by the fuzz harness: '-' flipped to CR turned -0.007853 into 0.007853 silently
     (both parsers took CR as blank space; loadtxt and evo see a line break). CRLF files stay

@@ -119,7 +119,7 @@ def test_compare_plot_writes_histogram_and_error_map(
 ) -> None:
     from PIL import Image
 
-    from uwval.cli.compare_run import extra_plot_targets, plot_targets
+    from uwval.cli.compare_files import extra_plot_targets, plot_targets
 
     target = tmp_path / "figs" / "fr1.png"
     p = run_uwval("compare", *fr1_short, "--sync", "nearest", "--save_plot", target)

@@ -5,9 +5,9 @@ the areas do not edit one file. ``main`` turns every :class:`UwvalError`, and ou
 cannot be written (stdout on a full device), into a one-line message and exit code 2 (no
 traceback reaches the user).
 
-typer and rich are imported on first use (``uwval.cli.app`` is created lazily): a plain
-``uwval compare`` takes the fast path of :mod:`uwval.cli.compare_run` without them, since
-start-up is most of the whole-command time of a compare.
+typer is the only command-line parser; rich prints the tables (:mod:`uwval.cli.console`:
+results on stdout, never wrapped when piped; errors on stderr). ``uwval.cli.app`` is created
+on first use, and only the module of the command typed is imported.
 """
 
 from __future__ import annotations
@@ -55,21 +55,44 @@ COMMAND_HOME = {
 _app: typer.Typer | None = None
 
 
+def embedded_defaults() -> dict[str, list[str]]:
+    """The embedded defaults this installation carries, by kind (experiments, thresholds,
+    baselines, vehicles): the names that ``simulate NAME``, ``--thresholds NAME`` and
+    ``--baseline NAME`` accept."""
+    from uwval.resources import data_dir
+
+    root = data_dir()
+    kinds = ("experiments", "thresholds", "baselines", "vehicles")
+    return {
+        kind: sorted(p.stem for p in (root / kind).iterdir() if p.suffix in (".toml", ".json"))
+        for kind in kinds
+        if (root / kind).is_dir()
+    }
+
+
+def version_text() -> str:
+    """What ``uwval --version`` prints: the version, then the embedded defaults by name."""
+    from uwval import __version__
+
+    lines = [f"uwval {__version__}"]
+    for kind, names in embedded_defaults().items():
+        lines.append(f"embedded {kind}: {', '.join(names) or '(none)'}")
+    return "\n".join(lines)
+
+
 def _root_callback(typer: Any) -> Any:
     """The app's root callback, with ``--version`` (built here: typer is imported lazily)."""
 
     def show_version(value: bool) -> None:
         if value:
-            from uwval import __version__
-
-            print(f"uwval {__version__}")
+            print(version_text())
             raise typer.Exit()
 
     def root(
         version: bool = typer.Option(
             False,
             "--version",
-            help="Print uwval's version and exit.",
+            help="Print uwval's version and the embedded defaults it carries, and exit.",
             callback=show_version,
             is_eager=True,
         ),
@@ -120,14 +143,13 @@ def _register(argv: list[str] | None = None) -> None:
 
 def _print_error(prefix_markup: str, text: str) -> None:
     """One line on stderr: a coloured prefix, then ``text`` verbatim (never as markup)."""
-    from rich.console import Console
     from rich.markup import escape
+
+    from uwval.cli.console import error_console
 
     # stderr unwritable too: the exit status still tells
     with contextlib.suppress(OSError, ValueError):
-        Console(stderr=True).print(
-            f"{prefix_markup} {escape(text)}", highlight=False, soft_wrap=True
-        )
+        error_console().print(f"{prefix_markup} {escape(text)}", highlight=False, soft_wrap=True)
 
 
 #: errno values of a failed write to stdout that are the environment's, not uwval's:
@@ -145,21 +167,6 @@ def _silence_stdout() -> None:
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
 
 
-def _exit_now() -> None:
-    """End the process at once (exit status 0); stdout/stderr were flushed by :func:`main`.
-
-    The fast compare path has written and closed everything it writes; what is left is the
-    interpreter's teardown (freeing ~100 MB of arrays and every module), ~25 ms, a tenth of
-    a large compare. The ``atexit`` handlers still run first (e.g. coverage saving its data),
-    so nothing registered for the exit is skipped.
-    """
-    import atexit
-    import os
-
-    atexit._run_exitfuncs()
-    os._exit(0)
-
-
 def _flush_output() -> None:
     """Flush stdout and stderr (None when the process started with that fd closed)."""
     for stream in (sys.stdout, sys.stderr):
@@ -168,29 +175,14 @@ def _flush_output() -> None:
 
 
 def _dispatch(args: list[str], argv: list[str] | None) -> None:
-    """Run one command: the fast compare path when it applies, otherwise typer."""
-    if args[:1] == ["compare"]:
-        # plain compare arguments skip typer's parsing layer (start-up time is most of
-        # a small compare); anything unusual falls through to typer below.
-        # A compare does no large matrix products: OpenBLAS's thread pool (started when
-        # numpy loads, below) would cost ~25 ms of start-up and contend with the parser
-        # for the second core. Set before numpy is imported; a user's setting wins.
-        import os
-
-        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-        from uwval.cli.compare_run import fast_compare
-
-        if fast_compare(list(args[1:])):
-            _flush_output()  # a failed write surfaces here, inside main's handlers
-            if argv is None:  # the process's own entry point: nothing is left to do
-                _exit_now()
-            return
+    """Run one command through typer (the only parser)."""
     _register(args)
     try:
         get_app()(args=argv, standalone_mode=True)
     except SystemExit:
         _flush_output()
         raise
+    _flush_output()  # a failed write surfaces here, inside main's handlers
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -1,11 +1,8 @@
-"""``uwval compare`` and ``uwval doctor``: a thin CLI layer over :mod:`uwval.comparison`.
+"""``uwval compare`` and ``uwval doctor``: a thin typer layer over :mod:`uwval.comparison`.
 
-Imports of the engine happen inside the commands, so registering them costs nothing at
-start-up, and the TUM ``--sync nearest`` path loads no pandas, scipy or matplotlib.
-:func:`fast_compare` runs ``uwval compare`` without typer's per-parameter coercion layer
-(which imports pydantic and builds a validator per option: ~0.1 s and ~15 MB per run).
-The options of ``compare`` are declared once, in :data:`uwval.cli.compare_run.COMPARE_OPTIONS`;
-the typer command below is built from that table, as is the fast parser.
+The command builds one :class:`uwval.comparison.options.CompareOptions`
+(:func:`uwval.cli.compare_args.compare_options`), calls
+:func:`uwval.comparison.logs.run_comparison`, and prints or writes the typed result.
 """
 
 from __future__ import annotations
@@ -19,14 +16,10 @@ from typing import Annotated, Any, Optional
 import typer
 
 from uwval.cli import app
-from uwval.cli.compare_run import (  # noqa: F401  (fast path re-exported for callers)
-    _FAST_OPTIONS,
-    COMPARE_OPTIONS,
-    _align_mode,
-    _parse_offset,
-    fast_compare,
-    run_compare,
-)
+from uwval.cli.compare_args import COMPARE_OPTIONS, EvoCommand, compare_options
+from uwval.cli.console import error_console, output_console, warn
+from uwval.comparison.logs import LogComparison
+from uwval.comparison.options import CompareOptions
 from uwval.errors import ConfigError
 
 #: Options of one comparison that --batch refuses (one line, exit 2), by keyword.
@@ -37,28 +30,29 @@ _SINGLE_RUN_ONLY = {
     "save_errors": "--save-errors",
     "save_results": "--save_results",
     "html": "--html",
+    "change_unit": "--change_unit",
+    "logfile": "--logfile",
 }
+#: Options that belong to --batch only.
+_BATCH_ONLY = ("results_dir", "executor", "workers", "scheduler", "allow_protocol")
 
 
-def _compare_parameters() -> list[inspect.Parameter]:
-    """The typer signature of ``compare``: two arguments, then :data:`COMPARE_OPTIONS`."""
+def _parameters() -> list[inspect.Parameter]:
+    """The typer signature of ``compare``: the positional words, then :data:`COMPARE_OPTIONS`."""
     kw = inspect.Parameter.KEYWORD_ONLY
     params = [
         inspect.Parameter("ctx", kw, annotation=typer.Context),
         inspect.Parameter(
-            "log_a",
+            "words",
             kw,
             annotation=Annotated[
-                Path, typer.Argument(help="Log (both sides) or the reference file")
-            ],
-        ),
-        inspect.Parameter(
-            "log_b",
-            kw,
-            default=None,
-            annotation=Annotated[
-                Optional[Path],  # noqa: UP045  (a runtime object: typer reads it)
-                typer.Argument(help="Second file: the Unity side"),
+                list[str],
+                typer.Argument(
+                    help="LOG (both sides), REF EST (two files), LOG /ref_topic /other_topic; "
+                    "evo's shapes: tum|kitti|euroc REF EST, bag|bag2 LOG /ref_topic /other_topic",
+                    show_default=False,
+                    metavar="INPUTS",
+                ),
             ],
         ),
     ]
@@ -77,86 +71,179 @@ def _compare_parameters() -> list[inspect.Parameter]:
 
 def compare_command(**kwargs: Any) -> None:
     """Compare the Gazebo and Unity pose streams: per-axis errors, Pearson r, evo's APE stats."""
-    ctx = kwargs.pop("ctx")
-    batch_keys = {o.dest for o in COMPARE_OPTIONS if not o.fast}
-    opts = {k: v for k, v in kwargs.items() if k not in batch_keys}
-    log_a, log_b = opts.pop("log_a"), opts.pop("log_b")
-    if kwargs["batch"]:
-        output = opts.pop("output")
-        opts.pop("as_json")
-        opts.pop("verbose")
-        if opts.pop("config") is not None:
-            raise ConfigError(
-                "--config applies to one comparison; --batch takes its options from the "
-                "command line"
-            )
-        opts["align"] = _align_mode(
-            opts["align"],
-            opts.pop("evo_align"),
-            opts.pop("correct_scale"),
-            opts.pop("align_origin"),
-        )
-        if opts["n_to_align"] == -1:
-            opts.pop("n_to_align")
-        for key, flag in _SINGLE_RUN_ONLY.items():
-            if opts.pop(key):
-                raise ConfigError(f"{flag} applies to one comparison, not to --batch")
-        opts["offset"] = _parse_offset(opts["offset"])
-        _batch(
-            log_a,
-            output,
-            executor=kwargs["executor"],
-            workers=kwargs["workers"],
-            scheduler=kwargs["scheduler"],
-            allow_protocols=kwargs["allow_protocol"] or [],
-            options=opts,
-        )
-        return
-    # only what the user gave (not typer's defaults), so that uwval.toml fills the rest; an
-    # option given with its default value (--offset 0) is still given
+    ctx: typer.Context = kwargs.pop("ctx")
     given = {
         k: v
-        for k, v in opts.items()
+        for k, v in kwargs.items()
         if getattr(ctx.get_parameter_source(k), "name", "DEFAULT") != "DEFAULT"
     }
-    run_compare(log_a, log_b, **given)
+    if kwargs["batch"]:
+        _batch(kwargs, given)
+        return
+    for key in _BATCH_ONLY:
+        if key in given:
+            raise ConfigError(f"--{key.replace('_', '-')} applies to --batch only")
+    from uwval.cli.notes import warnings_as_notes
+    from uwval.comparison.logs import run_comparison
+    from uwval.config import load_config
+
+    options = compare_options(given, load_config(kwargs["config"]))
+    _check_outputs(kwargs)
+    with warnings_as_notes():
+        result = run_comparison(options)
+    _emit(result, options, kwargs)
 
 
-_signature = inspect.Signature(_compare_parameters(), return_annotation=None)
+_signature = inspect.Signature(_parameters(), return_annotation=None)
 compare_command.__signature__ = _signature  # type: ignore[attr-defined]
 compare_command.__annotations__ = {p.name: p.annotation for p in _signature.parameters.values()} | {
     "return": None
 }
-app.command("compare")(compare_command)
+app.command("compare", cls=EvoCommand)(compare_command)
 
 
-def _batch(
-    source: Path,
-    output: Path | None,
-    *,
-    executor: str,
-    workers: int | None,
-    scheduler: str | None,
-    allow_protocols: list[str],
-    options: dict[str, Any],
-) -> None:
+def _check_outputs(kwargs: dict[str, Any]) -> None:
+    """Refuse output names that cannot work before the (possibly long) comparison runs."""
+    html = kwargs["html"]
+    if html is not None and html.suffix.lower() not in (".html", ".htm"):
+        raise ConfigError(f"--html {html}: the page's name must end in .html")
+
+
+def how_compared(result: LogComparison) -> str:
+    """The sync and alignment that made the numbers, for titles and pages."""
+    doc = result.vehicle.stats
+    sync = doc["sync"]
+    text = f"sync {sync['method']}"
+    if sync["method"] == "nearest":
+        text += f" (max diff {sync.get('max_diff_s', 0.01):g} s)"
+    return f"{text}, align {doc['alignment']['mode']}, frame {doc['frame']['configured']}"
+
+
+def _emit(result: LogComparison, options: CompareOptions, kwargs: dict[str, Any]) -> None:
+    """Write the files asked for, then print the JSON or the tables (unless --silent)."""
+    from uwval.cli.compare_files import (
+        errors_csv,
+        label_paths,
+        save_results_zip,
+        write_html,
+        write_output,
+        write_plots,
+    )
+
+    text = json.dumps(result.to_json(), indent=1, allow_nan=False)
+    saved: list[Path] = []
+    if kwargs["output"] is not None:
+        write_output(kwargs["output"], text + "\n", "the JSON result")
+        saved.append(kwargs["output"])
+    results_path: Path | None = kwargs["save_results"]
+    if results_path is not None:
+        if results_path.suffix.lower() == ".zip":
+            relation = options.ape_relation or "trans_part"
+            data, reason = save_results_zip(result, str(relation))
+            write_output(results_path, data, "the results")
+            if reason is not None:
+                warn(
+                    f"{results_path} is not an evo result ({reason}): written without evo's "
+                    "stats.json/info.json, so evo_res refuses it; --sync nearest (and the "
+                    "streams in ENU) give one evo_res can mix with its own"
+                )
+        else:
+            write_output(results_path, text + "\n", "the results")
+        saved.append(results_path)
+    if kwargs["save_errors"] is not None:
+        for name, path in label_paths(
+            kwargs["save_errors"], list(result.results), result.primary
+        ).items():
+            write_output(path, errors_csv(result.results[name]), "the per-sample errors")
+            saved.append(path)
+    if kwargs["plot"] or kwargs["save_plot"] is not None:
+        saved += write_plots(result, kwargs["save_plot"])
+    if kwargs["html"] is not None:
+        saved.append(write_html(result, kwargs["html"], how_compared(result)))
+    _print(result, text, saved, kwargs)
+
+
+def _print(result: LogComparison, text: str, saved: list[Path], kwargs: dict[str, Any]) -> None:
+    """stdout: the JSON alone (--json) or the tables and the files written; --silent
+    prints nothing there; --logfile gets the same text."""
+    if kwargs["as_json"]:
+        if not kwargs["silent"]:
+            sys.stdout.write(text + "\n")
+        for path in saved:  # stdout holds the JSON alone
+            error_console().print(f"wrote {path}", markup=False, highlight=False)
+        return
+    import io
+
+    from uwval.cli.compare_table import print_comparison
+
+    logfile: Path | None = kwargs["logfile"]
+    console = output_console(
+        file=io.StringIO() if kwargs["silent"] else None, record=logfile is not None
+    )
+    print_comparison(console, result)
+    if kwargs["verbose"]:
+        _print_alignments(console, result)
+    for path in saved:
+        console.print(f"wrote {path}", markup=False, highlight=False)
+    if logfile is not None:
+        from uwval.cli.compare_files import write_output
+
+        write_output(logfile, console.export_text(), "the log file")
+
+
+def _print_alignments(console: Any, result: LogComparison) -> None:
+    """evo's -v: the alignment of each topic pair (scale, translation, rotation)."""
+    import numpy as np
+
+    for name, res in result.results.items():
+        al = res.alignment
+        if al.mode == "none":
+            continue
+        console.print(
+            f"{name}: alignment {al.mode}: scale {al.scale:.9g}, translation (m) "
+            f"{np.array2string(al.translation, precision=9)}, rotation\n"
+            f"{np.array2string(al.rotation, precision=9)}",
+            markup=False,
+            highlight=False,
+        )
+
+
+def _batch(kwargs: dict[str, Any], given: dict[str, Any]) -> None:
     """``compare --batch``: every log of a sweep -> comparisons.json + the results table."""
-    from rich.console import Console
-
     from uwval.batch import compare_batch
+    from uwval.cli.compare_args import align_mode, sync_method
 
-    console = Console()
-    opts = {k: v for k, v in options.items() if v is not None}
+    if kwargs["config"] is not None:
+        raise ConfigError(
+            "--config applies to one comparison; --batch takes its options from the command line"
+        )
+    for key, flag in _SINGLE_RUN_ONLY.items():
+        if kwargs.get(key):
+            raise ConfigError(f"{flag} applies to one comparison, not to --batch")
+    words = list(kwargs["words"])
+    if len(words) != 1:
+        raise ConfigError("--batch takes one experiment directory or manifest")
+    source = Path(words[0])
+    out_dir: Path | None = kwargs["results_dir"]
+    if kwargs["output"] is not None:
+        if out_dir is not None:
+            raise ConfigError("--batch: give the results folder once (--results-dir)")
+        warn("with --batch, -o as the results folder is deprecated: use --results-dir")
+        out_dir = kwargs["output"]
+    options = _batch_options(
+        kwargs, given, align_mode(given).value, sync_method(given, "max_diff" in given)
+    )
     result = compare_batch(
         source,
-        executor=executor,
-        workers=workers,
-        scheduler=scheduler,
-        allow_protocols=allow_protocols,
-        options=opts,
+        executor=kwargs["executor"],
+        workers=kwargs["workers"],
+        scheduler=kwargs["scheduler"],
+        allow_protocols=kwargs["allow_protocol"] or [],
+        options=options,
     )
-    out = output or (source if source.is_dir() else source.parent) / "results"
+    out = out_dir or (source if source.is_dir() else source.parent) / "results"
     written = result.save(out)
+    console = output_console()
     console.print(
         f"[green]compared {len(result.runs)} logs[/] -> " + ", ".join(str(p) for p in written)
     )
@@ -164,6 +251,28 @@ def _batch(
         console.print(f"[red]{f['name']} failed:[/] {f['error']}", highlight=False)
     if result.failed:
         raise typer.Exit(1)
+
+
+def _batch_options(
+    kwargs: dict[str, Any], given: dict[str, Any], align: str, sync: Any
+) -> dict[str, Any]:
+    """The compare keywords each run of a batch gets (uwval.batch passes them to
+    compare_logs): what the user gave, checked as for one comparison."""
+    from uwval.comparison.options import ClockOffset
+
+    out: dict[str, Any] = {
+        "align": align,
+        "offset": ClockOffset.parse(kwargs["offset"]).engine_value(),
+        "max_diff": kwargs["max_diff"],
+    }
+    if sync is not None:
+        out["sync"] = sync.value
+    for key in ("gazebo_topic", "unity_topic", "fmt", "frame", "max_gap", "max_offset", "drift"):
+        if kwargs[key] is not None:
+            out[key] = kwargs[key]
+    if kwargs["n_to_align"] != -1:
+        out["n_to_align"] = kwargs["n_to_align"]
+    return out
 
 
 @app.command("doctor")
@@ -178,32 +287,46 @@ def doctor_command(
     ] = None,
     offset: Annotated[str, typer.Option(help="Clock offset (s) or 'auto'")] = "0",
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON")] = False,
+    output: Annotated[
+        Path | None, typer.Option("-o", "--output", help="Write the JSON result to this file")
+    ] = None,
 ) -> None:
     """Name the frame convention the Unity stream is really in (tries every signed axis map)."""
-    from rich.console import Console
-    from rich.markup import escape
-    from rich.table import Table
+    from uwval.cli.compare_args import choice
+    from uwval.cli.compare_files import write_output
+    from uwval.comparison.logs import run_comparison
+    from uwval.comparison.options import ClockOffset, CompareInputs, InputFormat
 
-    from uwval.comparison.logs import compare_logs
-
-    result = compare_logs(
+    inputs = CompareInputs(
         log_a,
         log_b,
-        gazebo_topic=gazebo_topic,
-        unity_topic=unity_topic,
-        fmt=fmt,
-        frame=frame,
-        offset=_parse_offset(offset),
-        check_frame=True,
+        gazebo_topic,
+        unity_topic,
+        choice(InputFormat, fmt, "--format") if fmt else None,
     )
+    options = CompareOptions(
+        inputs, frame=frame, offset=ClockOffset.parse(offset), check_frame=True
+    )
+    result = run_comparison(options)
     report = {
         name: (res.diagnosis.to_json() if res.diagnosis else None)
         for name, res in result.results.items()
     }
+    text = json.dumps(report, indent=1, allow_nan=False)
+    if output is not None:
+        write_output(output, text + "\n", "the JSON result")
     if as_json:
-        sys.stdout.write(json.dumps(report, indent=1, allow_nan=False) + "\n")
+        sys.stdout.write(text + "\n")
         return
-    console = Console()
+    _print_diagnoses(report)
+
+
+def _print_diagnoses(report: dict[str, Any]) -> None:
+    """The doctor's table per topic pair: every convention's residuals, the best one."""
+    from rich.markup import escape
+    from rich.table import Table
+
+    console = output_console()
     for name, diag in report.items():
         if diag is None:
             console.print(f"{name}: too few overlapping samples to diagnose")
@@ -212,7 +335,7 @@ def doctor_command(
             title=escape(f"{name}: configured {diag['configured']}"), title_justify="left"
         )
         for col in ("convention", "position RMS (m)", "rotation RMS (deg)", ""):
-            table.add_column(col)
+            table.add_column(col, no_wrap=True)
         for conv, sc in diag["scores"].items():
             mark = "best" if conv == diag["best"] else ""
             mark += " configured" if conv == diag["configured"] else ""
@@ -220,8 +343,8 @@ def doctor_command(
                 conv, f"{sc['position_rms_m']:.4g}", f"{sc['rotation_rms_deg']:.4g}", mark.strip()
             )
         console.print(table)
-        console.print(f"fitted world map: {diag['fitted_world_map']}")
-        console.print(f"fitted body map:  {diag['fitted_body_map']}")
+        console.print(f"fitted world map: {diag['fitted_world_map']}", markup=False)
+        console.print(f"fitted body map:  {diag['fitted_body_map']}", markup=False)
         if diag["best"]:
             console.print(
                 f"the Unity stream is in [bold]{diag['best']}[/]: "

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import sys
 import warnings
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -10,10 +11,11 @@ from typing import Annotated, Any
 
 import numpy as np
 import typer
-from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from uwval.cli import app
+from uwval.cli.console import output_console
 
 
 @dataclass
@@ -93,21 +95,41 @@ def inspect_cmd(
     ],
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table")] = False,
     gaps: Annotated[int, typer.Option(help="Largest gaps to list per topic", min=0)] = 3,
+    output: Annotated[
+        Path | None, typer.Option("-o", "--output", help="Write the JSON result to this file")
+    ] = None,
 ) -> None:
-    """Show a log's topics, types, message counts, rates, time span and largest gaps."""
+    """Show a log's topics, types, message counts, rates, time span and largest gaps, and
+    the TF children compare can take as TOPIC#CHILD (with their chains through /tf_static)."""
     summary = summarize(log, gaps)
     tf = _tf_pairs(log, summary)
+    chains = _tf_chains(log, summary)
+    doc = asdict(summary)
+    doc["tf_pairs"] = {
+        name: [{"parent": a, "child": b, "count": n} for a, b, n in pairs]
+        for name, pairs in tf.items()
+    }
+    doc["tf_chains"] = {
+        name: [{"child": c, "chain": list(chain), "static_links": k} for c, chain, k in rows]
+        for name, rows in chains.items()
+    }
+    if output is not None:
+        from uwval.cli.compare_files import write_output
+
+        write_output(output, json.dumps(doc, indent=2) + "\n", "the JSON result")
     if as_json:
-        doc = asdict(summary)
-        doc["tf_pairs"] = {
-            name: [{"parent": a, "child": b, "count": n} for a, b, n in pairs]
-            for name, pairs in tf.items()
-        }
-        typer.echo(json.dumps(doc, indent=2))
+        sys.stdout.write(json.dumps(doc, indent=2) + "\n")
         return
-    console = Console()
-    if not console.is_terminal:  # pipes get the full table, not an 80-column wrap
-        console = Console(width=160)
+    _print_summary(summary, tf, chains)
+
+
+def _print_summary(
+    summary: LogSummary,
+    tf: dict[str, list[tuple[str, str, int]]],
+    chains: dict[str, list[tuple[str, tuple[str, ...], int]]],
+) -> None:
+    """The table of topics, then the TF pairs and chains, then the warnings."""
+    console = output_console()
     table = Table(title=f"{summary.path}  span {summary.duration:.3f} s")
     for col in ("topic", "type", "count", "rate [Hz]", "start [s]", "end [s]", "largest gap [s]"):
         table.add_column(
@@ -134,8 +156,18 @@ def inspect_cmd(
     for name, pairs in tf.items():  # compare takes one of them as TOPIC#CHILD
         listed = ", ".join(f"{a}->{b} ({n})" for a, b, n in pairs) or "none"
         console.print(f"{name} parent->child: {listed}", highlight=False, markup=False)
+    for name, rows in chains.items():
+        for child, chain, static_links in rows:
+            if static_links:  # '=>' marks a static link (from /tf_static)
+                path = " => ".join(chain[1:])
+                console.print(
+                    f"{name}#{child}: {chain[0]} -> {path} "
+                    f"({static_links} static link(s) from /tf_static)",
+                    highlight=False,
+                    markup=False,
+                )
     for note in summary.warnings:
-        console.print(f"[yellow]warning:[/] {note}", highlight=False)
+        console.print(f"[yellow]warning:[/] {escape(note)}", highlight=False)
 
 
 def _tf_pairs(log: Path, summary: LogSummary) -> dict[str, list[tuple[str, str, int]]]:
@@ -147,6 +179,20 @@ def _tf_pairs(log: Path, summary: LogSummary) -> dict[str, list[tuple[str, str, 
         warnings.simplefilter("ignore")
         return {
             t.name: tf_pairs(log, t.name) for t in summary.topics if t.type in TF_TYPES and t.count
+        }
+
+
+def _tf_chains(log: Path, summary: LogSummary) -> dict[str, list[tuple[str, tuple[str, ...], int]]]:
+    """The children TOPIC#CHILD reaches on each dynamic TF topic, through /tf_static."""
+    from uwval.io.decode import TF_TYPES
+    from uwval.io.reader import tf_chains
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return {
+            t.name: tf_chains(log, t.name)
+            for t in summary.topics
+            if t.type in TF_TYPES and t.count and t.name != "/tf_static"
         }
 
 

@@ -21,9 +21,6 @@ def warnings_as_notes() -> Iterator[None]:
                 text = str(w.message)
                 if text not in seen:
                     seen.add(text)
-                    from rich.console import Console
-                    from rich.markup import escape
+                    from uwval.cli.console import warn
 
-                    Console(stderr=True).print(
-                        f"[yellow]warning:[/] {escape(text)}", highlight=False, soft_wrap=True
-                    )
+                    warn(text)

@@ -59,7 +59,7 @@ def _compare_opts(
 ) -> dict[str, Any]:
     """The compare options given on the command line (as ``uwval compare`` takes them),
     completed by the project file ``project`` (:class:`uwval.config.ProjectConfig`)."""
-    from uwval.cli.compare_run import _parse_offset
+    from uwval.comparison.options import parse_offset as _parse_offset
     from uwval.config import merged_options
 
     given: dict[str, Any] = {

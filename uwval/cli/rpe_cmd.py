@@ -1,20 +1,35 @@
 """``uwval rpe REF EST``: relative pose error with evo_rpe's options (and evo's spellings).
 
-A thin layer over :func:`uwval.comparison.rpe.rpe`; inputs are read as ``uwval compare`` reads
-them (:func:`uwval.comparison.logs.read_pose_stream`): TUM text, KITTI, EuRoC, or one topic
-of a log each (or two topics of one log).
+A thin layer: the command builds one :class:`uwval.comparison.options.RpeOptions` and calls
+:func:`uwval.comparison.logs.run_rpe`. Inputs are read as ``uwval compare`` reads them: TUM
+text, KITTI, EuRoC, or one topic of a log each (or two topics of one log); evo's first
+positional word (``tum``, ``kitti``, ``euroc``, ``bag``, ``bag2``) is accepted.
 """
 
 from __future__ import annotations
 
+import inspect
+import io
 import json
 import sys
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any, Optional
 
 import typer
 
 from uwval.cli import app
+from uwval.cli.compare_args import CliOption, EvoCommand, choice, read_positionals
+from uwval.cli.console import error_console, output_console, warn
+from uwval.comparison.logs import RpeComparison
+from uwval.comparison.options import (
+    AlignmentMode,
+    CompareInputs,
+    InputFormat,
+    PoseRelation,
+    RpeOptions,
+    TimeWindow,
+)
 from uwval.errors import ConfigError
 
 _RELATION_NAMES = {
@@ -34,149 +49,265 @@ _ALIGN_TITLES = {
     "origin": "with origin alignment",
 }
 
-
-def _align_mode(align: bool, correct_scale: bool, align_origin: bool) -> str:
-    """evo's flags -> one mode: -a se3, -as sim3, -s scale only, --align_origin origin."""
-    if align_origin and (align or correct_scale):
-        raise ConfigError("--align-origin cannot be combined with -a / -s (as in evo_rpe)")
-    if align_origin:
-        return "origin"
-    if align:
-        return "sim3" if correct_scale else "se3"
-    return "scale" if correct_scale else "none"
-
-
-@app.command("rpe")
-def rpe_command(
-    ref: Annotated[Path, typer.Argument(help="Reference file, or a log holding both topics")],
-    est: Annotated[Path | None, typer.Argument(help="Estimate file (omit: topics of REF)")] = None,
-    ref_topic: Annotated[
-        str | None, typer.Option("--ref-topic", "--gazebo-topic", help="Reference topic")
-    ] = None,
-    est_topic: Annotated[
-        str | None, typer.Option("--est-topic", "--unity-topic", help="Estimate topic")
-    ] = None,
-    fmt: Annotated[
-        str | None,
-        typer.Option("--format", help="tum, kitti, euroc or a log format (default: by suffix)"),
-    ] = None,
-    frame: Annotated[
-        str | None, typer.Option(help="Convention of the estimate (default: from the log; enu)")
-    ] = None,
-    relation: Annotated[
+#: Every option of ``uwval rpe``, in ``--help`` order (names and kinds as in ``compare``).
+RPE_OPTIONS: tuple[CliOption, ...] = (
+    CliOption("ref_topic", ("--ref-topic", "--gazebo-topic"), str, None, "Reference topic"),
+    CliOption("est_topic", ("--est-topic", "--unity-topic"), str, None, "Estimate topic"),
+    CliOption(
+        "fmt", ("--format",), str, None, "tum, kitti, euroc or a log format (default: by suffix)"
+    ),
+    CliOption(
+        "frame", ("--frame",), str, None, "Convention of the estimate (default: from the log)"
+    ),
+    CliOption(
+        "relation",
+        ("-r", "--pose_relation", "--pose-relation"),
         str,
-        typer.Option(
-            "--pose-relation",
-            "--pose_relation",
-            "-r",
-            help="trans_part, rot_part, full, angle_deg, angle_rad, point_distance, "
-            "point_distance_error_ratio",
-        ),
-    ] = "trans_part",
-    delta: Annotated[float, typer.Option("--delta", "-d", help="Delta between poses")] = 1.0,
-    delta_unit: Annotated[
+        "trans_part",
+        "trans_part, rot_part, full, angle_deg, angle_rad, point_distance, "
+        "point_distance_error_ratio",
+    ),
+    CliOption("delta", ("-d", "--delta"), float, 1.0, "Delta between poses"),
+    CliOption(
+        "delta_unit",
+        ("-u", "--delta_unit", "--delta-unit"),
         str,
-        typer.Option(
-            "--delta-unit", "--delta_unit", "-u", help="f (frames), m (metres), d (deg), r (rad)"
-        ),
-    ] = "f",
-    delta_tol: Annotated[
+        "f",
+        "f (frames), m (metres), d (deg), r (rad)",
+    ),
+    CliOption(
+        "delta_tol",
+        ("-t", "--delta_tol", "--delta-tol"),
         float,
-        typer.Option(
-            "--delta-tol", "--delta_tol", "-t", help="Relative delta tolerance (all pairs)"
-        ),
-    ] = 0.1,
-    all_pairs: Annotated[
-        bool, typer.Option("--all-pairs", "--all_pairs", help="All pairs, not consecutive ones")
-    ] = False,
-    pairs_from_reference: Annotated[
+        0.1,
+        "Relative delta tolerance (all pairs)",
+    ),
+    CliOption(
+        "all_pairs", ("--all_pairs", "--all-pairs"), bool, False, "All pairs, not consecutive"
+    ),
+    CliOption(
+        "pairs_from_reference",
+        ("--pairs_from_reference", "--pairs-from-reference"),
         bool,
-        typer.Option(
-            "--pairs-from-reference",
-            "--pairs_from_reference",
-            help="Choose the pairs on the reference (default: on the estimate, as evo)",
-        ),
-    ] = False,
-    align: Annotated[
-        bool, typer.Option("--align", "-a", help="SE(3) Umeyama alignment (with -s: Sim(3))")
-    ] = False,
-    correct_scale: Annotated[
-        bool, typer.Option("--correct-scale", "--correct_scale", "-s", help="Correct the scale")
-    ] = False,
-    align_origin: Annotated[
+        False,
+        "Choose the pairs on the reference (default: on the estimate, as evo)",
+    ),
+    CliOption(
+        "align",
+        ("--align",),
+        str,
+        "none",
+        "Alignment: none, se3, sim3, origin or scale (evo's -a, -as, --align_origin, -s)",
+    ),
+    CliOption("evo_align", ("-a",), bool, False, "evo's -a: SE(3) Umeyama (-as: Sim(3))"),
+    CliOption(
+        "correct_scale",
+        ("-s", "--correct_scale", "--correct-scale"),
         bool,
-        typer.Option("--align-origin", "--align_origin", help="Align the first poses"),
-    ] = False,
-    n_to_align: Annotated[
-        int,
-        typer.Option("--n-to-align", "--n_to_align", help="Poses used to align (-1: all)"),
-    ] = -1,
-    sync: Annotated[
-        str, typer.Option(help="nearest (evo's association; KITTI files: by index)")
-    ] = "nearest",
-    max_diff: Annotated[
+        False,
+        "evo's -s: correct the scale",
+    ),
+    CliOption(
+        "align_origin",
+        ("--align_origin", "--align-origin"),
+        bool,
+        False,
+        "evo's --align_origin: align the first poses",
+    ),
+    CliOption(
+        "n_to_align", ("--n_to_align", "--n-to-align"), int, -1, "Poses used to align (-1: all)"
+    ),
+    CliOption(
+        "max_diff",
+        ("--t-max-diff", "--t_max_diff", "--max-diff"),
         float,
-        typer.Option("--max-diff", "--t-max-diff", "--t_max_diff", help="Max stamp difference (s)"),
-    ] = 0.01,
-    t_offset: Annotated[
+        0.01,
+        "Max stamp difference of evo's nearest association (s)",
+    ),
+    CliOption(
+        "offset",
+        ("--t-offset", "--t_offset", "--offset"),
         float,
-        typer.Option(
-            "--t-offset", "--t_offset", "--offset", help="Added to the estimate's stamps (s)"
+        0.0,
+        "Added to the estimate's stamps (s)",
+    ),
+    CliOption("t_start", ("--t_start", "--t-start"), float, None, "evo's --t_start (s)"),
+    CliOption("t_end", ("--t_end", "--t-end"), float, None, "evo's --t_end (s)"),
+    CliOption("downsample", ("--downsample",), int, None, "evo's --downsample N"),
+    CliOption("verbose", ("-v", "--verbose"), bool, False, "evo's -v: also print the alignment"),
+    CliOption("silent", ("--silent",), bool, False, "evo's --silent: print nothing on stdout"),
+    CliOption(
+        "no_warnings",
+        ("--no_warnings", "--no-warnings"),
+        bool,
+        False,
+        "evo's --no_warnings: accepted (uwval never asks for confirmation)",
+    ),
+    CliOption("logfile", ("--logfile",), Path, None, "evo's --logfile: also write the output"),
+    CliOption(
+        "plot",
+        ("--plot", "-p"),
+        bool,
+        False,
+        "Write the RPE over time as a PNG (no window): to --save_plot, else uwval_rpe.png",
+    ),
+    CliOption(
+        "save_plot", ("--save_plot", "--save-plot"), Path, None, "Figure path; implies --plot"
+    ),
+    CliOption(
+        "save_results",
+        ("--save_results", "--save-results"),
+        Path,
+        None,
+        "evo's --save_results: a .zip in evo's layout when evo_rpe would give the same "
+        "numbers (an estimate in ENU); otherwise without evo's stats.json/info.json",
+    ),
+    CliOption("as_json", ("--json",), bool, False, "Print the JSON result"),
+    CliOption("output", ("-o", "--output"), Path, None, "Write the JSON result to this file"),
+)
+
+
+def _parameters() -> list[inspect.Parameter]:
+    """The typer signature of ``rpe``: the positional words, then :data:`RPE_OPTIONS`."""
+    kw = inspect.Parameter.KEYWORD_ONLY
+    params = [
+        inspect.Parameter("ctx", kw, annotation=typer.Context),
+        inspect.Parameter(
+            "words",
+            kw,
+            annotation=Annotated[
+                list[str],
+                typer.Argument(
+                    help="REF EST, or LOG with --ref-topic/--est-topic; evo's shapes: "
+                    "tum|kitti|euroc REF EST, bag|bag2 LOG /ref_topic /est_topic",
+                    show_default=False,
+                    metavar="INPUTS",
+                ),
+            ],
         ),
-    ] = 0.0,
-    as_json: Annotated[bool, typer.Option("--json", help="Print the JSON result")] = False,
-    output: Annotated[
-        Path | None, typer.Option("-o", "--output", help="Also write the JSON result here")
-    ] = None,
-) -> None:
-    """Relative pose error as evo_rpe computes it (same pairs, relations, alignment, stats)."""
-    from uwval.comparison.logs import read_pose_stream
-    from uwval.comparison.rpe import rpe
+    ]
+    for o in RPE_OPTIONS:
+        kind: Any = o.kind if o.default is not None else Optional[o.kind]  # noqa: UP045
+        params.append(
+            inspect.Parameter(
+                o.dest,
+                kw,
+                default=o.default,
+                annotation=Annotated[kind, typer.Option(*o.flags, help=o.help)],
+            )
+        )
+    return params
 
-    mode = _align_mode(align, correct_scale, align_origin)
-    if est is None:
-        if not (ref_topic and est_topic):
-            raise ConfigError(f"{ref}: give EST, or both --ref-topic and --est-topic of this log")
-        from uwval.io import read_streams
 
-        streams = read_streams(ref, [ref_topic, est_topic])
-        a, b = streams[ref_topic], streams[est_topic]
+@dataclass(frozen=True)
+class _Flags:
+    """evo's alignment flags of one command line."""
+
+    align: str
+    evo_align: bool
+    correct_scale: bool
+    align_origin: bool
+
+
+def _align_mode(flags: _Flags) -> AlignmentMode:
+    """--align MODE and evo's flags -> one mode: -a se3, -as sim3, -s scale only,
+    --align_origin origin (evo_rpe refuses --align_origin with -a or -s)."""
+    if flags.align_origin and (flags.evo_align or flags.correct_scale):
+        raise ConfigError("--align_origin cannot be combined with -a / -s (as in evo_rpe)")
+    if flags.align_origin:
+        mode = AlignmentMode.ORIGIN
+    elif flags.evo_align:
+        mode = AlignmentMode.SIM3 if flags.correct_scale else AlignmentMode.SE3
+    elif flags.correct_scale:
+        mode = AlignmentMode.SCALE
     else:
-        a = read_pose_stream(ref, ref_topic, fmt=fmt)
-        b = read_pose_stream(est, est_topic, fmt=fmt, frame=frame)
-    if frame not in (None, "auto"):
-        b = b.with_(frame=frame)
-    if fmt == "kitti":
-        sync = "none"  # no stamps: evo pairs KITTI poses by index
-    res = rpe(
-        a,
-        b,
-        relation=relation,
-        delta=delta,
-        delta_unit=delta_unit,
-        delta_tol=delta_tol,
-        all_pairs=all_pairs,
-        pairs_from_reference=pairs_from_reference,
-        align=mode,
-        n_to_align=n_to_align,
-        sync=sync,
-        max_diff=max_diff,
-        offset=t_offset,
+        return choice(AlignmentMode, flags.align, "--align")
+    if flags.align not in ("none", mode.value):
+        raise ConfigError(f"--align {flags.align} contradicts evo's flags (which mean {mode})")
+    return mode
+
+
+def rpe_options(kw: dict[str, Any]) -> RpeOptions:
+    """The typed options of one ``uwval rpe`` from its command line."""
+    pos = read_positionals(list(kw["words"]))
+    fmt = pos.fmt or (choice(InputFormat, kw["fmt"], "--format") if kw["fmt"] else None)
+    inputs = CompareInputs(
+        pos.log_a,
+        pos.log_b,
+        pos.gazebo_topic or kw["ref_topic"],
+        pos.unity_topic or kw["est_topic"],
+        fmt,
     )
-    doc = res.to_json()
-    doc["sources"] = [str(ref)] + ([str(est)] if est is not None else [])
-    text = json.dumps(doc, indent=1, allow_nan=False)
-    if output is not None:
-        output.write_text(text + "\n")
-    if as_json:
-        sys.stdout.write(text + "\n")
+    flags = _Flags(kw["align"], kw["evo_align"], kw["correct_scale"], kw["align_origin"])
+    return RpeOptions(
+        inputs=inputs,
+        frame=kw["frame"],
+        relation=choice(PoseRelation, kw["relation"], "--pose_relation"),
+        delta=kw["delta"],
+        delta_unit=kw["delta_unit"],
+        delta_tol=kw["delta_tol"],
+        all_pairs=kw["all_pairs"],
+        pairs_from_reference=kw["pairs_from_reference"],
+        align=_align_mode(flags),
+        n_to_align=kw["n_to_align"],
+        max_diff=kw["max_diff"],
+        offset=kw["offset"],
+        window=TimeWindow(kw["t_start"], kw["t_end"], kw["downsample"]),
+    )
+
+
+def rpe_command(**kw: Any) -> None:
+    """Relative pose error as evo_rpe computes it (same pairs, relations, alignment, stats)."""
+    kw.pop("ctx")
+    from uwval.cli.compare_files import write_output
+    from uwval.cli.notes import warnings_as_notes
+    from uwval.comparison.logs import run_rpe
+
+    options = rpe_options(kw)
+    with warnings_as_notes():
+        found = run_rpe(options)
+    text = json.dumps(found.to_json(), indent=1, allow_nan=False)
+    saved: list[Path] = []
+    if kw["output"] is not None:
+        write_output(kw["output"], text + "\n", "the JSON result")
+        saved.append(kw["output"])
+    if kw["save_results"] is not None:
+        saved.append(_save_results(kw["save_results"], found, text))
+    if kw["plot"] or kw["save_plot"] is not None:
+        saved.append(_plot(found, kw["save_plot"]))
+    if kw["as_json"]:
+        if not kw["silent"]:
+            sys.stdout.write(text + "\n")
+        for path in saved:
+            error_console().print(f"wrote {path}", markup=False, highlight=False)
         return
+    console = output_console(
+        file=io.StringIO() if kw["silent"] else None, record=kw["logfile"] is not None
+    )
+    for line in _lines(found, kw["verbose"]) + [f"wrote {p}" for p in saved]:
+        console.print(line, markup=False, highlight=False)
+    if kw["logfile"] is not None:
+        write_output(kw["logfile"], console.export_text(), "the log file")
+
+
+_signature = inspect.Signature(_parameters(), return_annotation=None)
+rpe_command.__signature__ = _signature  # type: ignore[attr-defined]
+rpe_command.__annotations__ = {p.name: p.annotation for p in _signature.parameters.values()} | {
+    "return": None
+}
+app.command("rpe", cls=EvoCommand)(rpe_command)
+
+
+def _lines(found: RpeComparison, verbose: bool) -> list[str]:
+    """What ``uwval rpe`` prints: evo_rpe's title and statistics, then any warnings."""
     from uwval.comparison.rpe import DELTA_UNITS
 
+    res = found.result
     title = (
         f"RPE w.r.t. {_RELATION_NAMES[res.relation]} ({res.unit})\n"
         f"for delta = {res.delta:g} ({DELTA_UNITS[res.delta_unit]}) using "
-        f"{'all' if res.all_pairs else 'consecutive'} pairs\n({_ALIGN_TITLES[mode]})"
+        f"{'all' if res.all_pairs else 'consecutive'} pairs\n"
+        f"({_ALIGN_TITLES.get(res.alignment.mode, res.alignment.mode)})"
     )
     lines = [
         title,
@@ -186,5 +317,88 @@ def rpe_command(
         f"{k:>8}  {res.stats[k]:.6f}"
         for k in ("max", "mean", "median", "min", "rmse", "sse", "std")
     ]
+    if verbose and res.alignment.mode != "none":
+        import numpy as np
+
+        al = res.alignment
+        lines.append(
+            f"alignment {al.mode}: scale {al.scale:.9g}, translation (m) "
+            f"{np.array2string(al.translation, precision=9)}, rotation\n"
+            f"{np.array2string(al.rotation, precision=9)}"
+        )
     lines += [f"warning: {w}" for w in res.warnings]
-    sys.stdout.write("\n".join(lines) + "\n")
+    return lines
+
+
+def _save_results(path: Path, found: RpeComparison, text: str) -> Path:
+    """evo's --save_results for RPE: evo's layout when evo_rpe would give the same numbers
+    (an estimate already in ENU), else a zip evo_res refuses; any other suffix: the JSON."""
+    import zipfile
+
+    import numpy as np
+
+    from uwval.cli.compare_files import write_output
+
+    if path.suffix.lower() != ".zip":
+        write_output(path, text + "\n", "the results")
+        return path
+    res = found.result
+    unit = res.unit
+    stats = {k: res.stats[k] for k in ("rmse", "mean", "median", "std", "min", "max", "sse")}
+    info = {
+        "title": f"RPE w.r.t. {_RELATION_NAMES[res.relation]} ({unit})",
+        "ref_name": found.sources[0],
+        "est_name": found.sources[-1],
+        "label": f"RPE ({unit})",
+    }
+    reason = None if found.other_frame == "enu" else f"frame {found.other_frame} converted to ENU"
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
+        if reason is None:
+            zf.writestr("stats.json", json.dumps(stats, allow_nan=False))
+            zf.writestr("info.json", json.dumps(info))
+        else:
+            doc = {"not_an_evo_result": reason, "info": info, "stats": stats}
+            zf.writestr("uwval_stats.json", json.dumps(doc, allow_nan=False))
+        for name, array in (("error_array", res.errors), ("timestamps", res.t * 1e-9)):
+            npy = io.BytesIO()
+            np.save(npy, np.asarray(array, dtype=np.float64))
+            zf.writestr(f"{name}.npy", npy.getvalue())
+        zf.writestr("uwval.json", text)
+    write_output(path, buf.getvalue(), "the results")
+    if reason is not None:
+        warn(f"{path} is not an evo result ({reason}): written without evo's stats.json/info.json")
+    return path
+
+
+def _plot(found: RpeComparison, save_plot: Path | None) -> Path:
+    """--plot / --save_plot: the relative errors over time (s from the first pair)."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        from matplotlib.figure import Figure
+    except ImportError as exc:
+        raise ConfigError(f"--plot needs matplotlib ({exc})") from None
+    from uwval.cli.compare_files import PLOT_SUFFIXES
+
+    res = found.result
+    target = save_plot or Path("uwval_rpe.png")
+    if target.suffix.lower() not in PLOT_SUFFIXES:
+        target = target.with_name(target.name + ".png")
+    fig = Figure(figsize=(8, 3.5))
+    ax = fig.subplots()
+    seconds = (res.t - res.t[0]) * 1e-9 if len(res.t) else res.t
+    ax.plot(seconds, res.errors, lw=0.8)
+    ax.set_xlabel("t (s)")
+    ax.set_ylabel(f"RPE ({res.unit})")
+    ax.set_title(
+        f"RPE w.r.t. {_RELATION_NAMES[res.relation]}, delta {res.delta:g} {res.delta_unit}"
+    )
+    ax.grid(True, alpha=0.3)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(target, dpi=100)
+    except OSError as exc:
+        raise ConfigError(f"{target}: cannot write the plot: {exc.strerror or exc}") from None
+    return target

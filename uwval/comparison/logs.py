@@ -1,5 +1,9 @@
 """Compare logs: pick the streams (two topics of one log, or one stream from each of two files),
 run :func:`uwval.comparison.compare` per topic pair (vehicle and camera), collect the results.
+
+:func:`run_comparison` takes the typed :class:`uwval.comparison.options.CompareOptions` that
+``uwval compare`` builds and returns a :class:`LogComparison` (evo_ape's statistics included
+when asked for); :func:`compare_logs` is the keyword form other modules call.
 """
 
 from __future__ import annotations
@@ -10,7 +14,20 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from uwval.comparison.engine import ComparisonResult, compare
+import numpy as np
+
+from uwval.comparison.engine import ComparisonResult, ape_errors, compare
+from uwval.comparison.options import (
+    ApeUnit,
+    CompareOptions,
+    InputFormat,
+    PoseRelation,
+    RpeOptions,
+    TimeWindow,
+    unit_factor,
+)
+from uwval.comparison.relations import RELATION_UNITS
+from uwval.comparison.stats import norm_stats
 from uwval.errors import LogReadError
 from uwval.io.formats import INPUT_FORMATS, is_tum  # noqa: F401 - INPUT_FORMATS re-exported
 from uwval.posestream import PoseStream
@@ -25,24 +42,81 @@ from uwval.topics import (
 )
 
 
+@dataclass(frozen=True)
+class ApeStatistics:
+    """evo_ape's statistics of one topic pair's aligned samples, in ``unit``.
+
+    ``relation`` is evo's pose relation (``-r``); the values are evo's (rmse, mean, median,
+    std (population), min, max, sse), scaled by ``--change_unit`` when one was given.
+    """
+
+    relation: str
+    unit: str
+    rmse: float
+    mean: float
+    median: float
+    std: float
+    min: float
+    max: float
+    sse: float
+
+    @classmethod
+    def of(
+        cls, result: ComparisonResult, relation: str, unit: ApeUnit | None = None
+    ) -> ApeStatistics:
+        """The statistics of ``result``'s APE w.r.t. ``relation`` (evo's definitions)."""
+        errors = ape_errors(result.reference, result.other, relation)
+        base = RELATION_UNITS[relation]
+        factor = 1.0
+        if unit is not None:
+            factor = unit_factor(base, unit)
+            errors = errors * factor
+        stats = norm_stats(errors)
+        return cls(relation, str(unit or base), **stats)
+
+    def to_json(self) -> dict[str, Any]:
+        """The ``ape`` section of the JSON contract (``pose_relation``, ``unit``, stats)."""
+        return {
+            "pose_relation": self.relation,
+            "unit": self.unit,
+            **{k: getattr(self, k) for k in APE_STATISTICS},
+        }
+
+
+#: The statistics evo_ape prints, in its order.
+APE_STATISTICS = ("rmse", "mean", "median", "std", "min", "max", "sse")
+
+
 @dataclass
 class LogComparison:
-    """Per-topic comparisons of one run; ``primary`` names the vehicle (top-level) section."""
+    """Per-topic comparisons of one run; ``primary`` names the vehicle (top-level) section.
+
+    ``ape`` holds evo_ape's statistics per topic when a pose relation was asked for; the
+    JSON puts each under its topic's ``ape`` key (and the vehicle's at the top level).
+    """
 
     results: dict[str, ComparisonResult]
     primary: str
     sources: list[str] = field(default_factory=list)
+    ape: dict[str, ApeStatistics] = field(default_factory=dict)
 
     @property
     def vehicle(self) -> ComparisonResult:
         return self.results[self.primary]
 
+    def topic_json(self, name: str) -> dict[str, Any]:
+        """One topic's section of the JSON contract (its ``ape`` included when computed)."""
+        doc = dict(self.results[name].to_json())
+        if name in self.ape:
+            doc["ape"] = self.ape[name].to_json()
+        return doc
+
     def to_json(self) -> dict[str, Any]:
         """Top level = the vehicle topic's JSON; ``topics`` holds every topic's section."""
-        top = dict(self.vehicle.to_json())
+        top = self.topic_json(self.primary)
         top["primary_topic"] = self.primary
         top["sources"] = list(self.sources)
-        top["topics"] = {name: res.to_json() for name, res in self.results.items()}
+        top["topics"] = {name: self.topic_json(name) for name in self.results}
         return top
 
 
@@ -82,7 +156,9 @@ def read_pose_stream(
                 f"--unity-topic); pose topics: {listed}"
             )
         topic = poses[0]
-    return read_stream(path, topic, frame=frame)
+    # a TF child (TOPIC#CHILD) may hang under /tf_static transforms: chained when present
+    chain: dict[str, Any] = {"tf_static": None} if "#" in topic else {}
+    return read_stream(path, topic, frame=frame, **chain)
 
 
 def pair_label(gazebo_topic: str, unity_topic: str) -> str:
@@ -150,6 +226,7 @@ def compare_logs(
     frame: str | None = None,
     pairs: Sequence[Any] | None = None,
     recorded_clock: bool | None = None,
+    window: TimeWindow | None = None,
     **options: Any,
 ) -> LogComparison:
     """Compare the Gazebo (reference) and Unity streams of one log, or of two files.
@@ -164,7 +241,8 @@ def compare_logs(
     no topic is given; with two logs the first pair's topics are read; a ``frame`` given
     here wins over a pair's. ``recorded_clock``: put a Unity side stamped on the monotonic
     clock on the epoch clock with the log's ``uwval.clock`` metadata, when the two streams do
-    not overlap in time (default: when ``options`` give no ``offset``).
+    not overlap in time (default: when ``options`` give no ``offset``). ``window``: evo's
+    ``--downsample`` and ``--t_start``/``--t_end``, applied to the streams as read.
     """
     results: dict[str, ComparisonResult] = {}
     if path_b is None:
@@ -176,7 +254,7 @@ def compare_logs(
         frames: dict[str, str | None] = {}
         # one pass over the log for every topic of the pairs (uwval.topics decides which)
         topics, skip_missing = log_topics(pairs, gazebo_topic, unity_topic)
-        streams = read_streams(path_a, topics, skip_missing=skip_missing)
+        streams = read_streams(path_a, topics, skip_missing=skip_missing, tf_static=None)
         if pairs and not (gazebo_topic or unity_topic):
             pairs_l = [(p.name, p.reference, p.other) for p in pairs]
             frames = {p.name: p.frame for p in pairs}
@@ -196,7 +274,7 @@ def compare_logs(
         clock_offset = _recorded_clock_offset(path_a) if recorded_clock else None
         jobs: list[tuple[str, PoseStream, PoseStream, str | None, dict[str, Any], str | None]] = []
         for name, g, u in pairs_l:
-            ref, oth = streams[g], streams[u]
+            ref, oth = _windowed(streams[g], streams[u], window)
             pair_frame = frame if frame not in (None, "auto") else (frames.get(name) or frame)
             if pair_frame not in (None, "auto"):
                 oth = oth.with_(frame=pair_frame)
@@ -235,6 +313,7 @@ def compare_logs(
     if is_tum(path_a, fmt) and not gazebo_topic:
         name = "trajectory"
     name = pair_name or name
+    ref, oth = _windowed(ref, oth, window)
     results[name] = compare(ref, oth, frame=frame, **options)
     return LogComparison(results, name, [str(path_a), str(path_b)])
 
@@ -340,3 +419,118 @@ def _read_pair(
         read_pose_stream(path_a, ga, fmt=fmt),
         read_pose_stream(path_b, ub, fmt=fmt, frame=frame),
     )
+
+
+def _windowed(
+    reference: PoseStream, other: PoseStream, window: TimeWindow | None
+) -> tuple[PoseStream, PoseStream]:
+    """evo's preprocessing, in evo_ape's order: both streams downsampled to at most N evenly
+    spaced poses (``np.linspace`` indices, as evo), then the reference trimmed to
+    [t_start, t_end] (absolute seconds of its stamps; evo trims the reference only)."""
+    if window is None or not window.active:
+        return reference, other
+    if window.downsample is not None:
+        reference, other = (_downsampled(s, window.downsample) for s in (reference, other))
+    if window.t_start is not None or window.t_end is not None:
+        secs = reference.t * 1e-9
+        keep = np.ones(len(reference), dtype=bool)
+        if window.t_start is not None:
+            keep &= secs >= window.t_start
+        if window.t_end is not None:
+            keep &= secs <= window.t_end
+        if not keep.any():
+            raise LogReadError(
+                f"{reference.describe()}: no pose in --t_start {window.t_start} .. --t_end "
+                f"{window.t_end} (its stamps span {secs[0]:.6f} .. {secs[-1]:.6f} s)"
+            )
+        reference = reference.slice(np.flatnonzero(keep))
+    return reference, other
+
+
+def _downsampled(stream: PoseStream, n: int) -> PoseStream:
+    """At most ``n`` poses, evenly spaced by index (evo's ``downsample``)."""
+    if len(stream) <= n:
+        return stream
+    return stream.slice(np.linspace(0, len(stream) - 1, n, dtype=int))
+
+
+def run_comparison(options: CompareOptions) -> LogComparison:
+    """What ``uwval compare`` computes: read the inputs, compare each topic pair with the
+    engine, and add evo_ape's statistics when ``options`` ask for a pose relation."""
+    inp = options.inputs
+    result = compare_logs(
+        inp.log_a,
+        inp.log_b,
+        gazebo_topic=inp.gazebo_topic,
+        unity_topic=inp.unity_topic,
+        fmt=inp.fmt.value if inp.fmt is not None else None,
+        frame=options.frame,
+        pairs=inp.pairs or None,
+        recorded_clock=options.offset is None,
+        window=options.window,
+        **options.engine_options(),
+    )
+    relation: PoseRelation | None = options.ape_relation
+    if relation is not None:
+        result.ape = {
+            name: ApeStatistics.of(res, relation.value, options.change_unit)
+            for name, res in result.results.items()
+        }
+    return result
+
+
+@dataclass(frozen=True)
+class RpeComparison:
+    """One ``uwval rpe``: evo_rpe's result on the two streams, and where they came from."""
+
+    result: Any  # uwval.comparison.rpe.RpeResult
+    sources: tuple[str, ...]
+    other_frame: str
+
+    def to_json(self) -> dict[str, Any]:
+        """The JSON contract of ``uwval rpe --json``: the result's, plus ``sources``."""
+        doc: dict[str, Any] = self.result.to_json()
+        doc["sources"] = list(self.sources)
+        return doc
+
+
+def run_rpe(options: RpeOptions) -> RpeComparison:
+    """Relative pose error as evo_rpe computes it, on the inputs ``options`` name: two files
+    (TUM, KITTI, EuRoC or one topic of a log each) or two topics of one log."""
+    from uwval.comparison.rpe import rpe
+
+    inp = options.inputs
+    fmt = inp.fmt.value if inp.fmt is not None else None
+    frame = options.frame if options.frame not in (None, "auto") else None
+    if inp.log_b is None:
+        if not (inp.gazebo_topic and inp.unity_topic):
+            raise LogReadError(
+                f"{inp.log_a}: give EST, or both --ref-topic and --est-topic of this log"
+            )
+        from uwval.io import read_streams
+
+        streams = read_streams(inp.log_a, [inp.gazebo_topic, inp.unity_topic], tf_static=None)
+        ref, est = streams[inp.gazebo_topic], streams[inp.unity_topic]
+    else:
+        ref = read_pose_stream(inp.log_a, inp.gazebo_topic, fmt=fmt)
+        est = read_pose_stream(inp.log_b, inp.unity_topic, fmt=fmt, frame=frame)
+    if frame is not None:
+        est = est.with_(frame=frame)
+    ref, est = _windowed(ref, est, options.window)
+    result = rpe(
+        ref,
+        est,
+        relation=options.relation.value,
+        delta=options.delta,
+        delta_unit=options.delta_unit,
+        delta_tol=options.delta_tol,
+        all_pairs=options.all_pairs,
+        pairs_from_reference=options.pairs_from_reference,
+        align=options.align.value,
+        n_to_align=options.n_to_align,
+        sync="none" if inp.fmt is InputFormat.KITTI else "nearest",  # KITTI: by index
+        max_diff=options.max_diff,
+        offset=options.offset,
+    )
+    sources = (str(inp.log_a),) + ((str(inp.log_b),) if inp.log_b is not None else ())
+    return RpeComparison(result, sources, est.frame)

@@ -86,9 +86,11 @@ def read_stream(
             uwval convention (``unity-flu``, ``unity-enu``, ``ned``, ``enu``), else ``enu``.
         child_frame / parent_frame: for TFMessage topics (``/tf``), the transform to extract;
             for Odometry / TransformStamped topics, filter on child / header frame.
-        opts: ``time="header"|"log"`` (which stamp becomes ``t``), ``tf_static=True`` to chain
-            static transforms from ``/tf_static`` up to ``parent_frame`` (and below
-            ``child_frame``); CSV options are passed to :func:`uwval.io.csv_io.read_csv`.
+        opts: ``time="header"|"log"`` (which stamp becomes ``t``); ``tf_static``: chain
+            static transforms from ``/tf_static`` up to ``parent_frame`` and below
+            ``child_frame`` (True: require it; None: whenever the log has ``/tf_static``, as
+            ``uwval compare`` reads; False, the default: never); CSV options are passed to
+            :func:`uwval.io.csv_io.read_csv`.
 
     The companion ``<topic>/applied_stamp`` topic, when present, fills ``applied_stamp``.
     Raises :class:`LogReadError` naming the file and the cause (missing topic: lists those
@@ -127,7 +129,7 @@ def read_streams(
     p = Path(path)
     _check_path(p)
     time_src = str(opts.pop("time", "header"))
-    tf_static = bool(opts.pop("tf_static", False))
+    tf_static_opt = opts.pop("tf_static", False)
     fast = bool(opts.pop("fast", True))
     skip_missing = bool(opts.pop("skip_missing", False))
     if opts:
@@ -135,10 +137,15 @@ def read_streams(
     if time_src not in ("header", "log"):
         raise LogReadError(f"{p}: time must be 'header' or 'log', not {time_src!r}")
     scan = topics_to_scan(topics)
-    if tf_static:
-        scan.add("/tf_static")
+    wants_child = child_frame is not None or any(split_child(t)[1] for t in topics)
+    if tf_static_opt or (tf_static_opt is None and wants_child):
+        scan.add("/tf_static")  # the child asked for may hang under a static transform
     log = scan_log(p, sorted(scan))
     log.warn_lost()
+    static_raw = log.raw.get("/tf_static")
+    tf_static = bool(tf_static_opt) or (
+        tf_static_opt is None and static_raw is not None and len(static_raw) > 0
+    )
     jobs: list[tuple[str, RawTopic, str | None]] = []
     for t in topics:
         bare, topic_child = split_child(t)
@@ -217,6 +224,38 @@ def tf_pairs(path: str | Path, topic: str) -> list[tuple[str, str, int]]:
             key = (dec.names[int(a)], dec.names[int(b)])
             pairs[key] = pairs.get(key, 0) + int(n)
     return [(a, b, n) for (a, b), n in sorted(pairs.items())]
+
+
+def tf_chains(path: str | Path, topic: str) -> list[tuple[str, tuple[str, ...], int]]:
+    """What ``TOPIC#CHILD`` can name on a TFMessage ``topic``: per child frame, the chain of
+    frames from the dynamic parent down to it, and how many of its links are static
+    (from ``/tf_static``). Dynamic children have chains of two frames and no static link."""
+    p = Path(path)
+    _check_path(p)
+    name = norm_topic(split_child(topic)[0])
+    log = scan_log(p, sorted({name, "/tf_static"}))
+    raw = log.raw.get(name)
+    if raw is None:
+        raise LogReadError(_missing(p, topic, log))
+    if raw.msgtype not in TF_TYPES:
+        raise LogReadError(f"{p}: topic {name!r} is {raw.msgtype}, not a TF topic")
+    dec, _bad = decode_tf(raw, errors="drop")
+    edges = _edges(dec)
+    parent_of = {child: parent for parent, child in edges}
+    static: dict[str, str] = {}  # child -> parent
+    st = log.raw.get("/tf_static")
+    if st is not None and len(st) and name != "/tf_static":
+        sd, _bad_static = decode_tf(st, errors="drop")
+        static = {child: parent for parent, child in _edges(sd)}
+    out: list[tuple[str, tuple[str, ...], int]] = [(c, (a, c), 0) for a, c in edges]
+    for child in sorted(set(static) - set(parent_of)):
+        chain, cur = [child], child
+        while cur not in parent_of and cur in static and len(chain) <= len(static):
+            cur = static[cur]
+            chain.insert(0, cur)
+        if cur in parent_of:  # reaches a dynamically published frame
+            out.append((child, (parent_of[cur], *chain), len(chain) - 1))
+    return out
 
 
 def _missing(p: Path, topic: str, log: RawLog) -> str:
