@@ -35,11 +35,6 @@ def _second_cpu_and_no_leftovers(monkeypatch: pytest.MonkeyPatch) -> Any:
     for scan in db3_pages._started.values():
         scan.thread.join()
     db3_pages._started.clear()
-    from uwval.io import mcap_runs  # an MCAP file starts its own early read (test_early_mcap)
-
-    for run in mcap_runs._started.values():
-        run.thread.join()
-    mcap_runs._started.clear()
 
 
 @pytest.mark.parametrize(

@@ -25,16 +25,15 @@ from numpy.typing import NDArray
 
 from uwval.errors import LogReadError
 from uwval.io.fastdecode import gather
-from uwval.io.mcap_chunk import unaligned
-from uwval.io.mcap_records import Buffer
 from uwval.io.raw import (
+    Buffer,
     RawLog,
     TopicBuilder,
     TopicInfo,
     merge_infos,
     merge_topics,
     norm_topic,
-    release_pages,
+    unaligned,
 )
 from uwval.io.ros import normalize_type_name
 
@@ -216,14 +215,9 @@ def _scan(
         name = norm_topic(c.topic)
         if want is None or name in want:
             builders[cid] = TopicBuilder(name, normalize_type_name(c.msgtype), "ros1", c.msgdef)
-            if not times_only:  # the chunk infos' counts size one buffer (bounded)
-                total = sum(e.get(cid, 0) for e in chunk_info.values())
-                builders[cid].reserve(total, 4 * size + (1 << 20))
     times: dict[int, list[I64]] = {cid: [] for cid in conns}
     warns: list[str] = []
-    released = 0
     for cp in sorted(chunk_info):
-        released = release_pages(mm, released, cp)
         expected = chunk_info[cp]
         try:
             _chunk(mm, size, cp, expected, builders, times, times_only, warns, path)

@@ -1,25 +1,17 @@
 """Start reading a log on another thread while ``uwval compare`` is still loading its modules.
 
-Loading numpy and the comparison code takes ~60 ms of a ~150 ms compare, on one CPU. Two
-kinds of log are read by calls into C that release the GIL, and :func:`start` begins those
-calls on a second thread, before the heavy imports, so that the two overlap:
-- a rosbag2 sqlite3 bag's messages table (:mod:`uwval.io.db3_pages`, ~40 ms for 15 minutes
-  of a simulation's topics); the read takes the result (``db3_pages.take_started``) only
-  when it makes exactly the same call (the same file, unchanged, the same topics, pages and
-  roots);
-- an MCAP file's runs of chunks (:mod:`uwval.io.mcap_runs`, 15-60 ms for 10 minutes), as one
-  call for all runs: a call per run would wait for the importing thread's GIL at each (an
-  early read per chunk was measured slower than none, benchmarks/README.md, sixth pass). The
-  read takes them (``mcap_runs.take_started``) only for the same file, unchanged, the same
-  first chunk, summary and channel table.
+Loading numpy and the comparison code takes ~60 ms of a ~150 ms compare, on one CPU. A
+rosbag2 sqlite3 bag's messages table is read by a call into C that releases the GIL
+(:mod:`uwval.io.db3_pages`, ~40 ms for 15 minutes of a simulation's topics), and
+:func:`start` begins it on a second thread, before the heavy imports, so that the two
+overlap; the read takes the result (``db3_pages.take_started``) only when it makes exactly
+the same call (the same file, unchanged, the same topics, pages and roots).
 Any other read ignores what was started and reads as it always does. Nothing here imports
 numpy.
 
 Only what can be decided cheaply and surely is started: a bag whose ``metadata.yaml`` is in
 the usual form (:mod:`uwval.io.bagmeta`), one uncompressed ``.db3`` file, no write-ahead log;
-an ``.mcap`` file (alone, or a bag's one uncompressed storage file) with a sound summary and
-nothing but Schema/Channel records before its first chunk (``mcap_runs.plan_early``); the C
-accelerator built, a second CPU free. Anything else, or any error, starts nothing.
+the C accelerator built, a second CPU free. Anything else, or any error, starts nothing.
 """
 
 from __future__ import annotations
@@ -34,17 +26,9 @@ def start(path: Path, topics: Sequence[str]) -> None:
     docstring); otherwise do nothing."""
     try:
         path = Path(path)
-        if not path.is_dir():
-            _start_mcap(path, topics)
-            return
-        got = _bag_file(path)
-        if got is None:
-            return
-        storage, file = got
-        if storage == "sqlite3" and file.suffix == ".db3":
-            _start_db3(file, topics)
-        elif storage == "mcap" and file.suffix == ".mcap":
-            _start_mcap(file, topics)
+        got = _bag_file(path) if path.is_dir() else None
+        if got is not None and got[0] == "sqlite3" and got[1].suffix == ".db3":
+            _start_db3(got[1], topics)
     except Exception:  # nothing started: the read happens as it always does
         return
 
@@ -67,20 +51,6 @@ def _bag_file(bag: Path) -> tuple[str, Path] | None:
         return None
     file = bag / name
     return (str(info.get("storage_identifier", "")), file) if file.is_file() else None
-
-
-def _start_mcap(path: Path, topics: Sequence[str]) -> None:
-    if path.suffix.lower() != ".mcap":
-        return
-    from uwval.cpus import second_cpu_free
-    from uwval.io import mcap_runs
-    from uwval.io.names import topics_to_scan
-
-    if not mcap_runs.scan_ready() or not second_cpu_free():
-        return
-    # two threads, as the read would use: one CPU also loads numpy meanwhile, yet two end
-    # sooner than one (0.154 vs 0.167 s for the image log's compare, measured)
-    mcap_runs.start_scan(path, topics_to_scan(topics), threads=2)
 
 
 def _start_db3(db3: Path, topics: Sequence[str]) -> None:

@@ -1,90 +1,56 @@
 """MCAP metadata records found through a log's summary: the footer, the summary offsets and
-the metadata index (a few small reads, no scan of the data section and no mcap reader)."""
+the metadata index, parsed by mcap's record readers (a few small reads, no scan of the data
+section)."""
 
 from __future__ import annotations
 
-import struct
+import io
 from pathlib import Path
 
-from uwval.io.mcap_records import (
-    MAGIC,
-    OP_FOOTER,
-    OP_METADATA,
-    OP_METADATA_INDEX,
-    OP_SUMMARY_OFFSET,
-    string_at,
-)
+from mcap.records import Footer, Metadata, MetadataIndex, SummaryOffset
+from mcap.stream_reader import StreamReader
+
+from uwval.io.mcap_raw import MAGIC
 
 
 def summary_metadata(path: str | Path, name: str) -> list[dict[str, str]] | None:
     """The key/value maps of the MCAP metadata records called ``name``, in the order of the
     log's summary (as mcap's ``iter_metadata`` yields them), read through the footer, the
-    summary offsets and the metadata index (MCAP spec: records are opcode u8, length u64,
-    body): a few small reads instead of importing and running mcap's reader. None when the
-    log has no summary (the caller then scans it); a damaged one raises."""
+    summary offsets and the metadata index. None when the log has no summary (the caller
+    then scans it); a damaged one raises."""
     with open(path, "rb") as fh:
-        fh.seek(0, 2)
-        size = fh.tell()
-        tail_len = 1 + 8 + 20 + len(MAGIC)
-        if size < len(MAGIC) + tail_len:
+        size = fh.seek(0, 2)
+        if size < 8 + 29 + 8:
             return None
-        fh.seek(size - tail_len)
-        tail = fh.read(tail_len)
-        if tail[-8:] != MAGIC or tail[0] != OP_FOOTER:
+        fh.seek(size - 37)
+        tail = fh.read(37)
+        if tail[-8:] != MAGIC or tail[0] != 2:
             return None
-        length, summary_start, offsets_start, _crc = struct.unpack_from("<QQQI", tail, 1)
-        if length != 20 or summary_start == 0:
+        footer = next(iter(StreamReader(io.BytesIO(tail), skip_magic=True).records))
+        if not isinstance(footer, Footer) or footer.summary_start == 0:
             return None
-        footer_at = size - tail_len
+        if not 0 < footer.summary_start <= size - 37:
+            raise ValueError("summary section outside the file")
 
-        def read(start: int, end: int) -> bytes:
-            if not 0 < start <= end <= footer_at:
+        def records(start: int, end: int) -> list[object]:
+            if not 0 < start <= end <= size - 37:
                 raise ValueError("summary section outside the file")
             fh.seek(start)
-            return fh.read(end - start)
+            body = fh.read(end - start) + tail  # a footer ends the stream
+            return list(StreamReader(io.BytesIO(body), skip_magic=True).records)
 
-        def records(buf: bytes) -> list[tuple[int, bytes]]:
-            out, pos = [], 0
-            while pos < len(buf):
-                op, n = struct.unpack_from("<BQ", buf, pos)
-                end = pos + 9 + n
-                if end > len(buf):
-                    raise ValueError("record past the end of its section")
-                out.append((op, buf[pos + 9 : end]))
-                pos = end
-            return out
-
-        # the metadata index group, through the summary offsets when there are some
-        section = (summary_start, offsets_start or footer_at)
-        if offsets_start:
-            for op, body in records(read(offsets_start, footer_at)):
-                if op == OP_SUMMARY_OFFSET and body[0] == OP_METADATA_INDEX:
-                    start, n = struct.unpack_from("<QQ", body, 1)
-                    section = (start, start + n)
-                    break
-            else:
+        section = (footer.summary_start, footer.summary_offset_start or size - 37)
+        if footer.summary_offset_start:
+            groups = records(footer.summary_offset_start, size - 37)
+            found = [g for g in groups if isinstance(g, SummaryOffset) and g.group_opcode == 0x0D]
+            if not found:
                 return []  # no metadata index group: the log has no metadata
-        found = []
-        for op, body in records(read(*section)):
-            if op != OP_METADATA_INDEX:
-                continue
-            offset, n = struct.unpack_from("<QQ", body, 0)
-            if string_at(body, 16, len(body))[0] != name:
-                continue
-            rec = read(offset, offset + n)
-            op_rec, n_rec = struct.unpack_from("<BQ", rec, 0)
-            if op_rec != OP_METADATA or 9 + n_rec > len(rec):
-                raise ValueError("metadata index points at no metadata record")
-            body_rec = rec[9 : 9 + n_rec]
-            rec_name, pos = string_at(body_rec, 0, len(body_rec))
-            (map_len,) = struct.unpack_from("<I", body_rec, pos)
-            pos += 4
-            end = pos + map_len
-            if rec_name != name or end > len(body_rec):
-                raise ValueError("damaged metadata record")
-            values: dict[str, str] = {}
-            while pos < end:
-                key, pos = string_at(body_rec, pos, end)
-                values[key], pos = string_at(body_rec, pos, end)
-            found.append(values)
-        return found
+            section = (found[0].group_start, found[0].group_start + found[0].group_length)
+        out = []
+        for idx in records(*section):
+            if isinstance(idx, MetadataIndex) and idx.name == name:
+                rec = records(idx.offset, idx.offset + idx.length)[0]
+                if not isinstance(rec, Metadata) or rec.name != name:
+                    raise ValueError("the metadata index points at no metadata record")
+                out.append(dict(rec.metadata))
+        return out

@@ -6,7 +6,6 @@ decoders in :mod:`uwval.io.fastdecode` / :mod:`uwval.io.decode` then work on who
 
 from __future__ import annotations
 
-import contextlib
 import warnings
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -20,6 +19,9 @@ from uwval.io.names import norm_topic as norm_topic  # re-exported: the readers 
 
 U8 = NDArray[np.uint8]
 I64 = NDArray[np.int64]
+#: bytes, memoryview, mmap or a uint8 ndarray: whatever struct reads and slicing copies
+#: (typeshed's ReadableBuffer cannot be sliced, and numpy's stubs do not make arrays one).
+Buffer = Any
 
 
 class LogWarning(UserWarning):
@@ -122,7 +124,7 @@ def compact(buf: U8, offset: I64, length: I64) -> tuple[U8, I64]:
 
 
 class TopicBuilder:
-    """Collects one topic's messages, segment by segment (e.g. one chunk each).
+    """Collects one topic's messages, segment by segment (e.g. a batch of chunks each).
 
     Each segment is compacted when added (only this topic's bytes are kept, never the whole
     decompressed chunk), so memory is bounded by the selected topics, not by the log.
@@ -134,120 +136,19 @@ class TopicBuilder:
         self._offs: list[I64] = []
         self._lens: list[I64] = []
         self._times: list[I64] = []
-        self._tag: list[object] = []
         #: per segment: > 0 when it is fixed-width rows (offsets i * width, built lazily)
         self._width: list[int] = []
         self.dropped: dict[str, int] = {}
-        #: expected message count (a container's own statistics; only sizes a buffer)
-        self.hint = 0
-        #: byte budget of that buffer (a lying count must not allocate more than this)
-        self.budget = 0
-        self._open: U8 | None = None  # (capacity, width) rows filled in place
-        self._fill = 0
-        self._open_times: list[I64] = []
 
     def __len__(self) -> int:
-        self._close()
         return sum(int(t.shape[0]) for t in self._times)
-
-    def reserve(self, count: int, budget: int) -> None:
-        """Expect ``count`` messages: fixed-width rows then go straight into one buffer of
-        up to ``budget`` bytes (no per-chunk pieces to concatenate at the end)."""
-        self.hint, self.budget = max(int(count), 0), max(int(budget), 0)
 
     def take_rows(self, buf: U8, starts: I64, width: int, log_time: I64) -> None:
         """Add the messages ``buf[starts[i] : starts[i] + width]`` (bounds checked by the
-        caller: ``0 <= starts`` and ``starts + width <= len(buf)``), logged at ``log_time``.
+        caller), logged at ``log_time`` ns: one row gather, one segment."""
+        from uwval.io.fastdecode import gather
 
-        With a :meth:`reserve` hint, rows are copied into one preallocated buffer;
-        otherwise (or once it is full or the width changes) each call is its own segment.
-        """
-        from uwval.io.fastdecode import rows_at, window
-
-        n = int(starts.shape[0])
-        if n == 0:
-            return
-        dst = self._slot(n, width)
-        if dst is None:
-            self.add_rows(rows_at(buf, starts, width), log_time)
-            return
-        if buf.shape[0] < width:
-            raise ValueError(f"topic {self.name}: a message reaches outside its chunk")
-        dst[:] = window(buf, width)[starts]  # through a chunk-sized temporary
-        self._taken(n, log_time)
-
-    def take_blocks(
-        self, buf: U8, blocks: list[tuple[int, int]], width: int, log_time: I64
-    ) -> None:
-        """Add messages of one length lying end to end in ``buf``: block (at, k) holds k of
-        them from byte ``at`` on (bounds checked by the caller: ``at + k * width <=
-        len(buf)``), in order, logged at ``log_time`` (one stamp per message). Blocks are
-        copied whole (the MCAP walk copies each topic's payloads of a chunk end to end)."""
-        self.take_pieces([(buf, at, k) for at, k in blocks], width, log_time)
-
-    def take_pieces(self, pieces: list[tuple[U8, int, int]], width: int, log_time: I64) -> None:
-        """:meth:`take_blocks` from several buffers: piece (buf, at, k) holds k messages of
-        ``width`` bytes end to end from byte ``at`` of ``buf`` (bounds checked by the
-        caller), pieces in order."""
-        n = sum(k for _b, _at, k in pieces)
-        if n == 0:
-            return
-        dst = self._slot(n, width)
-        if dst is None:  # no reserved buffer: one segment of its own
-            parts = [b[at : at + k * width].reshape(k, width) for b, at, k in pieces]
-            self.add_rows(np.concatenate(parts), log_time)
-            return
-        # memoryview slice assignment: a memcpy that keeps the GIL (numpy's copy of a block
-        # lets it go and then waits for the inflate threads to hand it back: 9 vs 3 ms for
-        # the ~500 blocks of a 10-minute log)
-        into = dst.data.cast("B")
-        f = 0
-        for b, at, k in pieces:
-            m = k * width
-            into[f : f + m] = b.data[at : at + m]
-            f += m
-        self._taken(n, log_time)
-
-    def _slot(self, n: int, width: int) -> U8 | None:
-        """The next ``n`` rows of the preallocated buffer (opened now if the :meth:`reserve`
-        hint allows), or None: the rows then make a segment of their own."""
-        st = self._open
-        if st is not None and (st.shape[1] != width or self._fill + n > st.shape[0]):
-            self._close()
-            st = None
-        if st is None and not self._bufs and self.hint >= n and width > 0:
-            cap = min(self.hint, self.budget // width)
-            if cap >= n:
-                st = self._open = np.empty((cap, width), dtype=np.uint8)
-                self._fill = 0
-                self._open_times = []
-                empty = np.zeros(0, dtype=np.int64)
-                self._bufs.append(empty.view(np.uint8))  # placeholders until _close
-                self._offs.append(empty)
-                self._lens.append(empty)
-                self._times.append(empty)
-                self._tag.append(None)
-                self._width.append(width)
-        return None if st is None else st[self._fill : self._fill + n]
-
-    def _taken(self, n: int, log_time: I64) -> None:
-        """``n`` rows were written to the slot :meth:`_slot` gave, logged at ``log_time``."""
-        self._fill += n
-        self._open_times.append(log_time.astype(np.int64, copy=False))
-
-    def _close(self) -> None:
-        """Turn the preallocated buffer being filled into an ordinary segment."""
-        st = self._open
-        if st is None:
-            return
-        self._open = None
-        rows = st[: self._fill]
-        if self._fill < st.shape[0]:
-            rows = rows.copy()  # do not keep the unused capacity alive
-        self._bufs[-1] = rows.reshape(-1)
-        times = self._open_times
-        self._times[-1] = times[0] if len(times) == 1 else np.concatenate(times)
-        self._open_times = []
+        self.add_rows(gather(buf, starts, width), log_time)
 
     def drop(self, cause: str, n: int) -> None:
         """Count ``n`` messages of this topic lost for ``cause``."""
@@ -261,15 +162,13 @@ class TopicBuilder:
         length: I64,
         log_time: I64,
         *,
-        tag: object = None,
         copy: bool = True,
     ) -> None:
         """Add messages ``buf[offset[i] : offset[i] + length[i]]`` (bounds are checked).
 
         ``copy`` compacts them out of ``buf`` now (``False``: ``buf`` holds only them
-        already); ``tag`` names the segment's source, for :meth:`drop_tagged`.
+        already).
         """
-        self._close()
         offset = offset.astype(np.int64, copy=False)
         length = length.astype(np.int64, copy=False)
         if not offset.size:
@@ -288,13 +187,11 @@ class TopicBuilder:
         self._offs.append(offset)
         self._lens.append(length)
         self._times.append(log_time.astype(np.int64, copy=False))
-        self._tag.append(tag)
         self._width.append(0)
 
-    def add_rows(self, rows: U8, log_time: I64, *, tag: object = None) -> None:
+    def add_rows(self, rows: U8, log_time: I64) -> None:
         """Add messages of one length: row i of the (N, width) ``rows`` (owned from now on;
         a copy already made out of the chunk) is the payload logged at ``log_time[i]`` ns."""
-        self._close()
         n, width = rows.shape
         if not n:
             return
@@ -303,19 +200,7 @@ class TopicBuilder:
         self._offs.append(empty)
         self._lens.append(empty)
         self._times.append(log_time.astype(np.int64, copy=False))
-        self._tag.append(tag)
         self._width.append(int(width))
-
-    def drop_tagged(self, tag: object) -> int:
-        """Forget the segments added with ``tag`` (a chunk whose index turned out damaged);
-        returns how many messages were forgotten."""
-        self._close()
-        n = 0
-        while self._tag and self._tag[-1] is tag and tag is not None:
-            n += int(self._times[-1].shape[0])
-            for lst in (self._bufs, self._offs, self._lens, self._times, self._tag, self._width):
-                lst.pop()
-        return n
 
     def add_payloads(self, payloads: list[bytes], log_time: list[int]) -> None:
         """Add per-message byte strings (readers that hand out one message at a time)."""
@@ -342,7 +227,6 @@ class TopicBuilder:
         """One RawTopic: the segments' buffers concatenated, offsets rebased."""
         topic = RawTopic(self.name, self.msgtype, self.encoding, self.msgdef)
         topic.dropped = dict(self.dropped)
-        self._close()
         if not self._bufs:
             return topic
         topic.buf = self._bufs[0] if len(self._bufs) == 1 else np.concatenate(self._bufs)
@@ -457,26 +341,16 @@ class RawLog:
             warnings.warn(w, LogWarning, stacklevel=3)
 
 
-def release_pages(mm: Any, mark: int, upto: int, *, every: int = 2 << 20) -> int:
-    """Drop the pages of a read-only file map below ``upto`` from this process's resident
-    set once ``every`` bytes have accumulated (read-ahead of unselected topics, e.g. images,
-    must not count as the reader's memory); ``mark`` is where the last release stopped;
-    returns the new mark.
-
-    Only the mapping goes: the bytes stay in the page cache and fault back in if read again.
-    """
-    if upto - mark < every or not hasattr(mm, "madvise"):
-        return mark
-    import mmap as _mmap
-
-    start = mark - mark % _mmap.PAGESIZE
-    stop = upto - upto % _mmap.PAGESIZE
-    if stop > start:
-        with contextlib.suppress(OSError, ValueError):
-            mm.madvise(_mmap.MADV_DONTNEED, start, stop - start)
-    return stop
-
-
 def one_line(exc: BaseException) -> str:
     """An exception's message on one line (YAML, sqlite and pandas errors span several)."""
     return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def unaligned(buf: U8, dtype: str) -> NDArray[Any]:
+    """A read-only view of ``buf`` whose element i is the ``dtype`` value starting at byte i
+    (so ``view[offsets]`` gathers fields of records at arbitrary, unaligned offsets)."""
+    itemsize = np.dtype(dtype).itemsize
+    n = max(int(buf.shape[0]) - itemsize + 1, 0)
+    view: NDArray[Any] = np.ndarray((n,), dtype=dtype, buffer=buf, strides=(1,))
+    view.flags.writeable = False
+    return view
