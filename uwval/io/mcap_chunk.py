@@ -8,6 +8,7 @@ offset.
 from __future__ import annotations
 
 import itertools
+import os
 import struct
 from dataclasses import dataclass, field
 
@@ -58,27 +59,30 @@ def parse_chunk_header(b: Buffer, c: int, end: int, *, partial: bool = False) ->
     return ChunkHeader(usize, crc, comp, p + 8, min(rlen, end - p - 8))
 
 
-def inflate_into(mm: Buffer, hdr: ChunkHeader, dest: NDArray[np.uint8]) -> tuple[str, str]:
-    """Decompress a chunk's records from the file map ``mm`` into ``dest`` (exactly
-    ``hdr.usize`` bytes) and check its CRC: ``("", "")``, or (what is wrong, drop cause).
-    Runs on the inflate threads: zstd, lz4 and the CRC let the GIL go."""
+def inflate_into(fd: int, hdr: ChunkHeader, dest: NDArray[np.uint8]) -> tuple[str, str]:
+    """Read a chunk's records from the file ``fd`` into ``dest`` (exactly ``hdr.usize``
+    bytes), decompressed, and check its CRC: ``("", "")``, or (what is wrong, drop cause).
+    Runs on the inflate threads: pread, zstd, lz4 and the CRC let the GIL go. (pread, not
+    the file map: mapped pages of an image topic would count as this process's memory.)"""
     import lz4.frame
     import zstandard
 
     out = dest.data.cast("B")
     try:
-        with memoryview(mm)[hdr.data_at : hdr.data_at + hdr.data_len] as src:
-            if not hdr.compression or hdr.compression == "lz4":
-                data = lz4.frame.decompress(src) if hdr.compression else src
-                got = len(data)
-                if got == hdr.usize:
-                    out[:] = data
-            else:
-                with zstandard.ZstdDecompressor().stream_reader(src) as reader:
-                    got = 0
-                    while got < hdr.usize and (k := reader.readinto(out[got:])):
-                        got += k
-                    got += len(reader.read(1))
+        if not hdr.compression:
+            got = os.preadv(fd, [out], hdr.data_at) if hdr.data_len == hdr.usize else -1
+        elif hdr.compression == "lz4":
+            data = lz4.frame.decompress(os.pread(fd, hdr.data_len, hdr.data_at))
+            got = len(data)
+            if got == hdr.usize:
+                out[:] = data
+        else:
+            src = os.pread(fd, hdr.data_len, hdr.data_at)
+            with zstandard.ZstdDecompressor().stream_reader(src) as reader:
+                got = 0
+                while got < hdr.usize and (k := reader.readinto(out[got:])):
+                    got += k
+                got += len(reader.read(1))
     except Exception as exc:  # zstd / lz4 raise their own types for damaged streams
         what = " ".join(str(exc).split())
         return f"cannot be decompressed ({hdr.compression}: {what})", "damaged_chunk"

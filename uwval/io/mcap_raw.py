@@ -66,20 +66,21 @@ def scan_mcap(path: Path, topics: Iterable[str] | None, *, times_only: bool = Fa
         if fh.read(8) != MAGIC:
             raise LogReadError(f"{path}: not an MCAP file (bad magic bytes at offset 0)")
         mm = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
-    try:
-        return _Reader(path, mm, topics, times_only).run()
-    finally:
-        with contextlib.suppress(BufferError):  # payloads are copies; a view may linger
-            mm.close()
+        try:
+            return _Reader(path, mm, fh.fileno(), topics, times_only).run()
+        finally:
+            with contextlib.suppress(BufferError):  # payloads are copies; a view may linger
+                mm.close()
 
 
 class _Reader:
     """One pass over an MCAP file's records."""
 
     def __init__(
-        self, path: Path, mm: mmap.mmap, topics: Iterable[str] | None, times_only: bool
+        self, path: Path, mm: mmap.mmap, fd: int, topics: Iterable[str] | None, times_only: bool
     ) -> None:
-        self.path, self.mm, self.size, self.times_only = path, mm, len(mm), times_only
+        self.path, self.mm, self.fd, self.size = path, mm, fd, len(mm)
+        self.times_only = times_only
         self.want = None if topics is None else {norm_topic(t) for t in topics}
         self.warnings: list[str] = []
         #: Schema and Channel records by opcode and id: (content bytes, parsed record)
@@ -89,7 +90,8 @@ class _Reader:
         self.builders: dict[int, TopicBuilder | None] = {}
         self.chunk_index: dict[int, ChunkIndex] = {}
         self.stats: Statistics | None = None
-        self.footer, self.lost, self.cut_detail, self.released = False, 0, "", 0
+        self.footer, self.lost, self.cut_detail = False, 0, ""
+        self.spare: list[np.ndarray] = []  # batch buffers free again (list ops are atomic)
         self.summary_start = self._summary()
 
     def _summary(self) -> int:
@@ -255,12 +257,16 @@ class _Reader:
         """Whether a chunk holds no wanted channel, by its MessageIndex records and the
         summary's ChunkIndex alike (never by one alone): its messages are then counted from
         its index and it is not decompressed."""
-        listed, ents = self.chunk_index.get(rec), self._entries(index)
-        if listed is None or not ents or self.want is None:
+        listed = self.chunk_index.get(rec)
+        if listed is None or not index or self.want is None:
             return False
         if {c: at - 15 for c, (at, _n) in index.items()} != listed.message_index_offsets:
             return False
-        if any(c not in self.tables[Opcode.CHANNEL] or self.builder(c) is not None for c in ents):
+        channels = self.tables[Opcode.CHANNEL]
+        if any(c not in channels or self.builder(c) is not None for c in index):
+            return False
+        ents = self._entries(index)
+        if ents is None:
             return False
         for cid, e in ents.items():
             self.seen(cid, e[:, 0].astype(np.int64))
@@ -275,7 +281,16 @@ class _Reader:
 
             def submit(keep: int) -> None:
                 if run:
-                    pending.append((list(run), pool.submit(self._inflate, list(run))))
+                    # a buffer a run before left, if one fits (fresh pages fault in at a
+                    # cost like decompressing them)
+                    need = int(_starts(run)[-1])
+                    fits = [k for k, b in enumerate(self.spare) if b.shape[0] >= need]
+                    buf = (
+                        self.spare.pop(fits[0])
+                        if fits
+                        else np.empty(max(need, 2 * BATCH_BYTES), np.uint8)
+                    )
+                    pending.append((list(run), pool.submit(self._inflate, list(run), buf)))
                     run.clear()
                 while len(pending) > keep:
                     self._take(*pending.popleft())
@@ -295,18 +310,20 @@ class _Reader:
                         submit(THREADS)
             submit(0)
 
-    def _inflate(self, run: list[_Chunk]) -> tuple[np.ndarray, list[tuple[str, str]]]:
-        """Decompress and CRC-check a run of chunks into one buffer (an inflate thread)."""
+    def _inflate(
+        self, run: list[_Chunk], buf: np.ndarray
+    ) -> tuple[np.ndarray, list[tuple[str, str]]]:
+        """Decompress and CRC-check a run of chunks into ``buf`` (on an inflate thread)."""
         at = _starts(run)
-        buf = np.empty(int(at[-1]), dtype=np.uint8)
         heads = [h for _r, h, _i in run if isinstance(h, ChunkHeader)]
-        return buf, [inflate_into(self.mm, h, buf[at[k] : at[k + 1]]) for k, h in enumerate(heads)]
+        return buf, [inflate_into(self.fd, h, buf[at[k] : at[k + 1]]) for k, h in enumerate(heads)]
 
     def _take(self, run: list[_Chunk], job: _Job) -> None:
         """Add the wanted messages of a decompressed run: every index checked at once; when
         anything in the run is off, chunk by chunk (each reports what is wrong)."""
-        buf, status = job.result()
+        whole, status = job.result()
         at = _starts(run)
+        buf = whole[: at[-1]]
         ents = [self._entries(index) for _r, _h, index in run]
         if any(what for what, _c in status) or self._indexed(run, buf, at, ents):
             for k, (rec, _hdr, index) in enumerate(run):
@@ -321,14 +338,7 @@ class _Reader:
                         else f"disagrees with its records ({why})"
                     )
                     self._walk(rec, one, bad if index else "")
-        last = run[-1][1]
-        if isinstance(last, ChunkHeader) and hasattr(self.mm, "madvise"):
-            # the map's pages read so far leave the resident set (an image topic's read must
-            # not count as memory); the bytes stay in the page cache
-            stop = (last.data_at + last.data_len) // mmap.PAGESIZE * mmap.PAGESIZE
-            if stop > self.released:
-                self.mm.madvise(mmap.MADV_DONTNEED, self.released, stop - self.released)
-                self.released = stop
+        self.spare.append(whole)  # whatever was kept of it was copied out
 
     def _indexed(
         self, run: list[_Chunk], buf: np.ndarray, at: np.ndarray, ents: list[dict | None]
