@@ -90,132 +90,79 @@ class RawTopic:
         )
 
 
-def _contiguous(buf: U8, offset: I64, length: I64) -> bool:
-    """Whether the messages tile ``buf`` exactly, in order (nothing to compact)."""
-    n = offset.shape[0]
-    if int(length.sum()) != buf.shape[0] or int(offset[0]) != 0:
-        return False
-    return n < 2 or bool(np.array_equal(offset[1:], offset[:-1] + length[:-1]))
-
-
 def compact(buf: U8, offset: I64, length: I64) -> tuple[U8, I64]:
     """Copy only the messages' bytes out of ``buf`` (a decompressed chunk holding other
-    topics too): returns the new buffer and the messages' offsets in it.
-
-    Equal-length messages (the usual case for one pose topic) are copied as rows through
-    :func:`uwval.io.fastdecode.gather` (strided, memcpy speed); others byte-index by byte.
-    """
+    topics too): the new buffer and the messages' offsets in it. Equal lengths (one pose
+    topic) are copied as rows (:func:`uwval.io.fastdecode.gather`, strided, memcpy speed)."""
     from uwval.io.fastdecode import gather
 
     n = offset.shape[0]
-    if n == 0:
-        return buf[:0].copy(), offset
-    if _contiguous(buf, offset, length):
-        return buf, offset
-    width = int(length[0])
-    if bool((length == width).all()):
-        out = gather(buf, offset, width).reshape(-1)
-        return out, np.arange(n, dtype=np.int64) * width
-    new_off = np.zeros(n, dtype=np.int64)
-    np.cumsum(length[:-1], out=new_off[1:])
-    total = int(length.sum())
-    idx = np.repeat(offset - new_off, length) + np.arange(total, dtype=np.int64)
+    if n and bool((length == length[0]).all()):
+        return gather(buf, offset, int(length[0])).reshape(-1), np.arange(n) * length[0]
+    new_off = np.concatenate(([0], np.cumsum(length)[:-1])).astype(np.int64)
+    idx = np.repeat(offset - new_off, length) + np.arange(int(length.sum()), dtype=np.int64)
     return buf[idx], new_off
 
 
 class TopicBuilder:
-    """Collects one topic's messages, segment by segment (e.g. a batch of chunks each).
-
-    Each segment is compacted when added (only this topic's bytes are kept, never the whole
-    decompressed chunk), so memory is bounded by the selected topics, not by the log.
-    """
+    """Collects one topic's messages, segment by segment (a run of chunks each). Only this
+    topic's bytes are kept, never a whole decompressed chunk: memory is bounded by the
+    selected topics, not by the log."""
 
     def __init__(self, name: str, msgtype: str, encoding: str, msgdef: str = "") -> None:
         self.name, self.msgtype, self.encoding, self.msgdef = name, msgtype, encoding, msgdef
-        self._bufs: list[U8] = []
-        self._offs: list[I64] = []
-        self._lens: list[I64] = []
-        self._times: list[I64] = []
-        #: per segment: > 0 when it is fixed-width rows (offsets i * width, built lazily)
-        self._width: list[int] = []
+        #: per segment: payload buffer, offsets, lengths, log times (ns), and a width > 0
+        #: when it is fixed-width rows (offsets and lengths then built in :meth:`build`)
+        self._segs: list[tuple[U8, I64, I64, I64, int]] = []
         self.dropped: dict[str, int] = {}
 
     def __len__(self) -> int:
-        return sum(int(t.shape[0]) for t in self._times)
-
-    def take_rows(self, buf: U8, starts: I64, width: int, log_time: I64) -> None:
-        """Add the messages ``buf[starts[i] : starts[i] + width]`` (bounds checked by the
-        caller), logged at ``log_time`` ns: one row gather, one segment."""
-        from uwval.io.fastdecode import gather
-
-        self.add_rows(gather(buf, starts, width), log_time)
+        return sum(int(s[3].shape[0]) for s in self._segs)
 
     def drop(self, cause: str, n: int) -> None:
         """Count ``n`` messages of this topic lost for ``cause``."""
         if n > 0:
             self.dropped[cause] = self.dropped.get(cause, 0) + int(n)
 
-    def add(
-        self,
-        buf: U8,
-        offset: I64,
-        length: I64,
-        log_time: I64,
-        *,
-        copy: bool = True,
-    ) -> None:
-        """Add messages ``buf[offset[i] : offset[i] + length[i]]`` (bounds are checked).
-
-        ``copy`` compacts them out of ``buf`` now (``False``: ``buf`` holds only them
-        already).
-        """
-        offset = offset.astype(np.int64, copy=False)
-        length = length.astype(np.int64, copy=False)
+    def add(self, buf: U8, offset: I64, length: I64, log_time: I64, *, copy: bool = True) -> None:
+        """Add messages ``buf[offset[i] : offset[i] + length[i]]`` logged at ``log_time[i]``
+        ns (bounds are checked); ``copy=False``: ``buf`` holds only them already."""
+        offset, length = offset.astype(np.int64, copy=False), length.astype(np.int64, copy=False)
         if not offset.size:
             return
         if length.any() and (
             int(offset.min()) < 0
             or int(length.min()) < 0
-            or int((offset + length).max()) > buf.shape[0]
+            or int((offset + length).max()) > len(buf)
         ):
             raise ValueError(f"topic {self.name}: a message reaches outside its chunk")
-        if copy and length.any():
-            buf, offset = compact(buf, offset, length)
-        elif not length.any():
+        if not length.any():
             buf, offset = buf[:0], np.zeros_like(offset)
-        self._bufs.append(buf)
-        self._offs.append(offset)
-        self._lens.append(length)
-        self._times.append(log_time.astype(np.int64, copy=False))
-        self._width.append(0)
+        elif copy:
+            buf, offset = compact(buf, offset, length)
+        self._segs.append((buf, offset, length, log_time.astype(np.int64, copy=False), 0))
 
     def add_rows(self, rows: U8, log_time: I64) -> None:
-        """Add messages of one length: row i of the (N, width) ``rows`` (owned from now on;
+        """Add messages of one length: row i of the (N, width) ``rows`` (owned from now on,
         a copy already made out of the chunk) is the payload logged at ``log_time[i]`` ns."""
-        n, width = rows.shape
-        if not n:
-            return
-        empty = np.zeros(0, dtype=np.int64)
-        self._bufs.append(rows.reshape(-1))
-        self._offs.append(empty)
-        self._lens.append(empty)
-        self._times.append(log_time.astype(np.int64, copy=False))
-        self._width.append(int(width))
+        if rows.shape[0]:
+            none = np.zeros(0, dtype=np.int64)
+            times = log_time.astype(np.int64, copy=False)
+            self._segs.append((rows.reshape(-1), none, none, times, int(rows.shape[1])))
+
+    def take_rows(self, buf: U8, starts: I64, width: int, log_time: I64) -> None:
+        """Add the messages ``buf[starts[i] : starts[i] + width]`` (one row gather)."""
+        from uwval.io.fastdecode import gather
+
+        self.add_rows(gather(buf, starts, width), log_time)
 
     def add_payloads(self, payloads: list[bytes], log_time: list[int]) -> None:
         """Add per-message byte strings (readers that hand out one message at a time)."""
-        if not payloads:
-            return
-        lens = np.fromiter((len(p) for p in payloads), dtype=np.int64, count=len(payloads))
-        offs = np.zeros_like(lens)
-        np.cumsum(lens[:-1], out=offs[1:])
-        self.add(
-            np.frombuffer(b"".join(payloads), dtype=np.uint8),
-            offs,
-            lens,
-            np.asarray(log_time, dtype=np.int64),
-            copy=False,
-        )
+        if payloads:
+            lens = np.array([len(p) for p in payloads], dtype=np.int64)
+            offs = np.concatenate(([0], np.cumsum(lens)[:-1])).astype(np.int64)
+            data = np.frombuffer(b"".join(payloads), dtype=np.uint8)
+            self.add(data, offs, lens, np.asarray(log_time, dtype=np.int64), copy=False)
 
     def add_topic(self, part: RawTopic) -> None:
         """Append an already built topic (another connection or file of the same topic)."""
@@ -227,30 +174,26 @@ class TopicBuilder:
         """One RawTopic: the segments' buffers concatenated, offsets rebased."""
         topic = RawTopic(self.name, self.msgtype, self.encoding, self.msgdef)
         topic.dropped = dict(self.dropped)
-        if not self._bufs:
+        if not self._segs:
             return topic
-        topic.buf = self._bufs[0] if len(self._bufs) == 1 else np.concatenate(self._bufs)
-        topic.log_time = self._times[0] if len(self._times) == 1 else np.concatenate(self._times)
-        n = int(topic.log_time.shape[0])
-        w = self._width[0]
-        if w > 0 and all(x == w for x in self._width):  # one width: no per-segment arrays
-            topic.offset = np.arange(n, dtype=np.int64) * w
-            topic.length = np.full(n, w, dtype=np.int64)
+        bufs, offs, lens, times, widths = zip(*self._segs, strict=True)
+        topic.buf = bufs[0] if len(bufs) == 1 else np.concatenate(bufs)
+        topic.log_time = times[0] if len(times) == 1 else np.concatenate(times)
+        if widths[0] > 0 and len(set(widths)) == 1:  # one width: no per-segment arrays
+            topic.offset = np.arange(len(topic), dtype=np.int64) * widths[0]
+            topic.length = np.full(len(topic), widths[0], dtype=np.int64)
             return topic
-        offs, lens = [], []
-        base = 0
-        for b, o, ln, t, wd in zip(
-            self._bufs, self._offs, self._lens, self._times, self._width, strict=True
-        ):
-            if wd > 0:
-                m = int(t.shape[0])
-                o = np.arange(m, dtype=np.int64) * wd
-                ln = np.full(m, wd, dtype=np.int64)
-            offs.append(o + base if base else o)
-            lens.append(ln)
-            base += int(b.shape[0])
-        topic.offset = offs[0] if len(offs) == 1 else np.concatenate(offs)
-        topic.length = lens[0] if len(lens) == 1 else np.concatenate(lens)
+        base = np.cumsum([0, *(len(b) for b in bufs[:-1])])
+        rows = [np.arange(len(t), dtype=np.int64) * w for t, w in zip(times, widths, strict=True)]
+        topic.offset = np.concatenate(
+            [(r if w else o) + at for o, r, w, at in zip(offs, rows, widths, base, strict=True)]
+        )
+        topic.length = np.concatenate(
+            [
+                np.full(len(t), w, np.int64) if w else ln
+                for ln, t, w in zip(lens, times, widths, strict=True)
+            ]
+        )
         return topic
 
 
