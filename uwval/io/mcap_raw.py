@@ -1,22 +1,18 @@
 """The MCAP reader: whole chunks in, per-topic payload buffers out, nothing trusted blindly.
 
-mcap's own reader hands out one Python object per message (seconds at a million messages).
-This one walks the top-level records (a step per chunk and index, not per message), reads the
-summary with mcap's record parsers, decompresses runs of chunks (``BATCH_BYTES`` of records
-each) on a thread pool while the run before is read (zstd / lz4 and the CRC let the GIL go),
-and locates the wanted messages from the chunks' MessageIndex records with numpy.
+mcap's own reader makes a Python object per message (seconds at a million). This one walks
+the top-level records (a step per chunk and index), reads the summary with mcap's record
+parsers, decompresses runs of chunks (``BATCH_BYTES`` of records each) on threads while the
+run before is read, and finds the wanted messages from the MessageIndex records with numpy.
 
-Nothing is taken on faith (the chunk-level checks are in :mod:`uwval.io.mcap_chunk`): an
-index is checked against the records it points at; a chunk whose index disagrees is read by
-walking its records, with a warning; a chunk that fails its CRC or cannot be decompressed is
-dropped and its messages counted per topic. The chunks found are held against the summary's
-ChunkIndex records: a listed chunk not found (a damaged opcode) is warned about and its
-indexed messages counted as dropped; a chunk is left undecompressed only when its
-MessageIndex and ChunkIndex records agree that it holds no wanted channel. A Schema or Channel
-id defined again with other content is warned about (the first definition is kept). A log
-without summary (recorder killed) is read up to the cut, with the decompressible prefix of a
-cut chunk (as ``mcap recover`` does), and says so. Private records (0x80-0xFF) are stepped
-over wherever they are.
+Nothing is taken on faith (checks in :mod:`uwval.io.mcap_chunk`): an index that disagrees
+with its chunk's records is warned about and the chunk walked instead; a chunk failing its
+CRC or decompression is dropped, its messages counted per topic; every chunk the summary's
+ChunkIndex lists must be found (else warned, by byte offset, and its messages counted from
+the index it points at); every chunk is decompressed (none is skipped on its index alone); a
+Schema or Channel id defined again with other content is warned about (the first is kept).
+A log without summary is read up to its cut, with the decompressible prefix of a cut chunk,
+and says so. Private records (opcodes 0x80-0xFF) are stepped over wherever they are.
 """
 
 from __future__ import annotations
@@ -38,9 +34,10 @@ from mcap.stream_reader import StreamReader
 
 from uwval.errors import LogReadError
 from uwval.io.crc import crc32
-from uwval.io.mcap_chunk import REC, ChunkHeader, WalkResult, check_index, decompress_prefix
-from uwval.io.mcap_chunk import inflate_into, parse_chunk_header, walk_records
-from uwval.io.raw import RawLog, TopicBuilder, TopicInfo, merge_infos, merge_topics, norm_topic
+from uwval.io.mcap_chunk import REC, ChunkHeader, check_index, decompress_prefix, inflate_into
+from uwval.io.mcap_chunk import parse_chunk_header, walk_records
+from uwval.io.raw import I64, U8, RawLog, TopicBuilder, TopicInfo, merge_infos, merge_topics
+from uwval.io.raw import norm_topic
 from uwval.io.raw import one_line as _line
 from uwval.io.ros import normalize_type_name
 
@@ -50,10 +47,10 @@ MAGIC = b"\x89MCAP0\r\n"
 BATCH_BYTES = 4 << 20
 THREADS = 2
 _U16, _U32 = struct.Struct("<H"), struct.Struct("<I")
-#: a chunk: (record start, its header or what is wrong with it, {channel: (index entries
-#: at, their bytes)} from its MessageIndex records)
+#: a chunk: (record start, header or what is wrong with it, {channel: (index entries at,
+#: their bytes)} from its MessageIndex records)
 _Chunk = tuple[int, "ChunkHeader | str", dict[int, tuple[int, int]]]
-_Job = Future[tuple[np.ndarray, list[tuple[str, str]]]]
+_Job = Future[tuple[U8, list[tuple[str, str]]]]
 
 
 def scan_mcap(path: Path, topics: Iterable[str] | None, *, times_only: bool = False) -> RawLog:
@@ -74,24 +71,23 @@ def scan_mcap(path: Path, topics: Iterable[str] | None, *, times_only: bool = Fa
 
 
 class _Reader:
-    """One pass over an MCAP file's records."""
+    """One pass over an MCAP file: the summary, the data section's records, the chunks."""
 
     def __init__(
         self, path: Path, mm: mmap.mmap, fd: int, topics: Iterable[str] | None, times_only: bool
     ) -> None:
-        self.path, self.mm, self.fd, self.size = path, mm, fd, len(mm)
-        self.times_only = times_only
+        self.path, self.mm, self.fd, self.size, self.times_only = path, mm, fd, len(mm), times_only
         self.want = None if topics is None else {norm_topic(t) for t in topics}
         self.warnings: list[str] = []
         #: Schema and Channel records by opcode and id: (content bytes, parsed record)
         self.tables: dict[int, dict[int, tuple[bytes, Schema | Channel]]] = {3: {}, 4: {}}
-        self.counts: dict[int, int] = {}  # messages seen per channel, and their time span
+        self.counts: dict[int, int] = {}  # messages seen per channel, and their log-time span
         self.spans: dict[int, tuple[int, int]] = {}
         self.builders: dict[int, TopicBuilder | None] = {}
         self.chunk_index: dict[int, ChunkIndex] = {}
         self.stats: Statistics | None = None
         self.footer, self.lost, self.cut_detail = False, 0, ""
-        self.spare: list[np.ndarray] = []  # batch buffers free again (list ops are atomic)
+        self.spare: list[U8] = []  # run buffers free again (fresh pages fault in at a cost)
         self.summary_start = self._summary()
 
     def _summary(self) -> int:
@@ -149,7 +145,7 @@ class _Reader:
     def builder(self, cid: int) -> TopicBuilder | None:
         """The builder of channel ``cid`` when its topic is wanted (``None`` otherwise)."""
         if cid in self.builders or cid not in self.tables[Opcode.CHANNEL]:
-            return self.builders.get(cid)  # an unknown one is decided when it is defined
+            return self.builders.get(cid)  # an unknown one is decided once it is defined
         ch = self.tables[Opcode.CHANNEL][cid][1]
         assert isinstance(ch, Channel)
         b = None
@@ -165,12 +161,22 @@ class _Reader:
             return "", ch.message_encoding, ""
         return normalize_type_name(s.name), ch.message_encoding, s.data.decode("utf-8", "replace")
 
-    def seen(self, cid: int, times: np.ndarray) -> None:
-        """Count messages of channel ``cid`` logged at ``times`` (ns)."""
-        if times.size:
-            lo, hi = self.spans.get(cid, (int(times.min()), int(times.max())))
-            self.spans[cid] = (min(lo, int(times.min())), max(hi, int(times.max())))
-            self.counts[cid] = self.counts.get(cid, 0) + int(times.size)
+    def _add(self, cid: int, buf: U8, offset: I64, length: I64, log_time: I64) -> None:
+        """Count channel ``cid``'s messages logged at ``log_time`` (ns); keep their payloads
+        ``buf[offset[i]:][:length[i]]`` when the channel is wanted."""
+        if not len(log_time):
+            return
+        lo, hi = self.spans.get(cid, (int(log_time.min()), int(log_time.max())))
+        self.spans[cid] = (min(lo, int(log_time.min())), max(hi, int(log_time.max())))
+        self.counts[cid] = self.counts.get(cid, 0) + len(log_time)
+        if (b := self.builder(cid)) is None or not len(length):
+            return
+        if self.times_only:
+            b.add(buf[:0], np.zeros_like(offset), np.zeros_like(offset), log_time, copy=False)
+        elif int(length.min()) == int(length.max()) > 0:  # one payload length: one row gather
+            b.take_rows(buf, offset, int(length[0]), log_time)
+        else:
+            b.add(buf, offset, length, log_time)
 
     def run(self) -> RawLog:
         """Walk the data section's records, then read what was found, in file order."""
@@ -179,8 +185,7 @@ class _Reader:
         found: list[_Chunk | tuple[int, int]] = []  # chunks, and unchunked messages (c, ln)
         while pos + 9 <= end:
             op, ln = REC.unpack_from(mm, pos)
-            c = pos + 9
-            listed = self.chunk_index.get(pos)
+            c, listed = pos + 9, self.chunk_index.get(pos)
             if listed is not None and op != Opcode.CHUNK:
                 self._fail(pos, None, f"has opcode {op:#04x}, yet the summary lists a chunk there")
                 gone.add(pos)
@@ -189,8 +194,7 @@ class _Reader:
             if op == 0 or 0x10 <= op < 0x80 or c + ln > end:
                 if op == Opcode.CHUNK and not self.summary_start:
                     self._partial_chunk(pos, c)
-                pos = self._resync(pos, op, end)
-                if pos < 0:
+                if (pos := self._resync(pos, op, end)) < 0:
                     break
                 continue
             if op == Opcode.CHUNK:
@@ -236,9 +240,7 @@ class _Reader:
             data = decompress_prefix(hdr.compression, self.mm[hdr.data_at : self.size])
         except Exception:  # nothing recoverable: the cut is reported as lost bytes
             return
-        walk = walk_records(data, 0, len(data))
-        self._from_walk(np.frombuffer(data, dtype=np.uint8), walk, rec)
-        n = sum(len(m[2]) for m in walk.messages.values())
+        n = self._walk(rec, np.frombuffer(data, dtype=np.uint8), "", cut=True)
         self.cut_detail = (
             f"the last chunk, at byte {rec}, is cut off; recovered {n} message(s) "
             "from its decompressible prefix"
@@ -253,25 +255,6 @@ class _Reader:
             out[cid] = np.frombuffer(self.mm, dtype="<u8", count=n // 8, offset=at).reshape(-1, 2)
         return out
 
-    def _skip(self, rec: int, index: dict[int, tuple[int, int]]) -> bool:
-        """Whether a chunk holds no wanted channel, by its MessageIndex records and the
-        summary's ChunkIndex alike (never by one alone): its messages are then counted from
-        its index and it is not decompressed."""
-        listed = self.chunk_index.get(rec)
-        if listed is None or not index or self.want is None:
-            return False
-        if {c: at - 15 for c, (at, _n) in index.items()} != listed.message_index_offsets:
-            return False
-        channels = self.tables[Opcode.CHANNEL]
-        if any(c not in channels or self.builder(c) is not None for c in index):
-            return False
-        ents = self._entries(index)
-        if ents is None:
-            return False
-        for cid, e in ents.items():
-            self.seen(cid, e[:, 0].astype(np.int64))
-        return True
-
     def _read(self, found: list[_Chunk | tuple[int, int]]) -> None:
         """Read the chunks and unchunked messages in file order: runs of chunks are
         decompressed on the threads, up to ``THREADS`` runs ahead of the one being read."""
@@ -281,10 +264,8 @@ class _Reader:
 
             def submit(keep: int) -> None:
                 if run:
-                    # a buffer a run before left, if one fits (fresh pages fault in at a
-                    # cost like decompressing them)
                     need = int(_starts(run)[-1])
-                    fits = [k for k, b in enumerate(self.spare) if b.shape[0] >= need]
+                    fits = [k for k, b in enumerate(self.spare) if len(b) >= need]
                     buf = (
                         self.spare.pop(fits[0])
                         if fits
@@ -298,21 +279,19 @@ class _Reader:
             for item in found:
                 if len(item) == 2:  # an unchunked message: what comes before it first
                     submit(0)
-                    self._message(*item)
+                    c, ln = item
+                    cid, _seq, t = struct.unpack_from("<HIQ", self.mm, c)
+                    data = np.frombuffer(self.mm[c + 22 : c + ln], dtype=np.uint8)
+                    self._add(cid, data, np.zeros(1, np.int64), np.array([ln - 22]), np.array([t]))
                 elif isinstance(item[1], str):
                     self._fail(item[0], item[2], item[1])
-                elif not self._skip(item[0], item[2]):
+                else:
                     run.append(item)
-                    if (
-                        sum(h.usize for _r, h, _i in run if isinstance(h, ChunkHeader))
-                        >= BATCH_BYTES
-                    ):
+                    if int(_starts(run)[-1]) >= BATCH_BYTES:
                         submit(THREADS)
             submit(0)
 
-    def _inflate(
-        self, run: list[_Chunk], buf: np.ndarray
-    ) -> tuple[np.ndarray, list[tuple[str, str]]]:
+    def _inflate(self, run: list[_Chunk], buf: U8) -> tuple[U8, list[tuple[str, str]]]:
         """Decompress and CRC-check a run of chunks into ``buf`` (on an inflate thread)."""
         at = _starts(run)
         heads = [h for _r, h, _i in run if isinstance(h, ChunkHeader)]
@@ -323,27 +302,19 @@ class _Reader:
         anything in the run is off, chunk by chunk (each reports what is wrong)."""
         whole, status = job.result()
         at = _starts(run)
-        buf = whole[: at[-1]]
-        ents = [self._entries(index) for _r, _h, index in run]
+        buf, ents = whole[: at[-1]], [self._entries(index) for _r, _h, index in run]
         if any(what for what, _c in status) or self._indexed(run, buf, at, ents):
             for k, (rec, _hdr, index) in enumerate(run):
-                what, cause = status[k]
-                one = buf[at[k] : at[k + 1]]
+                (what, cause), one = status[k], buf[at[k] : at[k + 1]]
                 if what:
                     self._fail(rec, index, what, cause)
                 elif why := self._indexed([run[k]], one, at[k : k + 2] - at[k], ents[k : k + 1]):
-                    bad = (
-                        "records are malformed"
-                        if ents[k] is None
-                        else f"disagrees with its records ({why})"
-                    )
+                    bad = f"disagrees with its records ({why})" if ents[k] else "is malformed"
                     self._walk(rec, one, bad if index else "")
         self.spare.append(whole)  # whatever was kept of it was copied out
 
-    def _indexed(
-        self, run: list[_Chunk], buf: np.ndarray, at: np.ndarray, ents: list[dict | None]
-    ) -> str:
-        """Add the wanted messages of chunks lying end to end in ``buf`` (chunk k from byte
+    def _indexed(self, run: list[_Chunk], buf: U8, at: I64, ents: list[dict | None]) -> str:
+        """Add the messages of chunks lying end to end in ``buf`` (chunk k from byte
         ``at[k]``) located by their indexes when these check out: "", else why not."""
         if not all(ents):
             return "no usable index"
@@ -364,84 +335,50 @@ class _Reader:
             k = int(np.searchsorted(at, a, "right")) - 1
             self.define(op, None, buf[a:b].tobytes(), _inside(run[k][0], a - 9 - int(at[k])))
         for cid, e in joined.items():
-            log_time, rec, rl = (
-                e[:, 0].astype(np.int64),
-                e[:, 1].astype(np.int64),
-                gaps.record_lengths.get(cid),
-            )
-            self.seen(cid, log_time)
-            b = self.builder(cid)
-            if b is None or rl is None:
-                continue
-            if self.times_only:
-                b.add(buf[:0], np.zeros_like(rec), np.zeros_like(rec), log_time, copy=False)
-            elif int(rl.min()) == int(rl.max()) > 22:  # one payload length: one row gather
-                b.take_rows(buf, rec + 31, int(rl[0]) - 22, log_time)
-            else:
-                b.add(buf, rec + 31, rl - 22, log_time)
+            if cid in gaps.record_lengths:
+                rec, rl = e[:, 1].astype(np.int64), gaps.record_lengths[cid]
+                self._add(cid, buf, rec + 31, rl - 22, e[:, 0].astype(np.int64))
         return ""
 
-    def _walk(self, rec: int, buf: np.ndarray, why: str) -> None:
-        """Read a chunk by walking its records: it has no index, or (``why``) a wrong one."""
+    def _walk(self, rec: int, buf: U8, why: str, *, cut: bool = False) -> int:
+        """Read a chunk by walking its records (it has no index, or ``why`` not a right
+        one, or is ``cut`` off); how many messages were found."""
         where = f"{self.path}: MCAP chunk at byte {rec}"
         if why:
-            self.warnings.append(
-                f"{where}: its MessageIndex {why}; read the chunk by walking its records instead"
-            )
+            self.warnings.append(f"{where}: its MessageIndex {why}; read by walking its records")
         walk = walk_records(buf, 0, len(buf))
-        self._from_walk(buf, walk, rec)
-        if walk.stop < len(buf):
+        for op, a, b in walk.tables:
+            self.define(op, None, buf[a:b].tobytes(), _inside(rec, a - 9))
+        for cid, (offs, lens, times) in walk.messages.items():
+            self._add(cid, buf, np.array(offs), np.array(lens), np.array(times, dtype=np.int64))
+        if walk.stop < len(buf) and not cut:
             self.warnings.append(
                 f"{where}: record at byte {walk.stop} of the decompressed chunk is damaged "
                 f"({walk.reason}); the chunk's last {len(buf) - walk.stop} bytes were not read"
             )
+        return sum(len(m[2]) for m in walk.messages.values())
 
-    def _from_walk(self, buf: np.ndarray, walk: WalkResult, rec: int) -> None:
-        """Add the messages (and Schema/Channel records) found by walking a chunk."""
-        for op, a, b in walk.tables:
-            self.define(op, None, buf[a:b].tobytes(), _inside(rec, a - 9))
-        for cid, (offs, lens, times) in walk.messages.items():
-            t = np.asarray(times, dtype=np.int64)
-            self.seen(cid, t)
-            b = self.builder(cid)
-            if b is not None and self.times_only:
-                b.add(buf[:0], np.zeros_like(t), np.zeros_like(t), t, copy=False)
-            elif b is not None:
-                b.add(buf, np.asarray(offs, dtype=np.int64), np.asarray(lens, dtype=np.int64), t)
-
-    def _message(self, c: int, ln: int) -> None:
-        """A top-level (unchunked) Message record."""
-        cid, _seq, log_time = struct.unpack_from("<HIQ", self.mm, c)
-        self.seen(cid, np.array([log_time], dtype=np.int64))
-        if (b := self.builder(cid)) is not None:
-            b.add_payloads([b"" if self.times_only else self.mm[c + 22 : c + ln]], [log_time])
-
-    def _fail(
-        self,
-        rec: int,
-        index: dict[int, tuple[int, int]] | None,
-        what: str,
-        cause: str = "damaged_chunk",
-    ) -> None:
+    def _fail(self, rec: int, index: dict | None, what: str, cause: str = "damaged_chunk") -> None:
         """Warn that the chunk at ``rec`` could not be read and count its messages dropped:
-        from its MessageIndex records, or (``index`` None) from the ones its ChunkIndex
-        points at."""
+        from its MessageIndex records, or (``index`` None) the ones its ChunkIndex lists."""
         if index is None:
             index = {}
             for cid, off in self.chunk_index[rec].message_index_offsets.items():
                 ok = off + 15 <= self.size and self.mm[off] == Opcode.MESSAGE_INDEX
                 if ok and _U16.unpack_from(self.mm, off + 9)[0] == cid:
                     index[cid] = (off + 15, _U32.unpack_from(self.mm, off + 11)[0])
-        ents, parts = self._entries(index), []
-        for cid, e in (ents or {}).items():
-            self.seen(cid, e[:, 0].astype(np.int64))
+        ents, parts = self._entries(index) or {}, []
+        for cid, e in ents.items():
+            if len(e):
+                none = np.zeros(0, np.int64)  # counted, not read
+                self._add(cid, none.view(np.uint8), none, none, e[:, 0].astype(np.int64))
             if (b := self.builder(cid)) is not None and len(e):
                 b.drop(cause, len(e))
                 parts.append(f"{len(e)} on {b.name}")
         lost = (
             f"{sum(len(e) for e in ents.values())} message(s) dropped"
             if ents
-            else ("message count unknown (its index is damaged or missing too)")
+            else "message count unknown (no usable index)"
         )
         self.warnings.append(
             f"{self.path}: MCAP chunk at byte {rec} {what}; {lost}"
@@ -453,15 +390,15 @@ class _Reader:
         channels = self.tables[Opcode.CHANNEL]
         expected = self.stats.channel_message_counts if self.stats is not None else {}
         for cid, n in sorted(expected.items()):
-            if self.counts.get(cid, 0) < n:
+            if (got := self.counts.get(cid, 0)) < n:
                 b = self.builder(cid)
+                name = b.name if b is not None else f"channel {cid}"
                 self.warnings.append(
-                    f"{self.path}: the summary counts {n} messages on "
-                    f"{b.name if b is not None else f'channel {cid}'}, "
-                    f"{self.counts.get(cid, 0)} were found in the data section"
+                    f"{self.path}: the summary counts {n} messages on {name}, "
+                    f"{got} were found in the data section"
                 )
                 if b is not None:
-                    b.drop("missing", n - self.counts.get(cid, 0))
+                    b.drop("missing", n - got)
         for cid in sorted(set(self.counts) - set(channels)):
             self.warnings.append(
                 f"{self.path}: {self.counts[cid]} message(s) on channel {cid}, which no "
@@ -481,7 +418,7 @@ class _Reader:
         return log
 
 
-def _starts(run: list[_Chunk]) -> np.ndarray:
+def _starts(run: list[_Chunk]) -> I64:
     """Where each chunk of a run starts in the run's buffer, and the buffer's size."""
     sizes = [h.usize if isinstance(h, ChunkHeader) else 0 for _r, h, _i in run]
     return np.concatenate(([0], np.cumsum(sizes))).astype(np.int64)
