@@ -86,7 +86,7 @@ class _Reader:
         self.builders: dict[int, TopicBuilder | None] = {}
         self.chunk_index: dict[int, ChunkIndex] = {}
         self.stats: Statistics | None = None
-        self.footer, self.lost, self.cut_detail = False, 0, ""
+        self.footer, self.lost, self.cut_detail, self.released = False, 0, "", 0
         self.spare: list[U8] = []  # run buffers free again (fresh pages fault in at a cost)
         self.summary_start = self._summary()
 
@@ -184,6 +184,8 @@ class _Reader:
         pos, last, gone = 8, None, set()
         found: list[_Chunk | tuple[int, int]] = []  # chunks, and unchunked messages (c, ln)
         while pos + 9 <= end:
+            if pos - self.released > 8 << 20:
+                self._release(pos)
             op, ln = REC.unpack_from(mm, pos)
             c, listed = pos + 9, self.chunk_index.get(pos)
             if listed is not None and op != Opcode.CHUNK:
@@ -215,6 +217,8 @@ class _Reader:
             if op < 0x80 and op not in (Opcode.MESSAGE_INDEX, Opcode.CHUNK):
                 last = None  # a chunk's MessageIndex records follow it (private ones between)
             pos = c + ln
+        self._release(self.size)
+        self.released = 0
         self._read(found)
         for rec in sorted(set(self.chunk_index) - gone - {f[0] for f in found if len(f) == 3}):
             self._fail(rec, None, "is listed in the summary, but no Chunk record is there")
@@ -312,6 +316,16 @@ class _Reader:
                     bad = f"disagrees with its records ({why})" if ents[k] else "is malformed"
                     self._walk(rec, one, bad if index else "")
         self.spare.append(whole)  # whatever was kept of it was copied out
+        self._release(max([run[-1][0], *(a + n for a, n in run[-1][2].values())]))
+
+    def _release(self, upto: int) -> None:
+        """Drop the file map's pages below ``upto`` from the resident set: the kernel maps
+        64 kB around each page read (the walk touches one per chunk), and mapped pages
+        count as this process's memory. The bytes stay in the page cache."""
+        stop = upto // mmap.PAGESIZE * mmap.PAGESIZE
+        if stop > self.released and hasattr(self.mm, "madvise"):
+            self.mm.madvise(mmap.MADV_DONTNEED, self.released, stop - self.released)
+            self.released = stop
 
     def _indexed(self, run: list[_Chunk], buf: U8, at: I64, ents: list[dict | None]) -> str:
         """Add the messages of chunks lying end to end in ``buf`` (chunk k from byte
