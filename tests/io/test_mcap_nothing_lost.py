@@ -8,6 +8,7 @@ half-finished copy would; the expected messages come from mcap's reader of the i
 
 from __future__ import annotations
 
+import itertools
 import struct
 import zlib
 from pathlib import Path
@@ -123,7 +124,7 @@ def _chunk_messages(data: bytes, pos: int) -> dict[int, int]:
     recs = _records(data)
     k = next(i for i, r in enumerate(recs) if r[0] == pos)
     out = {}
-    for p, op, ln in recs[k + 1 :]:
+    for p, op, _ln in recs[k + 1 :]:
         if op != 7:
             break
         (cid,) = struct.unpack_from("<H", data, p + 9)
@@ -137,7 +138,7 @@ def test_private_records_are_skipped_without_a_warning(tmp_path: Path) -> None:
     data = log.read_bytes()
     ops = [op for _p, op, _l in _records(data)]
     # a private record right after every chunk, before its MessageIndex records
-    assert any(a == 6 and b == 0x81 for a, b in zip(ops, ops[1:], strict=False))
+    assert any(a == 6 and b == 0x81 for a, b in itertools.pairwise(ops))
     expected = _mcap_messages(log)
     got = scan_mcap(log, None)
     assert got.all_warnings() == []

@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import struct
 import sys
-from typing import Any
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest

@@ -197,7 +197,7 @@ def check_index(
         return "indexed records overlap", gaps
     holes = np.flatnonzero(s[1:] > t[:-1])
     spans = [(0, int(s[0]))] + [(int(t[i]), int(s[i + 1])) for i in holes]
-    for a, b in spans + [(int(t[-1]), int(buf.shape[0]))]:
+    for a, b in [*spans, (int(t[-1]), int(buf.shape[0]))]:
         edges = [a, *(int(x) for x in cuts[(cuts > a) & (cuts < b)]), b]
         for lo, hi in itertools.pairwise(edges):  # walked chunk by chunk
             w = walk_records(buf, lo, hi)

@@ -31,14 +31,30 @@ from mcap.data_stream import ReadDataStream, RecordBuilder
 from mcap.opcode import Opcode
 from mcap.records import Channel, ChunkIndex, Schema, Statistics
 from mcap.stream_reader import StreamReader
+from numpy.typing import NDArray
 
 from uwval.errors import LogReadError
 from uwval.io.crc import crc32
-from uwval.io.mcap_chunk import REC, ChunkHeader, check_index, decompress_prefix, inflate_into
-from uwval.io.mcap_chunk import parse_chunk_header, walk_records
-from uwval.io.raw import I64, U8, RawLog, TopicBuilder, TopicInfo, merge_infos, merge_topics
-from uwval.io.raw import norm_topic
-from uwval.io.raw import one_line as _line
+from uwval.io.mcap_chunk import (
+    REC,
+    ChunkHeader,
+    check_index,
+    decompress_prefix,
+    inflate_into,
+    parse_chunk_header,
+    walk_records,
+)
+from uwval.io.raw import (
+    I64,
+    U8,
+    RawLog,
+    TopicBuilder,
+    TopicInfo,
+    merge_infos,
+    merge_topics,
+    norm_topic,
+    one_line,
+)
 from uwval.io.ros import normalize_type_name
 
 MAGIC = b"\x89MCAP0\r\n"
@@ -49,7 +65,10 @@ THREADS = 2
 _U16, _U32 = struct.Struct("<H"), struct.Struct("<I")
 #: a chunk: (record start, header or what is wrong with it, {channel: (index entries at,
 #: their bytes)} from its MessageIndex records)
-_Chunk = tuple[int, "ChunkHeader | str", dict[int, tuple[int, int]]]
+_Index = dict[int, tuple[int, int]]
+_Chunk = tuple[int, "ChunkHeader | str", _Index]
+#: a chunk's MessageIndex entries per channel: (log time, record offset) uint64 rows
+_Ents = dict[int, NDArray[np.uint64]]
 _Job = Future[tuple[U8, list[tuple[str, str]]]]
 
 
@@ -112,7 +131,7 @@ class _Reader:
                     self.stats = rec
         except Exception as exc:  # any damage: read as a log without summary
             self.warnings.append(
-                f"{self.path}: the summary section (byte {start}) is damaged ({_line(exc)}); "
+                f"{self.path}: the summary section (byte {start}) is damaged ({one_line(exc)}); "
                 "read without it"
             )
             self.tables, self.chunk_index, self.stats = {3: {}, 4: {}}, {}, None
@@ -134,7 +153,7 @@ class _Reader:
                 raise ValueError("its fields do not fill the record exactly")
             content = content or out.end()[9:]
         except Exception as exc:
-            self.warnings.append(f"{self.path}: damaged {kind} record {where}: {_line(exc)}")
+            self.warnings.append(f"{self.path}: damaged {kind} record {where}: {one_line(exc)}")
             return
         if self.tables[op].setdefault(rec.id, (content, rec))[0] != content:
             self.warnings.append(
@@ -181,7 +200,8 @@ class _Reader:
     def run(self) -> RawLog:
         """Walk the data section's records, then read what was found, in file order."""
         mm, end = self.mm, self.summary_start or self.size
-        pos, last, gone = 8, None, set()
+        pos, gone = 8, set()
+        last: _Chunk | None = None
         found: list[_Chunk | tuple[int, int]] = []  # chunks, and unchunked messages (c, ln)
         while pos + 9 <= end:
             if pos - self.released > 8 << 20:
@@ -250,7 +270,7 @@ class _Reader:
             "from its decompressible prefix"
         )
 
-    def _entries(self, index: dict[int, tuple[int, int]]) -> dict[int, np.ndarray] | None:
+    def _entries(self, index: _Index) -> _Ents | None:
         """Per channel, the (log time, record offset) uint64 rows; ``None`` if malformed."""
         out = {}
         for cid, (at, n) in index.items():
@@ -327,7 +347,7 @@ class _Reader:
             self.mm.madvise(mmap.MADV_DONTNEED, self.released, stop - self.released)
             self.released = stop
 
-    def _indexed(self, run: list[_Chunk], buf: U8, at: I64, ents: list[dict | None]) -> str:
+    def _indexed(self, run: list[_Chunk], buf: U8, at: I64, ents: list[_Ents | None]) -> str:
         """Add the messages of chunks lying end to end in ``buf`` (chunk k from byte
         ``at[k]``) located by their indexes when these check out: "", else why not."""
         if not all(ents):
@@ -348,10 +368,10 @@ class _Reader:
         for op, a, b in gaps.tables:
             k = int(np.searchsorted(at, a, "right")) - 1
             self.define(op, None, buf[a:b].tobytes(), _inside(run[k][0], a - 9 - int(at[k])))
-        for cid, e in joined.items():
+        for cid, rows in joined.items():
             if cid in gaps.record_lengths:
-                rec, rl = e[:, 1].astype(np.int64), gaps.record_lengths[cid]
-                self._add(cid, buf, rec + 31, rl - 22, e[:, 0].astype(np.int64))
+                rec, rl = rows[:, 1].astype(np.int64), gaps.record_lengths[cid]
+                self._add(cid, buf, rec + 31, rl - 22, rows[:, 0].astype(np.int64))
         return ""
 
     def _walk(self, rec: int, buf: U8, why: str, *, cut: bool = False) -> int:
@@ -372,7 +392,9 @@ class _Reader:
             )
         return sum(len(m[2]) for m in walk.messages.values())
 
-    def _fail(self, rec: int, index: dict | None, what: str, cause: str = "damaged_chunk") -> None:
+    def _fail(
+        self, rec: int, index: _Index | None, what: str, cause: str = "damaged_chunk"
+    ) -> None:
         """Warn that the chunk at ``rec`` could not be read and count its messages dropped:
         from its MessageIndex records, or (``index`` None) the ones its ChunkIndex lists."""
         if index is None:
