@@ -8,9 +8,10 @@ offset.
 from __future__ import annotations
 
 import itertools
-import os
+import mmap
 import struct
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from mcap.opcode import Opcode
@@ -59,33 +60,36 @@ def parse_chunk_header(b: Buffer, c: int, end: int, *, partial: bool = False) ->
     return ChunkHeader(usize, crc, comp, p + 8, min(rlen, end - p - 8))
 
 
-def inflate_into(fd: int, hdr: ChunkHeader, dest: NDArray[np.uint8]) -> tuple[str, str]:
-    """Read a chunk's records from the file ``fd`` into ``dest`` (exactly ``hdr.usize``
-    bytes), decompressed, and check its CRC: ``("", "")``, or (what is wrong, drop cause).
-    Runs on the inflate threads: pread, zstd, lz4 and the CRC let the GIL go. (pread, not
-    the file map: mapped pages of an image topic would count as this process's memory.)"""
+def inflate_into(
+    mm: mmap.mmap, hdr: ChunkHeader, dest: NDArray[np.uint8], zstd: Any
+) -> tuple[str, str]:
+    """Decompress a chunk's records from the file map ``mm`` into ``dest`` (exactly
+    ``hdr.usize`` bytes) with the ``zstd`` decompressor (one per thread), check its CRC:
+    ``("", "")``, or (what is wrong, drop cause). Runs on the inflate threads (zstd, lz4 and
+    the CRC let the GIL go); the map's pages read leave the resident set at once (mapped
+    pages of an image topic would count as this process's memory)."""
     import lz4.frame
-    import zstandard
 
     out = dest.data.cast("B")
     try:
-        if not hdr.compression:
-            got = os.preadv(fd, [out], hdr.data_at) if hdr.data_len == hdr.usize else -1
-        elif hdr.compression == "lz4":
-            data = lz4.frame.decompress(os.pread(fd, hdr.data_len, hdr.data_at))
-            got = len(data)
-            if got == hdr.usize:
-                out[:] = data
-        else:
-            src = os.pread(fd, hdr.data_len, hdr.data_at)
-            with zstandard.ZstdDecompressor().stream_reader(src) as reader:
-                got = 0
-                while got < hdr.usize and (k := reader.readinto(out[got:])):
-                    got += k
-                got += len(reader.read(1))
+        with memoryview(mm)[hdr.data_at : hdr.data_at + hdr.data_len] as src:
+            if hdr.compression == "zstd":
+                with zstd.stream_reader(src) as reader:
+                    got = 0
+                    while got < hdr.usize and (k := reader.readinto(out[got:])):
+                        got += k
+                    got += len(reader.read(1))
+            else:
+                data = lz4.frame.decompress(src) if hdr.compression else src
+                if (got := len(data)) == hdr.usize:
+                    out[:] = data
     except Exception as exc:  # zstd / lz4 raise their own types for damaged streams
         what = " ".join(str(exc).split())
         return f"cannot be decompressed ({hdr.compression}: {what})", "damaged_chunk"
+    finally:
+        lo, hi = -(-hdr.data_at // mmap.PAGESIZE) * mmap.PAGESIZE, hdr.data_at + hdr.data_len
+        if hi - lo >= mmap.PAGESIZE and hasattr(mm, "madvise"):
+            mm.madvise(mmap.MADV_DONTNEED, lo, (hi - lo) // mmap.PAGESIZE * mmap.PAGESIZE)
     if got != hdr.usize:
         return f"decompresses to another size than its header's {hdr.usize}", "damaged_chunk"
     if hdr.crc and crc32(out) != hdr.crc:

@@ -1,18 +1,10 @@
 """The MCAP reader: whole chunks in, per-topic payload buffers out, nothing trusted blindly.
 
-mcap's own reader makes a Python object per message (seconds at a million). This one walks
-the top-level records (a step per chunk and index), reads the summary with mcap's record
-parsers, decompresses runs of chunks (``BATCH_BYTES`` of records each) on threads while the
-run before is read, and finds the wanted messages from the MessageIndex records with numpy.
-
-Nothing is taken on faith (checks in :mod:`uwval.io.mcap_chunk`): an index that disagrees
-with its chunk's records is warned about and the chunk walked instead; a chunk failing its
-CRC or decompression is dropped, its messages counted per topic; every chunk the summary's
-ChunkIndex lists must be found (else warned, by byte offset, and its messages counted from
-the index it points at); every chunk is decompressed (none is skipped on its index alone); a
-Schema or Channel id defined again with other content is warned about (the first is kept).
-A log without summary is read up to its cut, with the decompressible prefix of a cut chunk,
-and says so. Private records (opcodes 0x80-0xFF) are stepped over wherever they are.
+It walks the top-level records (a step per chunk and index, not per message: mcap's reader
+makes an object per message), reads the summary with mcap's record parsers, decompresses
+runs of chunks on threads while the run before is read, and finds the wanted messages from
+the MessageIndex records with numpy. What it checks, and warns about by byte offset, is in
+docs/formats-mcap.md (chunk-level checks: :mod:`uwval.io.mcap_chunk`).
 """
 
 from __future__ import annotations
@@ -27,6 +19,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
+import zstandard
 from mcap.data_stream import ReadDataStream, RecordBuilder
 from mcap.opcode import Opcode
 from mcap.records import Channel, ChunkIndex, Schema, Statistics
@@ -83,7 +76,7 @@ def scan_mcap(path: Path, topics: Iterable[str] | None, *, times_only: bool = Fa
             raise LogReadError(f"{path}: not an MCAP file (bad magic bytes at offset 0)")
         mm = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
         try:
-            return _Reader(path, mm, fh.fileno(), topics, times_only).run()
+            return _Reader(path, mm, topics, times_only).run()
         finally:
             with contextlib.suppress(BufferError):  # payloads are copies; a view may linger
                 mm.close()
@@ -93,9 +86,9 @@ class _Reader:
     """One pass over an MCAP file: the summary, the data section's records, the chunks."""
 
     def __init__(
-        self, path: Path, mm: mmap.mmap, fd: int, topics: Iterable[str] | None, times_only: bool
+        self, path: Path, mm: mmap.mmap, topics: Iterable[str] | None, times_only: bool
     ) -> None:
-        self.path, self.mm, self.fd, self.size, self.times_only = path, mm, fd, len(mm), times_only
+        self.path, self.mm, self.size, self.times_only = path, mm, len(mm), times_only
         self.want = None if topics is None else {norm_topic(t) for t in topics}
         self.warnings: list[str] = []
         #: Schema and Channel records by opcode and id: (content bytes, parsed record)
@@ -319,7 +312,10 @@ class _Reader:
         """Decompress and CRC-check a run of chunks into ``buf`` (on an inflate thread)."""
         at = _starts(run)
         heads = [h for _r, h, _i in run if isinstance(h, ChunkHeader)]
-        return buf, [inflate_into(self.fd, h, buf[at[k] : at[k + 1]]) for k, h in enumerate(heads)]
+        zstd = zstandard.ZstdDecompressor()  # one context for the run (a new one costs)
+        return buf, [
+            inflate_into(self.mm, h, buf[at[k] : at[k + 1]], zstd) for k, h in enumerate(heads)
+        ]
 
     def _take(self, run: list[_Chunk], job: _Job) -> None:
         """Add the wanted messages of a decompressed run: every index checked at once; when

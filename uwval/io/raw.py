@@ -76,18 +76,14 @@ class RawTopic:
         return int(self.log_time.shape[0])
 
     def payload(self, i: int) -> bytes:
-        o = int(self.offset[i])
-        return self.buf[o : o + int(self.length[i])].tobytes()
+        """Message ``i``'s bytes."""
+        return self.buf[int(self.offset[i]) :][: int(self.length[i])].tobytes()
 
     def info(self) -> TopicInfo:
-        n = len(self)
-        return TopicInfo(
-            self.name,
-            self.msgtype,
-            n,
-            int(self.log_time.min()) if n else 0,
-            int(self.log_time.max()) if n else 0,
-        )
+        """Name, type, count and log-time span (ns) of the topic."""
+        t = self.log_time
+        span = (int(t.min()), int(t.max())) if len(t) else (0, 0)
+        return TopicInfo(self.name, self.msgtype, len(self), *span)
 
 
 def compact(buf: U8, offset: I64, length: I64) -> tuple[U8, I64]:
@@ -202,18 +198,14 @@ def merge_infos(infos: Iterable[TopicInfo]) -> list[TopicInfo]:
     counts added, spans joined over the parts that have messages; first non-empty type."""
     out: dict[str, TopicInfo] = {}
     for i in infos:
-        o = out.get(i.name)
-        if o is None:
-            out[i.name] = i
-            continue
-        have = [x for x in (o, i) if x.count]
-        out[i.name] = TopicInfo(
-            i.name,
-            o.type or i.type,
-            o.count + i.count,
-            min(x.start_ns for x in have) if have else 0,
-            max(x.end_ns for x in have) if have else 0,
-        )
+        o = out.setdefault(i.name, i)
+        if o is not i:
+            have = [x for x in (o, i) if x.count]
+            lo, hi = (
+                min((x.start_ns for x in have), default=0),
+                max((x.end_ns for x in have), default=0),
+            )
+            out[i.name] = TopicInfo(i.name, o.type or i.type, o.count + i.count, lo, hi)
     return list(out.values())
 
 
@@ -224,13 +216,12 @@ def merge_topics(parts: Iterable[RawTopic]) -> dict[str, RawTopic]:
         groups.setdefault(t.name, []).append(t)
     out: dict[str, RawTopic] = {}
     for name, ts in groups.items():
-        if len(ts) == 1:
-            out[name] = ts[0]
-            continue
-        b = TopicBuilder(name, ts[0].msgtype, ts[0].encoding, ts[0].msgdef)
-        for t in ts:
-            b.add_topic(t)
-        out[name] = b.build()
+        out[name] = ts[0]
+        if len(ts) > 1:
+            b = TopicBuilder(name, ts[0].msgtype, ts[0].encoding, ts[0].msgdef)
+            for t in ts:
+                b.add_topic(t)
+            out[name] = b.build()
     return out
 
 
