@@ -264,3 +264,50 @@ def test_intact_log_reads_as_mcaps_reader_does(tmp_path: Path) -> None:
         for topic in WANTED:
             assert _ours(got, topic) == expected[topic]
         assert {i.name: i.count for i in got.topics} == {t: 200 for t in TOPICS}
+
+
+def test_an_index_out_of_file_order_is_still_right(tmp_path: Path) -> None:
+    """A MessageIndex listing its channel's records out of file order is right (the check
+    sorts them): read with no warning, the same messages as mcap's reader (in its order)."""
+    log = _write(tmp_path / "intact.mcap")
+    data = bytearray(log.read_bytes())
+    recs = _records(bytes(data))
+    k = next(i for i, r in enumerate(recs) if r[1] == 6 and i > len(recs) // 2)
+    at = recs[k + 1][0] + 9 + 6  # the entries of the chunk's first MessageIndex
+    data[at : at + 16], data[at + 16 : at + 32] = data[at + 16 : at + 32], data[at : at + 16]
+    bad = tmp_path / "swapped.mcap"
+    bad.write_bytes(bytes(data))
+    got = scan_mcap(bad, WANTED)
+    assert got.all_warnings() == []
+    expected = _mcap_messages(log)
+    for topic in WANTED:
+        assert sorted(_ours(got, topic)) == expected[topic]
+
+
+def test_many_channels_metadata_and_a_large_chunk_read_as_mcaps_reader(tmp_path: Path) -> None:
+    """300 channels defined in one chunk, Metadata and Attachment records between chunks, and
+    a chunk larger than a run of chunks: every message as mcap's reader reads it."""
+    from mcap.writer import CompressionType, Writer
+
+    from uwval.io import mcap_raw
+
+    path = tmp_path / "many.mcap"
+    with open(path, "wb") as fh:
+        w = Writer(fh, chunk_size=64 * 1024, compression=CompressionType.ZSTD)
+        w.start(profile="", library="uwval-tests")
+        sid = w.register_schema(name="raw", encoding="", data=b"")
+        chans = [w.register_channel(f"/t{k}", "raw", sid) for k in range(300)]
+        for i in range(6000):
+            w.add_message(chans[i % 300], log_time=i, publish_time=i, data=bytes([i % 251]) * 12)
+            if i % 997 == 0:
+                w.add_metadata("note", {"i": str(i)})
+                w.add_attachment(i, i, "a.bin", "application/octet-stream", b"x" * 100)
+        big = bytes(range(256)) * (mcap_raw.BATCH_BYTES // 256 + 1000)  # one chunk > a run
+        w.add_message(chans[0], log_time=6000, publish_time=6000, data=big)
+        w.finish()
+    got = scan_mcap(path, None)
+    assert got.all_warnings() == []
+    expected = _mcap_messages(path)
+    assert set(got.raw) == set(expected) and len(got.raw) == 300
+    for topic, msgs in expected.items():
+        assert _ours(got, topic) == msgs

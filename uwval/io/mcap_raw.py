@@ -55,7 +55,7 @@ MAGIC = b"\x89MCAP0\r\n"
 #: cost, not the bytes, dominates small chunks)
 BATCH_BYTES = 4 << 20
 THREADS = 2
-_U16, _U32 = struct.Struct("<H"), struct.Struct("<I")
+_U16, _U32, _INDEX = struct.Struct("<H"), struct.Struct("<I"), struct.Struct("<HI")
 #: a chunk: (record start, header or what is wrong with it, {channel: (index entries at,
 #: their bytes)} from its MessageIndex records)
 _Index = dict[int, tuple[int, int]]
@@ -196,11 +196,17 @@ class _Reader:
         pos, gone = 8, set()
         last: _Chunk | None = None
         found: list[_Chunk | tuple[int, int]] = []  # chunks, and unchunked messages (c, ln)
+        head, listed_at = REC.unpack_from, self.chunk_index.get  # the loop's hot names
         while pos + 9 <= end:
+            op, ln = head(mm, pos)
+            c, listed = pos + 9, listed_at(pos)
+            if op == Opcode.MESSAGE_INDEX and last is not None and listed is None and c + ln <= end:
+                cid, n = _INDEX.unpack_from(mm, c) if ln >= 6 else (0, -1)
+                last[2][cid] = (c + 6, n if 6 + n <= ln else -1)
+                pos = c + ln
+                continue
             if pos - self.released > 8 << 20:
                 self._release(pos)
-            op, ln = REC.unpack_from(mm, pos)
-            c, listed = pos + 9, self.chunk_index.get(pos)
             if listed is not None and op != Opcode.CHUNK:
                 self._fail(pos, None, f"has opcode {op:#04x}, yet the summary lists a chunk there")
                 gone.add(pos)
@@ -218,9 +224,6 @@ class _Reader:
                 except (ValueError, struct.error) as exc:
                     hdr = f"has a damaged header ({exc})"
                 found.append(last := (pos, hdr, {}))
-            elif op == Opcode.MESSAGE_INDEX and last is not None and ln >= 6:
-                (n,) = _U32.unpack_from(mm, c + 2)
-                last[2][_U16.unpack_from(mm, c)[0]] = (c + 6, n if 6 + n <= ln else -1)
             elif op in (Opcode.SCHEMA, Opcode.CHANNEL):
                 self.define(op, None, mm[c : c + ln], f"at byte {pos}")
             elif op == Opcode.MESSAGE and ln >= 22:
