@@ -52,8 +52,9 @@ from uwval.io.ros import normalize_type_name
 
 MAGIC = b"\x89MCAP0\r\n"
 #: bytes of records decompressed into one buffer and checked together (numpy's per-call
-#: cost, not the bytes, dominates small chunks)
-BATCH_BYTES = 4 << 20
+#: cost, not the bytes, dominates small chunks). 8 MB against 4 MB on the image log, whole
+#: command, loaded machine: CPU 0.39-0.47 vs 0.43-0.49 s, peak RSS 90 vs 78 MB (evo's 113)
+BATCH_BYTES = 8 << 20
 THREADS = 2
 _U16, _U32, _INDEX = struct.Struct("<H"), struct.Struct("<I"), struct.Struct("<HI")
 #: a chunk: (record start, header or what is wrong with it, {channel: (index entries at,
