@@ -1,6 +1,6 @@
-"""What the tests of the early reads (test_early_read.py: sqlite3 page scans, test_early_mcap.py:
-MCAP runs) share: reading a log, comparing streams, recording whether a read took the early
-result, and a whole compare in a fresh process with the early start on or off."""
+"""What the tests of the early reads (test_early_read.py: sqlite3 page scans) share:
+reading a log, comparing streams, recording whether a read took the early result, and a
+whole compare in a fresh process with the early start on or off."""
 
 from __future__ import annotations
 

@@ -59,7 +59,7 @@ def test_the_read_takes_the_early_scan_only_when_it_is_its_own(
 
 @pytest.mark.parametrize("case", ["mcap-file", "rosbag2-mcap", "no-metadata", "compressed", "wal"])
 def test_nothing_is_started_where_it_cannot_be_decided_cheaply(tmp_path: Path, case: str) -> None:
-    if case == "mcap-file":  # no page scan (it starts C runs instead: test_early_mcap.py)
+    if case == "mcap-file":  # nothing is started early for MCAP files
         from uwval.comparison.synthetic import unity_view, vehicle_motion, write_pair_log
 
         v = vehicle_motion(200)
