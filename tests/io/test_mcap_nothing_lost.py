@@ -311,3 +311,19 @@ def test_many_channels_metadata_and_a_large_chunk_read_as_mcaps_reader(tmp_path:
     assert set(got.raw) == set(expected) and len(got.raw) == 300
     for topic, msgs in expected.items():
         assert _ours(got, topic) == msgs
+
+
+def test_a_footer_without_summary_is_not_damage(tmp_path: Path) -> None:
+    """A footer whose summary offset is 0 (a writer that leaves the summary out) is a
+    finished log: read whole, without a warning."""
+    log = _write(tmp_path / "intact.mcap", compression="none")
+    data = log.read_bytes()
+    end = next(p for p, op, _l in _records(data) if op == 15)  # DataEnd
+    footer = struct.pack("<BQQQI", 2, 20, 0, 0, 0)
+    bare = tmp_path / "bare.mcap"
+    bare.write_bytes(data[:end] + data[end : end + 9 + 4] + footer + data[-8:])
+    expected = _mcap_messages(log)
+    got = scan_mcap(bare, WANTED)
+    assert got.all_warnings() == []
+    for topic in WANTED:
+        assert _ours(got, topic) == expected[topic]

@@ -110,12 +110,14 @@ class _Reader:
             return 0
         self.footer = True
         start, _offsets, crc = struct.unpack_from("<QQI", mm, size - 28)
+        if not start:
+            return 0  # a footer, and no summary (a writer may leave it out)
         try:
-            if start and not 8 <= start <= size - 37:
+            if not 8 <= start <= size - 37:
                 raise ValueError("it lies outside the file")
-            if start and crc and crc32(mm[start : size - 12]) != crc:
+            if crc and crc32(mm[start : size - 12]) != crc:
                 raise ValueError("it fails its CRC check")
-            for rec in StreamReader(io.BytesIO(mm[start or size :]), skip_magic=True).records:
+            for rec in StreamReader(io.BytesIO(mm[start:]), skip_magic=True).records:
                 if isinstance(rec, Schema | Channel):
                     op = Opcode.SCHEMA if isinstance(rec, Schema) else Opcode.CHANNEL
                     self.define(op, rec, b"", f"in the summary (byte {start})")
