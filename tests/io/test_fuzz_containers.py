@@ -35,12 +35,12 @@ def test_rosbag2_mcap_cases_once_unverified_are_explained(tmp_path: Path, case: 
     """The three "unverified" cases of the 10,000-input run (seed 31): the reference library
     refused the file for one flip in text uwval does not need (a Channel record, the
     summary's ChunkIndex), while other flips changed pose bytes in a chunk rosbag2 writes
-    without a CRC. Without the refusing flip, mcap reads exactly uwval's numbers."""
+    without a CRC. uwval now warns on every stream that differs (issue 29: a damaged or
+    redefined Schema/Channel record, a summary that does not parse, each named)."""
     import fuzz_harness as fh
 
     base = fh.make_bases(tmp_path / "base")["rosbag2-mcap"][0]
     work = tmp_path / "work"
     work.mkdir()
     outcome, detail = fh.run_case(base, fh.read_all(base), case, work)
-    assert outcome == "faithful", detail
-    assert "the reference refuses the file for flip(s)" in detail
+    assert outcome == "warned", detail

@@ -1,13 +1,10 @@
-"""Chunks read in batches (one index check and one row gather for several chunks) give
-exactly what reading them one by one gives: the same messages, drops and warnings, also when
-a chunk in the middle of a batch is damaged or a channel first appears in a later chunk.
-Every test runs three times: with runs of chunks read by one C call each (``scan_chunks``),
-with the C walk checking each chunk on the inflate thread (``uwval.io._mcapwalk``) and with
-the numpy check alone; the reference is always the chunk-by-chunk numpy read."""
+"""Chunks read in runs (decompressed into one buffer, one index check and one row gather for
+several chunks) give exactly what reading them one by one gives: the same messages, drops and
+warnings, also when a chunk in the middle of a run is damaged or a channel first appears in a
+later chunk. The reference is always the chunk-by-chunk read (``BATCH_BYTES = 0``)."""
 
 from __future__ import annotations
 
-import os
 import struct
 import sys
 from pathlib import Path
@@ -19,40 +16,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import io_loggen as gen
 
-from uwval.io import mcap_raw, mcap_runs
+from uwval.io import mcap_raw
 from uwval.io.raw import RawLog
 
 TOPICS = ["/gazebo/model_rov_pose", "/unity/model_rov_pose", "/tf", "/camera/image_raw/compressed"]
 
 
-@pytest.fixture(autouse=True, params=["scan", "c-walk", "numpy"])
-def mode(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
-    """How runs of chunks are read: by the C run reader (``_mcapwalk.scan_chunks``), in
-    batches checked by the C walk on the inflate thread, or in batches checked with numpy
-    (the C module is built in CI: UWVAL_REQUIRE_ACCELERATOR)."""
-    if request.param != "numpy" and mcap_raw._mcapwalk is None:
-        if os.environ.get("UWVAL_REQUIRE_ACCELERATOR"):
-            pytest.fail("uwval.io._mcapwalk was not built (UWVAL_REQUIRE_ACCELERATOR is set)")
-        pytest.skip("the C accelerator uwval.io._mcapwalk is not built here")
-    if request.param == "scan" and not mcap_runs.scan_ready():
-        if os.environ.get("UWVAL_REQUIRE_ACCELERATOR"):
-            pytest.fail("scan_chunks found no zstd (UWVAL_REQUIRE_ACCELERATOR is set)")
-        pytest.skip("libzstd.so.1 is not on this machine: no C run reader")
-    monkeypatch.setattr(mcap_raw, "USE_MATCH", request.param != "numpy")
-    monkeypatch.setattr(mcap_raw, "USE_SCAN", request.param == "scan")
-    return str(request.param)
-
-
 def _scan(path: Path, batch: int, monkeypatch: pytest.MonkeyPatch) -> RawLog:
-    """Read with batches (and C runs) of ``batch`` bytes; 0: chunk by chunk, numpy only."""
-    if batch == 0:
-        with monkeypatch.context() as m:
-            m.setattr(mcap_raw, "USE_SCAN", False)
-            m.setattr(mcap_raw, "USE_MATCH", False)
-            m.setattr(mcap_raw, "BATCH_BYTES", 0)
-            return mcap_raw.scan_mcap(path, TOPICS)
+    """Read with runs of ``batch`` bytes of records; 0: chunk by chunk."""
     monkeypatch.setattr(mcap_raw, "BATCH_BYTES", batch)
-    monkeypatch.setattr(mcap_raw, "SCAN_FILE_BYTES", batch)
     return mcap_raw.scan_mcap(path, TOPICS)
 
 
@@ -92,60 +64,24 @@ def log(tmp_path: Path, request: pytest.FixtureRequest) -> Path:
     )
 
 
-def test_batches_read_what_single_chunks_read(
-    log: Path, monkeypatch: pytest.MonkeyPatch, mode: str
-) -> None:
+def test_batches_read_what_single_chunks_read(log: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     n_chunks = len(_chunks(log))
     assert n_chunks > 20
     calls: list[int] = []
     check = mcap_raw.check_index
-    from_matched = mcap_raw._Scanner._from_matched
 
-    def counting(buf: np.ndarray, ents: dict, **kw: object) -> object:
-        calls.append(0 if kw.get("cuts") is None else len(kw["cuts"]) + 1)  # type: ignore[arg-type]
-        return check(buf, ents, **kw)  # type: ignore[arg-type]
+    def counting(buf: np.ndarray, ents: dict, limit: np.ndarray, cuts: np.ndarray) -> object:
+        calls.append(len(cuts) + 1)
+        return check(buf, ents, limit, cuts)
 
-    def counting_matched(self: object, run: list, matched: list, mem: np.ndarray) -> None:
-        walked.append(len(run))
-        from_matched(self, run, matched, mem)  # type: ignore[arg-type]
-
-    walked: list[int] = []
-    scanned: list[int] = []
     monkeypatch.setattr(mcap_raw, "check_index", counting)
-    monkeypatch.setattr(mcap_raw._Scanner, "_from_matched", counting_matched)
-    if mcap_raw._mcapwalk is not None:
-        scan_chunks = mcap_raw._mcapwalk.scan_chunks
-
-        def counting_scan(*args: object) -> tuple:
-            out = scan_chunks(*args)
-            scanned.extend(run[2] for run in out[0])  # (runs, where its drops ended)
-            return out
-
-        monkeypatch.setattr(mcap_raw._mcapwalk, "scan_chunks", counting_scan)
     batched = _scan(log, mcap_raw.BATCH_BYTES, monkeypatch)
-    lz4 = b"lz4" in log.read_bytes()[:4096]
-    if mode == "scan" and not lz4:
-        # every chunk was read by the C run reader, in one call (the summary names every
-        # channel up front; a chunk with a new one is the batched path's, see
-        # test_a_channel_first_seen_in_a_later_chunk)
-        assert scanned == [n_chunks]
-        assert not calls
-    elif mode == "scan":  # lz4: the C run reader stops at once, batches read the rest
-        assert scanned == [0] and max(walked) > 20
-    else:
-        # the chunks were checked together in one numpy call, or walked in C and read
-        # together
-        assert max(walked if mode == "c-walk" else calls) > 20
-        assert not (calls if mode == "c-walk" else walked)  # and only that way
-        assert not scanned
+    assert max(calls) > 20  # the chunks were checked together in one numpy call
     assert not batched.warnings
     _same(batched, _scan(log, 0, monkeypatch))
     assert len(batched.raw["/gazebo/model_rov_pose"]) == 600
-    # many small batches (and C runs): buffers are reused, nothing read earlier may change
-    small = _scan(log, 20_000, monkeypatch)
-    if mode == "scan" and not lz4:
-        assert len(scanned) > 5
-    _same(small, batched)
+    # many small runs: buffers are reused, nothing read earlier may change
+    _same(_scan(log, 20_000, monkeypatch), batched)
 
 
 def test_a_damaged_chunk_mid_batch_is_reported_alone(
@@ -275,17 +211,11 @@ def test_message_indexes_of_a_lost_chunk_are_not_the_next_chunks(
     data = bytearray(log.read_bytes())
     data[chunks[k][0]] = 0x0C  # a Metadata record now (of the chunk's length)
     log.write_bytes(bytes(data))
-    seen: dict[int, list[int]] = {}
-    queue = mcap_raw._Scanner.queue
-
-    def recording(self: mcap_raw._Scanner, rec: int, c: int, ln: int, indexes: dict) -> None:
-        seen[rec] = list(indexes)
-        queue(self, rec, c, ln, indexes)
-
-    monkeypatch.setattr(mcap_raw._Scanner, "queue", recording)
-    monkeypatch.setattr(mcap_raw, "USE_SCAN", False)  # every chunk through queue()
     batched = _scan(log, mcap_raw.BATCH_BYTES, monkeypatch)
-    nxt, offsets = chunks[k + 1]
-    assert seen[nxt] == sorted(offsets, key=offsets.get)  # its own, in file order
-    assert any("summary counts" in w for w in batched.warnings)  # the lost chunk's messages
+    # the lost chunk is named and its messages counted from its own index; the next chunk
+    # read with its own index (no disagreement warned)
+    assert len(batched.warnings) == 1, batched.warnings
+    assert f"MCAP chunk at byte {chunks[k][0]} has opcode 0x0c" in batched.warnings[0]
+    assert "disagrees" not in batched.warnings[0]
+    assert sum(sum(t.dropped.values()) for t in batched.raw.values()) > 0
     _same(batched, _scan(log, 0, monkeypatch))

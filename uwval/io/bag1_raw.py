@@ -24,7 +24,6 @@ from numpy.typing import NDArray
 
 from uwval.errors import LogReadError
 from uwval.io.fastdecode import gather
-from uwval.io.mcap_chunk import unaligned
 from uwval.io.raw import (
     RawLog,
     TopicBuilder,
@@ -33,6 +32,7 @@ from uwval.io.raw import (
     merge_topics,
     norm_topic,
     one_line,
+    unaligned,
 )
 from uwval.io.ros import normalize_type_name
 

@@ -6,7 +6,6 @@ decoders in :mod:`uwval.io.fastdecode` / :mod:`uwval.io.decode` then work on who
 
 from __future__ import annotations
 
-import contextlib
 import warnings
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -20,6 +19,9 @@ from uwval.io.names import norm_topic as norm_topic  # re-exported: the readers 
 
 U8 = NDArray[np.uint8]
 I64 = NDArray[np.int64]
+#: bytes, memoryview, mmap or a uint8 ndarray: whatever struct reads and slicing copies
+#: (typeshed's ReadableBuffer cannot be sliced, and numpy's stubs do not make arrays one).
+Buffer = Any
 
 
 class LogWarning(UserWarning):
@@ -74,263 +76,89 @@ class RawTopic:
         return int(self.log_time.shape[0])
 
     def payload(self, i: int) -> bytes:
-        o = int(self.offset[i])
-        return self.buf[o : o + int(self.length[i])].tobytes()
+        """Message ``i``'s bytes."""
+        return self.buf[int(self.offset[i]) :][: int(self.length[i])].tobytes()
 
     def info(self) -> TopicInfo:
-        n = len(self)
-        return TopicInfo(
-            self.name,
-            self.msgtype,
-            n,
-            int(self.log_time.min()) if n else 0,
-            int(self.log_time.max()) if n else 0,
-        )
-
-
-def _contiguous(buf: U8, offset: I64, length: I64) -> bool:
-    """Whether the messages tile ``buf`` exactly, in order (nothing to compact)."""
-    n = offset.shape[0]
-    if int(length.sum()) != buf.shape[0] or int(offset[0]) != 0:
-        return False
-    return n < 2 or bool(np.array_equal(offset[1:], offset[:-1] + length[:-1]))
+        """Name, type, count and log-time span (ns) of the topic."""
+        t = self.log_time
+        span = (int(t.min()), int(t.max())) if len(t) else (0, 0)
+        return TopicInfo(self.name, self.msgtype, len(self), *span)
 
 
 def compact(buf: U8, offset: I64, length: I64) -> tuple[U8, I64]:
     """Copy only the messages' bytes out of ``buf`` (a decompressed chunk holding other
-    topics too): returns the new buffer and the messages' offsets in it.
-
-    Equal-length messages (the usual case for one pose topic) are copied as rows through
-    :func:`uwval.io.fastdecode.gather` (strided, memcpy speed); others byte-index by byte.
-    """
+    topics too): the new buffer and the messages' offsets in it. Equal lengths (one pose
+    topic) are copied as rows (:func:`uwval.io.fastdecode.gather`, strided, memcpy speed)."""
     from uwval.io.fastdecode import gather
 
     n = offset.shape[0]
-    if n == 0:
-        return buf[:0].copy(), offset
-    if _contiguous(buf, offset, length):
-        return buf, offset
-    width = int(length[0])
-    if bool((length == width).all()):
-        out = gather(buf, offset, width).reshape(-1)
-        return out, np.arange(n, dtype=np.int64) * width
-    new_off = np.zeros(n, dtype=np.int64)
-    np.cumsum(length[:-1], out=new_off[1:])
-    total = int(length.sum())
-    idx = np.repeat(offset - new_off, length) + np.arange(total, dtype=np.int64)
+    if n and bool((length == length[0]).all()):
+        return gather(buf, offset, int(length[0])).reshape(-1), np.arange(n) * length[0]
+    new_off = np.concatenate(([0], np.cumsum(length)[:-1])).astype(np.int64)
+    idx = np.repeat(offset - new_off, length) + np.arange(int(length.sum()), dtype=np.int64)
     return buf[idx], new_off
 
 
 class TopicBuilder:
-    """Collects one topic's messages, segment by segment (e.g. one chunk each).
-
-    Each segment is compacted when added (only this topic's bytes are kept, never the whole
-    decompressed chunk), so memory is bounded by the selected topics, not by the log.
-    """
+    """Collects one topic's messages, segment by segment (a run of chunks each). Only this
+    topic's bytes are kept, never a whole decompressed chunk: memory is bounded by the
+    selected topics, not by the log."""
 
     def __init__(self, name: str, msgtype: str, encoding: str, msgdef: str = "") -> None:
         self.name, self.msgtype, self.encoding, self.msgdef = name, msgtype, encoding, msgdef
-        self._bufs: list[U8] = []
-        self._offs: list[I64] = []
-        self._lens: list[I64] = []
-        self._times: list[I64] = []
-        self._tag: list[object] = []
-        #: per segment: > 0 when it is fixed-width rows (offsets i * width, built lazily)
-        self._width: list[int] = []
+        #: per segment: payload buffer, offsets, lengths, log times (ns), and a width > 0
+        #: when it is fixed-width rows (offsets and lengths then built in :meth:`build`)
+        self._segs: list[tuple[U8, I64, I64, I64, int]] = []
         self.dropped: dict[str, int] = {}
-        #: expected message count (a container's own statistics; only sizes a buffer)
-        self.hint = 0
-        #: byte budget of that buffer (a lying count must not allocate more than this)
-        self.budget = 0
-        self._open: U8 | None = None  # (capacity, width) rows filled in place
-        self._fill = 0
-        self._open_times: list[I64] = []
 
     def __len__(self) -> int:
-        self._close()
-        return sum(int(t.shape[0]) for t in self._times)
-
-    def reserve(self, count: int, budget: int) -> None:
-        """Expect ``count`` messages: fixed-width rows then go straight into one buffer of
-        up to ``budget`` bytes (no per-chunk pieces to concatenate at the end)."""
-        self.hint, self.budget = max(int(count), 0), max(int(budget), 0)
-
-    def take_rows(self, buf: U8, starts: I64, width: int, log_time: I64) -> None:
-        """Add the messages ``buf[starts[i] : starts[i] + width]`` (bounds checked by the
-        caller: ``0 <= starts`` and ``starts + width <= len(buf)``), logged at ``log_time``.
-
-        With a :meth:`reserve` hint, rows are copied into one preallocated buffer;
-        otherwise (or once it is full or the width changes) each call is its own segment.
-        """
-        from uwval.io.fastdecode import rows_at, window
-
-        n = int(starts.shape[0])
-        if n == 0:
-            return
-        dst = self._slot(n, width)
-        if dst is None:
-            self.add_rows(rows_at(buf, starts, width), log_time)
-            return
-        if buf.shape[0] < width:
-            raise ValueError(f"topic {self.name}: a message reaches outside its chunk")
-        dst[:] = window(buf, width)[starts]  # through a chunk-sized temporary
-        self._taken(n, log_time)
-
-    def take_blocks(
-        self, buf: U8, blocks: list[tuple[int, int]], width: int, log_time: I64
-    ) -> None:
-        """Add messages of one length lying end to end in ``buf``: block (at, k) holds k of
-        them from byte ``at`` on (bounds checked by the caller: ``at + k * width <=
-        len(buf)``), in order, logged at ``log_time`` (one stamp per message). Blocks are
-        copied whole (the MCAP walk copies each topic's payloads of a chunk end to end)."""
-        self.take_pieces([(buf, at, k) for at, k in blocks], width, log_time)
-
-    def take_pieces(self, pieces: list[tuple[U8, int, int]], width: int, log_time: I64) -> None:
-        """:meth:`take_blocks` from several buffers: piece (buf, at, k) holds k messages of
-        ``width`` bytes end to end from byte ``at`` of ``buf`` (bounds checked by the
-        caller), pieces in order."""
-        n = sum(k for _b, _at, k in pieces)
-        if n == 0:
-            return
-        dst = self._slot(n, width)
-        if dst is None:  # no reserved buffer: one segment of its own
-            parts = [b[at : at + k * width].reshape(k, width) for b, at, k in pieces]
-            self.add_rows(np.concatenate(parts), log_time)
-            return
-        # memoryview slice assignment: a memcpy that keeps the GIL (numpy's copy of a block
-        # lets it go and then waits for the inflate threads to hand it back: 9 vs 3 ms for
-        # the ~500 blocks of a 10-minute log)
-        into = dst.data.cast("B")
-        f = 0
-        for b, at, k in pieces:
-            m = k * width
-            into[f : f + m] = b.data[at : at + m]
-            f += m
-        self._taken(n, log_time)
-
-    def _slot(self, n: int, width: int) -> U8 | None:
-        """The next ``n`` rows of the preallocated buffer (opened now if the :meth:`reserve`
-        hint allows), or None: the rows then make a segment of their own."""
-        st = self._open
-        if st is not None and (st.shape[1] != width or self._fill + n > st.shape[0]):
-            self._close()
-            st = None
-        if st is None and not self._bufs and self.hint >= n and width > 0:
-            cap = min(self.hint, self.budget // width)
-            if cap >= n:
-                st = self._open = np.empty((cap, width), dtype=np.uint8)
-                self._fill = 0
-                self._open_times = []
-                empty = np.zeros(0, dtype=np.int64)
-                self._bufs.append(empty.view(np.uint8))  # placeholders until _close
-                self._offs.append(empty)
-                self._lens.append(empty)
-                self._times.append(empty)
-                self._tag.append(None)
-                self._width.append(width)
-        return None if st is None else st[self._fill : self._fill + n]
-
-    def _taken(self, n: int, log_time: I64) -> None:
-        """``n`` rows were written to the slot :meth:`_slot` gave, logged at ``log_time``."""
-        self._fill += n
-        self._open_times.append(log_time.astype(np.int64, copy=False))
-
-    def _close(self) -> None:
-        """Turn the preallocated buffer being filled into an ordinary segment."""
-        st = self._open
-        if st is None:
-            return
-        self._open = None
-        rows = st[: self._fill]
-        if self._fill < st.shape[0]:
-            rows = rows.copy()  # do not keep the unused capacity alive
-        self._bufs[-1] = rows.reshape(-1)
-        times = self._open_times
-        self._times[-1] = times[0] if len(times) == 1 else np.concatenate(times)
-        self._open_times = []
+        return sum(int(s[3].shape[0]) for s in self._segs)
 
     def drop(self, cause: str, n: int) -> None:
         """Count ``n`` messages of this topic lost for ``cause``."""
         if n > 0:
             self.dropped[cause] = self.dropped.get(cause, 0) + int(n)
 
-    def add(
-        self,
-        buf: U8,
-        offset: I64,
-        length: I64,
-        log_time: I64,
-        *,
-        tag: object = None,
-        copy: bool = True,
-    ) -> None:
-        """Add messages ``buf[offset[i] : offset[i] + length[i]]`` (bounds are checked).
-
-        ``copy`` compacts them out of ``buf`` now (``False``: ``buf`` holds only them
-        already); ``tag`` names the segment's source, for :meth:`drop_tagged`.
-        """
-        self._close()
-        offset = offset.astype(np.int64, copy=False)
-        length = length.astype(np.int64, copy=False)
+    def add(self, buf: U8, offset: I64, length: I64, log_time: I64, *, copy: bool = True) -> None:
+        """Add messages ``buf[offset[i] : offset[i] + length[i]]`` logged at ``log_time[i]``
+        ns (bounds are checked); ``copy=False``: ``buf`` holds only them already."""
+        offset, length = offset.astype(np.int64, copy=False), length.astype(np.int64, copy=False)
         if not offset.size:
             return
         if length.any() and (
             int(offset.min()) < 0
             or int(length.min()) < 0
-            or int((offset + length).max()) > buf.shape[0]
+            or int((offset + length).max()) > len(buf)
         ):
             raise ValueError(f"topic {self.name}: a message reaches outside its chunk")
-        if copy and length.any():
-            buf, offset = compact(buf, offset, length)
-        elif not length.any():
+        if not length.any():
             buf, offset = buf[:0], np.zeros_like(offset)
-        self._bufs.append(buf)
-        self._offs.append(offset)
-        self._lens.append(length)
-        self._times.append(log_time.astype(np.int64, copy=False))
-        self._tag.append(tag)
-        self._width.append(0)
+        elif copy:
+            buf, offset = compact(buf, offset, length)
+        self._segs.append((buf, offset, length, log_time.astype(np.int64, copy=False), 0))
 
-    def add_rows(self, rows: U8, log_time: I64, *, tag: object = None) -> None:
-        """Add messages of one length: row i of the (N, width) ``rows`` (owned from now on;
+    def add_rows(self, rows: U8, log_time: I64) -> None:
+        """Add messages of one length: row i of the (N, width) ``rows`` (owned from now on,
         a copy already made out of the chunk) is the payload logged at ``log_time[i]`` ns."""
-        self._close()
-        n, width = rows.shape
-        if not n:
-            return
-        empty = np.zeros(0, dtype=np.int64)
-        self._bufs.append(rows.reshape(-1))
-        self._offs.append(empty)
-        self._lens.append(empty)
-        self._times.append(log_time.astype(np.int64, copy=False))
-        self._tag.append(tag)
-        self._width.append(int(width))
+        if rows.shape[0]:
+            none = np.zeros(0, dtype=np.int64)
+            times = log_time.astype(np.int64, copy=False)
+            self._segs.append((rows.reshape(-1), none, none, times, int(rows.shape[1])))
 
-    def drop_tagged(self, tag: object) -> int:
-        """Forget the segments added with ``tag`` (a chunk whose index turned out damaged);
-        returns how many messages were forgotten."""
-        self._close()
-        n = 0
-        while self._tag and self._tag[-1] is tag and tag is not None:
-            n += int(self._times[-1].shape[0])
-            for lst in (self._bufs, self._offs, self._lens, self._times, self._tag, self._width):
-                lst.pop()
-        return n
+    def take_rows(self, buf: U8, starts: I64, width: int, log_time: I64) -> None:
+        """Add the messages ``buf[starts[i] : starts[i] + width]`` (one row gather)."""
+        from uwval.io.fastdecode import gather
+
+        self.add_rows(gather(buf, starts, width), log_time)
 
     def add_payloads(self, payloads: list[bytes], log_time: list[int]) -> None:
         """Add per-message byte strings (readers that hand out one message at a time)."""
-        if not payloads:
-            return
-        lens = np.fromiter((len(p) for p in payloads), dtype=np.int64, count=len(payloads))
-        offs = np.zeros_like(lens)
-        np.cumsum(lens[:-1], out=offs[1:])
-        self.add(
-            np.frombuffer(b"".join(payloads), dtype=np.uint8),
-            offs,
-            lens,
-            np.asarray(log_time, dtype=np.int64),
-            copy=False,
-        )
+        if payloads:
+            lens = np.array([len(p) for p in payloads], dtype=np.int64)
+            offs = np.concatenate(([0], np.cumsum(lens)[:-1])).astype(np.int64)
+            data = np.frombuffer(b"".join(payloads), dtype=np.uint8)
+            self.add(data, offs, lens, np.asarray(log_time, dtype=np.int64), copy=False)
 
     def add_topic(self, part: RawTopic) -> None:
         """Append an already built topic (another connection or file of the same topic)."""
@@ -342,31 +170,26 @@ class TopicBuilder:
         """One RawTopic: the segments' buffers concatenated, offsets rebased."""
         topic = RawTopic(self.name, self.msgtype, self.encoding, self.msgdef)
         topic.dropped = dict(self.dropped)
-        self._close()
-        if not self._bufs:
+        if not self._segs:
             return topic
-        topic.buf = self._bufs[0] if len(self._bufs) == 1 else np.concatenate(self._bufs)
-        topic.log_time = self._times[0] if len(self._times) == 1 else np.concatenate(self._times)
-        n = int(topic.log_time.shape[0])
-        w = self._width[0]
-        if w > 0 and all(x == w for x in self._width):  # one width: no per-segment arrays
-            topic.offset = np.arange(n, dtype=np.int64) * w
-            topic.length = np.full(n, w, dtype=np.int64)
+        bufs, offs, lens, times, widths = zip(*self._segs, strict=True)
+        topic.buf = bufs[0] if len(bufs) == 1 else np.concatenate(bufs)
+        topic.log_time = times[0] if len(times) == 1 else np.concatenate(times)
+        if widths[0] > 0 and len(set(widths)) == 1:  # one width: no per-segment arrays
+            topic.offset = np.arange(len(topic), dtype=np.int64) * widths[0]
+            topic.length = np.full(len(topic), widths[0], dtype=np.int64)
             return topic
-        offs, lens = [], []
-        base = 0
-        for b, o, ln, t, wd in zip(
-            self._bufs, self._offs, self._lens, self._times, self._width, strict=True
-        ):
-            if wd > 0:
-                m = int(t.shape[0])
-                o = np.arange(m, dtype=np.int64) * wd
-                ln = np.full(m, wd, dtype=np.int64)
-            offs.append(o + base if base else o)
-            lens.append(ln)
-            base += int(b.shape[0])
-        topic.offset = offs[0] if len(offs) == 1 else np.concatenate(offs)
-        topic.length = lens[0] if len(lens) == 1 else np.concatenate(lens)
+        base = np.cumsum([0, *(len(b) for b in bufs[:-1])])
+        rows = [np.arange(len(t), dtype=np.int64) * w for t, w in zip(times, widths, strict=True)]
+        topic.offset = np.concatenate(
+            [(r if w else o) + at for o, r, w, at in zip(offs, rows, widths, base, strict=True)]
+        )
+        topic.length = np.concatenate(
+            [
+                np.full(len(t), w, np.int64) if w else ln
+                for ln, t, w in zip(lens, times, widths, strict=True)
+            ]
+        )
         return topic
 
 
@@ -375,18 +198,14 @@ def merge_infos(infos: Iterable[TopicInfo]) -> list[TopicInfo]:
     counts added, spans joined over the parts that have messages; first non-empty type."""
     out: dict[str, TopicInfo] = {}
     for i in infos:
-        o = out.get(i.name)
-        if o is None:
-            out[i.name] = i
-            continue
-        have = [x for x in (o, i) if x.count]
-        out[i.name] = TopicInfo(
-            i.name,
-            o.type or i.type,
-            o.count + i.count,
-            min(x.start_ns for x in have) if have else 0,
-            max(x.end_ns for x in have) if have else 0,
-        )
+        o = out.setdefault(i.name, i)
+        if o is not i:
+            have = [x for x in (o, i) if x.count]
+            lo, hi = (
+                min((x.start_ns for x in have), default=0),
+                max((x.end_ns for x in have), default=0),
+            )
+            out[i.name] = TopicInfo(i.name, o.type or i.type, o.count + i.count, lo, hi)
     return list(out.values())
 
 
@@ -397,13 +216,12 @@ def merge_topics(parts: Iterable[RawTopic]) -> dict[str, RawTopic]:
         groups.setdefault(t.name, []).append(t)
     out: dict[str, RawTopic] = {}
     for name, ts in groups.items():
-        if len(ts) == 1:
-            out[name] = ts[0]
-            continue
-        b = TopicBuilder(name, ts[0].msgtype, ts[0].encoding, ts[0].msgdef)
-        for t in ts:
-            b.add_topic(t)
-        out[name] = b.build()
+        out[name] = ts[0]
+        if len(ts) > 1:
+            b = TopicBuilder(name, ts[0].msgtype, ts[0].encoding, ts[0].msgdef)
+            for t in ts:
+                b.add_topic(t)
+            out[name] = b.build()
     return out
 
 
@@ -457,26 +275,16 @@ class RawLog:
             warnings.warn(w, LogWarning, stacklevel=3)
 
 
-def release_pages(mm: Any, mark: int, upto: int, *, every: int = 2 << 20) -> int:
-    """Drop the pages of a read-only file map below ``upto`` from this process's resident
-    set once ``every`` bytes have accumulated (read-ahead of unselected topics, e.g. images,
-    must not count as the reader's memory); ``mark`` is where the last release stopped;
-    returns the new mark.
-
-    Only the mapping goes: the bytes stay in the page cache and fault back in if read again.
-    """
-    if upto - mark < every or not hasattr(mm, "madvise"):
-        return mark
-    import mmap as _mmap
-
-    start = mark - mark % _mmap.PAGESIZE
-    stop = upto - upto % _mmap.PAGESIZE
-    if stop > start:
-        with contextlib.suppress(OSError, ValueError):
-            mm.madvise(_mmap.MADV_DONTNEED, start, stop - start)
-    return stop
-
-
 def one_line(exc: BaseException) -> str:
     """An exception's message on one line (YAML, sqlite and pandas errors span several)."""
     return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def unaligned(buf: U8, dtype: str) -> NDArray[Any]:
+    """A read-only view of ``buf`` whose element i is the ``dtype`` value starting at byte i
+    (so ``view[offsets]`` gathers fields of records at arbitrary, unaligned offsets)."""
+    itemsize = np.dtype(dtype).itemsize
+    n = max(int(buf.shape[0]) - itemsize + 1, 0)
+    view: NDArray[Any] = np.ndarray((n,), dtype=dtype, buffer=buf, strides=(1,))
+    view.flags.writeable = False
+    return view
