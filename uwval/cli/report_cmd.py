@@ -17,8 +17,10 @@ from uwval.cli import app
 from uwval.cli.notes import warnings_as_notes
 from uwval.errors import ConfigError
 
-console = Console()
-err_console = Console(stderr=True)
+# soft_wrap: lines are never cut at the terminal width (piped output is 80 columns wide to
+# rich, and a wrapped verdict line defeats grep)
+console = Console(soft_wrap=True)
+err_console = Console(stderr=True, soft_wrap=True)
 
 #: Suffixes of one results file that is not a log: tables and JSON results.
 _RESULT_SUFFIXES = (".json", ".csv", ".parquet")
@@ -33,7 +35,10 @@ SyncOpt = Annotated[str | None, typer.Option(help="interp or nearest, as compare
 MaxDiffOpt = Annotated[
     float | None,
     typer.Option(
-        "--max-diff", "--t_max_diff", help="nearest: max dt (s); without --sync it means nearest"
+        "--max-diff",
+        "--t-max-diff",
+        "--t_max_diff",
+        help="nearest: max dt (s); without --sync it means nearest"
     ),
 ]
 OffsetOpt = Annotated[
@@ -172,7 +177,8 @@ def report(
         ),
     ] = "default",
     baseline: Annotated[
-        Path | None, typer.Option(help="Golden results JSON/CSV to gate on.")
+        str | None,
+        typer.Option(help="Golden results JSON/CSV to gate on; 'default' = embedded."),
     ] = None,
     manifest: Annotated[
         Path | None, typer.Option(help="manifest.json, when not next to the results.")
@@ -295,9 +301,13 @@ def check(
         Path | None,
         typer.Argument(help="Second file of a pair (RESULTS is then the reference), as compare"),
     ] = None,
-    thresholds: Annotated[Path | None, typer.Option(help="Thresholds TOML (see docs).")] = None,
+    thresholds: Annotated[
+        str | None,
+        typer.Option(help="Thresholds TOML (see docs); 'default' = the embedded defaults."),
+    ] = None,
     baseline: Annotated[
-        Path | None, typer.Option(help="Golden baseline (results JSON/CSV).")
+        str | None,
+        typer.Option(help="Golden baseline (results JSON/CSV); 'default' = embedded."),
     ] = None,
     json_out: Annotated[bool, typer.Option("--json", help="Print the verdict as JSON.")] = False,
     limit: Annotated[int, typer.Option(help="Violations listed at most (0 = all).", min=0)] = 200,
@@ -323,11 +333,14 @@ def check(
     """
     from uwval.config import load_config
     from uwval.gate import check as run_check
+    from uwval.gate import require_integrity, resolve_input
     from uwval.results import compare_pending, load_experiment_results
 
     project = load_config(config)
-    if thresholds is None and project is not None:
-        thresholds = project.thresholds
+    if thresholds is None and project is not None and project.thresholds is not None:
+        thresholds = str(project.thresholds)
+    th_path = resolve_input("thresholds", thresholds)
+    base_path = resolve_input("baselines", baseline)
     if thresholds is None and baseline is None and write_baseline is None:
         raise ConfigError(
             "uwval check needs --thresholds FILE.toml and/or --baseline FILE.json "
@@ -372,14 +385,13 @@ def check(
         if exp.failed:
             raise typer.Exit(1)
         return
-    verdict = run_check(exp.table, thresholds, baseline, expected_runs=[r.name for r in exp.runs])
+    require_integrity(exp.table, [(r.name, r.comparison) for r in exp.runs], results)
+    verdict = run_check(exp.table, th_path, base_path, expected_runs=[r.name for r in exp.runs])
     if json_out:
         typer.echo(json.dumps(verdict.to_json(), indent=1))
-    else:
+    else:  # the verdict is the command's output: stdout, PASS or FAIL alike
         text = verdict.format(limit=None if limit == 0 else limit)
-        (console if verdict.passed else err_console).print(
-            text, highlight=False, soft_wrap=True, markup=False
-        )
+        console.print(text, highlight=False, soft_wrap=True, markup=False)
     if exp.failed:
         err_console.print(
             f"{len(exp.failed)} run(s) failed to simulate or compare: "
