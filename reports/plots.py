@@ -491,3 +491,157 @@ def trajectory_error_figure(
     if title:
         fig.suptitle(literal(title))
     return fig
+
+
+# ----------------------------------------------------------------------------- at a glance
+#: Colour of a threshold line (the gate's bound) in every figure.
+THRESHOLD_COLOUR = "#cf222e"
+
+
+def _fixed_figure(w: float, h: float, rows: int, cols: int, **adjust: float) -> tuple[Figure, Any]:
+    """A figure with a fixed grid (no layout engine: solving one costs as much as drawing),
+    the caption and heading strips of :func:`_new_figure` kept free."""
+    fig = Figure(figsize=(w, h), dpi=100)
+    params = dict(left=0.08, right=0.98, wspace=0.25, hspace=0.55)
+    params.update(adjust)
+    fig.subplots_adjust(
+        bottom=CAPTION_STRIP_IN / h + 0.06,
+        top=1.0 - HEADING_STRIP_IN / h - 0.05,
+        **params,
+    )
+    return fig, np.atleast_2d(fig.subplots(rows, cols, squeeze=False))
+
+
+def draw_threshold(
+    ax: Any, bound: float, label: str, data_top: float, *, both: bool = False
+) -> None:
+    """The gate's bound on ``ax``'s y axis (shown units): a dashed line, the axis extended
+    to show it, when it lies within 3x the data's scale; else a note at the top that the
+    bound is above the scale (a line far above the data would flatten it). ``both``: also
+    at -bound (signed errors)."""
+    if not math.isfinite(bound):
+        return
+    top = data_top if math.isfinite(data_top) and data_top > 0 else abs(bound)
+    if abs(bound) <= 3.0 * top:
+        ax.axhline(bound, color=THRESHOLD_COLOUR, lw=1.2, ls="--", label=label)
+        lo, hi = ax.get_ylim()
+        ax.set_ylim(min(lo, -1.08 * abs(bound)) if both else lo, max(hi, 1.08 * abs(bound)))
+        if both:
+            ax.axhline(-bound, color=THRESHOLD_COLOUR, lw=1.2, ls="--")
+    else:
+        ax.text(
+            0.99,
+            0.97,
+            f"{label}: above this scale",
+            transform=ax.transAxes,
+            ha="right",
+            va="top",
+            fontsize=7,
+            color=THRESHOLD_COLOUR,
+        )
+
+
+def level_means_figure(
+    table: ResultsTable,
+    topic: str,
+    factors: Sequence[str],
+    bounds: Mapping[str, tuple[float, str]],
+    skip_axes: Sequence[str] = (),
+) -> Figure:
+    """Mean MAE per factor level (lines; bars: lowest to highest run) for the position axes
+    (mm, left) and the rotation axes (deg, right), one row per factor, with the gate's MAE
+    bound drawn as a dashed line. ``bounds``: "position"/"rotation" -> (bound in mm or deg,
+    label)."""
+    rows = max(1, len(factors))
+    fig, grid = _fixed_figure(11, 2.3 * rows + 1.2, rows, 2, hspace=0.6)
+    sub = table.select(metric="mae", topic=topic)
+    groups = (
+        ("position", ("x", "y", "z"), 1e3, "mm"),
+        ("rotation", ("roll", "pitch", "yaw"), 1.0, "deg"),
+    )
+    for r, f in enumerate(factors):
+        levels = sorted(
+            sub[f].dropna().unique().tolist(),
+            key=lambda v: (0, v) if isinstance(v, (int, float)) else (1, str(v)),
+        )
+        xs = np.arange(len(levels))
+        for c, (kind, axes, scale, unit) in enumerate(groups):
+            ax = grid[r][c]
+            top = 0.0
+            for a in axes:
+                if a in skip_axes:
+                    continue
+                rows_a = sub[sub["axis"] == a]
+                g = rows_a.groupby(f)["value"].agg(["mean", "min", "max"]).reindex(levels) * scale
+                mean = g["mean"].to_numpy(dtype=float)
+                lo = mean - g["min"].to_numpy(dtype=float)
+                hi = g["max"].to_numpy(dtype=float) - mean
+                ax.errorbar(xs, mean, yerr=[lo, hi], fmt="o-", color=AXIS_COLOURS[a], label=a,
+                            capsize=3, lw=1.2, ms=4)  # fmt: skip
+                if np.isfinite(g["max"]).any():
+                    top = max(top, float(np.nanmax(g["max"].to_numpy(dtype=float))))
+            ax.set_xticks(xs, [_fmt(v) for v in levels])
+            ax.set_xlabel(literal(factor_label(f)))
+            ax.set_ylabel(f"MAE ({unit})")
+            ax.set_ylim(0.0, 1.1 * top if top > 0 else 1.0)
+            if kind in bounds:
+                bound, label = bounds[kind]
+                draw_threshold(ax, bound, label, top)
+            ax.grid(True, alpha=0.3)
+            if r == 0:  # above the top panels, clear of the data and the bound's note
+                ax.legend(
+                    loc="lower left",
+                    bbox_to_anchor=(0.0, 1.02),
+                    fontsize=7,
+                    ncol=5,
+                    title=f"{kind} axes",
+                    title_fontsize=8,
+                    frameon=False,
+                )
+    fig.suptitle(literal(f"{topic}: mean MAE per level (bars: lowest to highest run)"))
+    return fig
+
+
+def error_time_figure(
+    pair: AlignedPair, title: str, bounds: Mapping[str, tuple[float, str]]
+) -> Figure:
+    """Signed error over time: position axes (mm) above, rotation axes (deg) below, with the
+    gate's max-|error| bound (``bounds``: "position"/"rotation" -> (bound, label)) drawn at
+    +-bound."""
+    ts, _, _ = pair_series(pair)
+    errs = error_series(pair)
+    s = _decimate(len(ts), 3000)
+    fig, grid = _fixed_figure(11, 6.0, 2, 1, hspace=0.55)
+    for r, (kind, axes, scale, unit) in enumerate(
+        (
+            ("position", ("x", "y", "z"), 1e3, "mm"),
+            ("rotation", ("roll", "pitch", "yaw"), 1.0, "deg"),
+        )
+    ):
+        ax = grid[r][0]
+        top = 0.0
+        for a in axes:
+            e = np.asarray(errs.get(a, np.zeros(0)), dtype=np.float64) * scale
+            if len(e) == 0:
+                continue
+            ax.plot(ts[s][: len(e[s])], e[s], color=AXIS_COLOURS[a], lw=0.9, label=a)
+            if np.isfinite(e).any():
+                top = max(top, float(np.nanmax(np.abs(e))))
+        ax.axhline(0.0, color="black", lw=0.5)
+        if kind in bounds:
+            bound, label = bounds[kind]
+            draw_threshold(ax, bound, label, top, both=True)
+        ax.set_ylabel(f"Unity - Gazebo ({unit})")
+        ax.grid(True, alpha=0.3)
+        ax.legend(
+            loc="lower left",
+            bbox_to_anchor=(0.0, 1.01),
+            fontsize=7,
+            ncol=5,
+            title=f"{kind} error over time",
+            title_fontsize=8,
+            frameon=False,
+        )
+    grid[-1][0].set_xlabel("time (s)")
+    fig.suptitle(literal(title))
+    return fig

@@ -5,7 +5,10 @@ from __future__ import annotations
 import json
 import shlex
 import sys
+import time
 import warnings
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -38,7 +41,7 @@ MaxDiffOpt = Annotated[
         "--max-diff",
         "--t-max-diff",
         "--t_max_diff",
-        help="nearest: max dt (s); without --sync it means nearest"
+        help="nearest: max dt (s); without --sync it means nearest",
     ),
 ]
 OffsetOpt = Annotated[
@@ -153,6 +156,33 @@ def _is_log(path: Path) -> bool:
     return is_log(path)
 
 
+@contextmanager
+def _progress(what: str) -> Iterator[Callable[[str, float | None], None]]:
+    """Report progress per stage: a live status line on a terminal (rich), one plain line
+    per finished stage when piped (a CI log shows where the time went)."""
+    started = time.perf_counter()
+    if console.is_terminal:
+        with console.status(f"report of {what}: starting") as status:
+
+            def live(stage: str, took: float | None) -> None:
+                if took is None:
+                    status.update(f"report of {escape(what)}: {escape(stage)}...")
+
+            yield live
+        return
+
+    def plain(stage: str, took: float | None) -> None:
+        if took is not None:
+            total = time.perf_counter() - started
+            console.print(
+                f"report: {stage}: {took:.1f} s (total {total:.1f} s)",
+                markup=False,
+                highlight=False,
+            )
+
+    yield plain
+
+
 @app.command()
 def report(
     source: Annotated[
@@ -183,7 +213,9 @@ def report(
     manifest: Annotated[
         Path | None, typer.Option(help="manifest.json, when not next to the results.")
     ] = None,
-    max_detail_runs: Annotated[int, typer.Option(help="Runs with per-run plots.", min=0)] = 8,
+    max_detail_runs: Annotated[
+        int, typer.Option(help="Runs with per-run plots: the worst ones (failing first).", min=0)
+    ] = 3,
     topic: Annotated[
         list[str] | None,
         typer.Option(help="Topic(s) with per-run plots (default: the vehicle topic)."),
@@ -244,11 +276,7 @@ def report(
         source_for_report = where / "comparisons.json"
     else:
         source_for_report = source
-    with (
-        scratch,
-        console.status(f"building the report of {source}..."),
-        warnings.catch_warnings(),
-    ):
+    with scratch, _progress(str(source)) as progress, warnings.catch_warnings():
         # build_report collects what the readers warned about into outcome.warnings
         warnings.simplefilter("ignore")
         outcome = build_report(
@@ -262,6 +290,7 @@ def report(
             max_detail_runs=max_detail_runs,
             detail_topics=topic,
             command=shlex.join(["uwval", *sys.argv[1:]]),
+            progress=progress,
         )
     if results_out is not None:
         import uwval
@@ -276,15 +305,17 @@ def report(
         outcome.table.save(results_out)
     for w in outcome.warnings:
         console.print(f"[yellow]note:[/] {escape(w)}")
-    verdict = (
-        "not checked"
-        if outcome.gate is None
-        else ("[green]PASS[/]" if outcome.gate.passed else "[red]FAIL[/]")
-    )
+    if outcome.refused:
+        verdict = "[red]REFUSED[/] (" + escape(outcome.refused) + ")"
+    elif outcome.gate is None:
+        verdict = "not checked"
+    else:
+        verdict = "[green]PASS[/]" if outcome.gate.passed else "[red]FAIL[/]"
+    took = sum(outcome.timings.values())
     console.print(
-        f"[green]wrote[/] {outcome.html}"
-        + (f" and {outcome.pdf}" if outcome.pdf else "")
-        + f" ({outcome.n_runs} run(s)); verdict {verdict}"
+        f"[green]wrote[/] {escape(str(outcome.html))}"
+        + (f" and {escape(str(outcome.pdf))}" if outcome.pdf else "")
+        + f" ({outcome.n_runs} run(s), {took:.1f} s); verdict {verdict}"
     )
 
 
@@ -373,8 +404,8 @@ def check(
                 "uwval_version": uwval.__version__,
                 "source": str(results),
                 "command": shlex.join(["uwval", *sys.argv[1:]]),
-                "regenerate": "uwval simulate data/experiments/default.toml -o DIR && "
-                "uwval check DIR --write-baseline data/baselines/default.json",
+                "regenerate": "uwval simulate default -o DIR && "
+                "uwval check DIR --write-baseline baseline.json",
             },
         )
         written = golden.save(write_baseline)
