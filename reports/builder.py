@@ -63,6 +63,7 @@ from uwval.reports.sections import (
     paper_section,
     provenance_section,
     roundoff_line,
+    run_ids,
     runs_section,
     secondary_section,
     summary_section,
@@ -414,7 +415,9 @@ def _compose(
     for sec in (bridge_section(exp),):
         if sec is not None:
             report.sections.append(sec)
-    report.sections.append(provenance_section(exp, inp.th, inp.baseline, inp.options, command))
+    report.sections.append(
+        provenance_section(exp, inp.th, inp.baseline, inp.options, command, inp.source)
+    )
     return report
 
 
@@ -479,9 +482,9 @@ def _passfail_section(inp: _Inputs, scopes: Sequence[RuleScope]) -> Section:
         if lt is not None:
             sec.blocks.append(lt)
         if scopes:
-            sec.blocks.append(rules_table(scopes, gate))
+            sec.blocks.append(rules_table(scopes, gate, run_ids(inp.exp.table)))
         if gate.violations:
-            sec.blocks.append(_violations_table(gate))
+            sec.blocks.append(_violations_table(gate, run_ids(inp.exp.table)))
         if gate.skipped:
             more = [f"... {len(gate.skipped) - 10} more"] if len(gate.skipped) > 10 else []
             sec.blocks.append(Text([*gate.skipped[:10], *more], kind="list"))
@@ -500,34 +503,33 @@ def _passfail_section(inp: _Inputs, scopes: Sequence[RuleScope]) -> Section:
     return sec
 
 
-def _violations_table(gate: GateResult) -> Table:
+def _violations_table(gate: GateResult, ids: Mapping[str, str]) -> Table:
+    """Every violation (up to 200): where, the value against its bound, which rule."""
     from uwval.reports.numbers import quantity_of
 
     t = Table(
         "What regressed",
-        ["kind", "metric", "run", "topic", "axis", "factor levels", "value", "bound", "rule"],
+        ["run", "topic", "axis", "metric", "value", "bound", "kind: rule (note)"],
         [],
+        caption="run: as labelled in the runs table (its factor levels are there).",
     )
     for v in gate.violations[:200]:
         q = quantity_of(v.metric, v.unit)
-        levels = ", ".join(level_label(k, x) for k, x in v.factors.items())
         unit = f" {'mm' if v.unit == 'm' else v.unit}" if v.unit else ""
         t.rows.append(
             [
-                v.kind.value,
-                v.metric,
-                v.run,
+                ids.get(v.run, v.run),
                 v.topic,
                 v.axis,
-                levels,
+                v.metric,
                 fmt(v.value, q) + unit,
                 f"{v.op} {fmt(v.bound, q)}{unit}",
-                v.rule + (f" ({v.note})" if v.note else ""),
+                f"{v.kind.value}: {v.rule}" + (f" ({v.note})" if v.note else ""),
             ]
         )
-        t.flags[(len(t.rows) - 1, 6)] = "bad"
+        t.flags[(len(t.rows) - 1, 4)] = "bad"
     if len(gate.violations) > 200:
-        t.caption = f"first 200 of {len(gate.violations)} violations"
+        t.caption += f" First 200 of {len(gate.violations)} violations."
     return t
 
 

@@ -8,7 +8,7 @@ the same rows the rule gated (the rule's metric, axes, topics or roles and facto
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -106,16 +106,20 @@ def _cell(scope: RuleScope, rows: pd.DataFrame, failed: set[str]) -> tuple[str, 
     return f"{FAIL if bad else PASS} {fmt(worst, scope.quantity)}", not bad
 
 
-def rules_table(scopes: Sequence[RuleScope], gate: GateResult) -> Table:
+def rules_table(
+    scopes: Sequence[RuleScope], gate: GateResult, run_ids: Mapping[str, str] | None = None
+) -> Table:
     """One row per threshold rule: what it gates, its bound, the worst value and where,
-    values checked, PASS or FAIL."""
+    values checked, PASS or FAIL. ``run_ids``: the short run labels of the runs table."""
     failed = _failed_runs(gate)
+    ids = dict(run_ids or {})
     t = Table(
         "Threshold rules",
         ["rule", "metric", "axes", "topics", "bound", "worst", "worst run", "values", "verdict"],
         [],
         caption="Each rule of the thresholds file; worst: the value closest to breaking the "
-        "bound (largest for a maximum, smallest for a minimum) over every run it gates.",
+        "bound (largest for a maximum, smallest for a minimum) over every run it gates; "
+        "worst run: as labelled in the runs table.",
     )
     for s in scopes:
         worst, run = s.worst()
@@ -129,7 +133,7 @@ def rules_table(scopes: Sequence[RuleScope], gate: GateResult) -> Table:
                 where,
                 s.bound(),
                 fmt(worst, s.quantity) + unit_suffix(s.quantity).replace("(", "").replace(")", ""),
-                run or "n/a",
+                ids.get(run, run) or "n/a",
                 str(len(s.rows)),
                 FAIL if bad else PASS,
             ]

@@ -4,6 +4,7 @@ two-way, the runs, the bridge, provenance), each in the report's one number form
 
 from __future__ import annotations
 
+import contextlib
 import math
 import platform
 import sys
@@ -329,18 +330,38 @@ def two_way_section(table: ResultsTable) -> Section | None:
     return tw
 
 
+def run_ids(table: ResultsTable) -> dict[str, str]:
+    """Each run's label in the runs table: the part of its name that tells the runs apart
+    (``default-16-force=5_...`` -> ``16``), else the name (short names) or the row number."""
+    from uwval.reports.plots import short_run_labels
+
+    runs = table.runs
+    return dict(zip(runs, short_run_labels(runs, max_len=24), strict=True))
+
+
 def runs_section(table: ResultsTable, failing: Mapping[str, int]) -> Section:
-    """Every run: factor levels, MAE per axis, worst position error, r per axis."""
+    """Every run: factor levels, MAE per axis, worst position error, the lowest Pearson r
+    (and its axis) and the gate's verdict. One r column, not six: the table then fits a
+    1400 px window and the A4 width whole."""
     sec = Section("runs", "Runs", collapsed=len(table.runs) > 20)
     wide = pose_wide(table)
     rf = table.run_factors()
+    ids = run_ids(table)
+    if any(ids[r] != r for r in table.runs):
+        sec.blocks.append(
+            Text(
+                f"Runs labelled by the part of their name that tells them apart: "
+                f"{table.runs[0]} is {ids[table.runs[0]]}.",
+                css="neutral",
+            )
+        )
     for topic in table.topics:
         cols = [
             "run",
             *[factor_label(f) for f in table.factors],
             *[f"MAE {a} ({shown_unit(a)})" for a in AXES],
             "max |e| (mm)",
-            *[f"r {a}" for a in AXES],
+            "r lowest (axis)",
             "gate",
         ]
         t = Table(topic, cols, [])
@@ -353,13 +374,16 @@ def runs_section(table: ResultsTable, failing: Mapping[str, int]) -> Section:
                 return float(w.get((axis, metric), math.nan))
 
             n_bad = failing.get(run, 0)
+            rs = {a: v(a, "pearson_r") for a in AXES if math.isfinite(v(a, "pearson_r"))}
+            low = min(rs, key=lambda a: rs[a]) if rs else ""
+            r_text = f"{fmt(rs[low], Quantity.CORRELATION)} ({low})" if low else "n/a"
             t.rows.append(
                 [
-                    run,
+                    ids[run],
                     *[fmt_level(rf.loc[run, f]) for f in table.factors],
                     *[fmt(v(a, "mae"), axis_quantity(a)) for a in AXES],
                     fmt(v("position_norm", "max"), Quantity.LENGTH),
-                    *[fmt(v(a, "pearson_r"), Quantity.CORRELATION) for a in AXES],
+                    r_text,
                     f"FAIL ({n_bad})" if n_bad else "PASS",
                 ]
             )
@@ -440,9 +464,11 @@ def provenance_section(
     baseline: str | None,
     options: Mapping[str, Any],
     command: str,
+    root: Path | None = None,
 ) -> Section:
     """Tool, options and inputs (with their SHA-256): what it takes to make the report again.
-    Embedded defaults are named as such, never by their install path."""
+    Embedded defaults are named as such, never by their install path; files under ``root``
+    (the results location) by their path from it (it is named once)."""
     import uwval
 
     sec = Section("provenance", "Provenance", collapsed=True)
@@ -480,7 +506,13 @@ def provenance_section(
         inputs.append(Path(baseline))
     if th is not None and Path(th.source).is_file():
         inputs.append(Path(th.source))
-    t = Table("Inputs", ["file", "bytes", "sha256"], [])
+    base = None if root is None else (root if root.is_dir() else root.parent).resolve()
+    t = Table(
+        "Inputs",
+        ["file", "bytes", "sha256"],
+        [],
+        caption=f"Relative paths are from {base}." if base is not None else "",
+    )
     for p in inputs:
         if not p.exists():
             continue
@@ -489,6 +521,10 @@ def provenance_section(
             if p.is_file()
             else sum(f.stat().st_size for f in p.rglob("*") if f.is_file())
         )
-        t.rows.append([display_path(p), str(size), _sha256(p)])
+        shown = display_path(p)
+        if base is not None and shown == str(p):
+            with contextlib.suppress(ValueError):  # outside the results: kept whole
+                shown = p.resolve().relative_to(base).as_posix()
+        t.rows.append([shown, str(size), _sha256(p)])
     sec.blocks.append(t)
     return sec
