@@ -137,11 +137,15 @@ def render_interactive(
 ) -> str:
     """The page for ``results``: topic name -> ComparisonResult (an :class:`AlignedPair`
     with ``to_json()``), in order."""
-    topics, payload = [], []
+    from uwval.reports.method import method_line
+
+    topics, payload, docs = [], [], []
     for name, res in results.items():
         p = topic_payload(name, res, max_points)
         payload.append({"columns": p["columns"], "charts": p["charts"]})
-        cols, rows = _table(res.to_json())
+        doc = res.to_json()
+        docs.append(doc)
+        cols, rows = _table(doc)
         note = f"; every {p['stride']}th drawn" if p["stride"] > 1 else ""
         describe = getattr(res.other, "describe", None)
         ref_describe = getattr(res.reference, "describe", None)
@@ -167,6 +171,7 @@ def render_interactive(
             subtitle=subtitle,
             generated=datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
             topics=topics,
+            method=method_line(docs, {}),
             data=data,
             script=(TEMPLATES / "interactive.js").read_text(encoding="utf-8"),
             css=(TEMPLATES / "report.css").read_text(encoding="utf-8"),

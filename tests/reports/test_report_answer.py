@@ -299,3 +299,15 @@ def test_no_pdf_table_is_split_into_column_groups(built: tuple[Path, Path, str])
     _, pdf, _ = built
     text = subprocess.run([PDFTOTEXT, str(pdf), "-"], capture_output=True, text=True).stdout
     assert "(columns 1 of" not in text  # every table fits the A4 width whole
+
+
+def test_compare_html_states_its_method(tmp_path: Path) -> None:
+    from results_logs import write_pair_log
+
+    log = write_pair_log(tmp_path / "run.mcap", lag_s=0.02)
+    page = tmp_path / "page.html"
+    res = run_uwval("compare", log, "--html", page, "--sync", "nearest", "--max-diff", "0.01")
+    assert res.returncode == 0, res.stdout + res.stderr
+    html = page.read_text()
+    assert '<p class="method">Method: sync nearest stamp (max dt 10.0 ms); clock offset' in html
+    assert "alignment none; errors in ENU" in html
