@@ -70,15 +70,16 @@ def _effects_table(topic: str, axes_doc: Mapping[str, Any], factors: Sequence[st
     """Per axis: partial eta^2 (%) and p of each main effect, and the largest interaction."""
     cols = ["axis"]
     for f in factors:
-        cols += [f"{f} η²p (%)", f"{f} p"]
-    cols.append("largest interaction")
+        cols += [f"{f} η² (η²p) %", f"{f} p"]
+    cols.append("largest interaction (η²p)")
     t = Table(
-        f"What moves the MAE ({topic}): factorial model, partial η²",
+        f"What moves the MAE ({topic}): factorial model, η² and partial η²",
         cols,
         [],
         caption="Ordinary least squares with every main effect and two-way interaction "
-        "(Type II sums of squares); partial η² = SS_term / (SS_term + SS_residual): the "
-        "share of the variance left after the other terms that this factor explains.",
+        "(Type II sums of squares). η²: the factor's share of the variation of the MAE "
+        "across runs; η²p (partial) = SS_term / (SS_term + SS_residual): the share of the "
+        "variance left after the other terms. Bold: η² of 50 % or more.",
     )
     for axis in AXES:
         m = (axes_doc.get(axis) or {}).get("mae")
@@ -89,9 +90,13 @@ def _effects_table(topic: str, axes_doc: Mapping[str, Any], factors: Sequence[st
         r = len(t.rows)
         for k, f in enumerate(factors):
             term = terms.get(f, {})
-            eta = term.get("partial_eta_sq")
-            row += [fmt(eta, Quantity.FRACTION), fmt(term.get("p"), Quantity.P_VALUE)]
-            if isinstance(eta, (int, float)) and eta >= 0.5:
+            share, partial = term.get("eta_sq"), term.get("partial_eta_sq")
+            text = fmt(partial, Quantity.FRACTION)
+            if isinstance(share, (int, float)):
+                text = f"{fmt(share, Quantity.FRACTION)} ({text})"
+            row += [text, fmt(term.get("p"), Quantity.P_VALUE)]
+            strong = share if isinstance(share, (int, float)) else partial
+            if isinstance(strong, (int, float)) and strong >= 0.5:
                 t.flags[(r, 1 + 2 * k)] = "strong"
         inter = [x for name, x in terms.items() if ":" in name]
         best = max(inter, key=lambda x: x.get("partial_eta_sq") or 0.0, default=None)
@@ -195,9 +200,7 @@ def analysis_section(found: Found) -> Section:
             )
         )
         return sec
-    answer = str(doc.get("answer") or "")
-    if answer:
-        sec.blocks.append(Text(answer, css="answer"))
+    # the answer's sentence heads the page (Report.headline): not repeated here
     factors = [str(f) for f in (doc.get("factors") or {})]
     reps = doc.get("replicates") or {}
     sec.blocks.append(
@@ -213,8 +216,16 @@ def analysis_section(found: Found) -> Section:
         )
     )
     lag = doc.get("lag")
-    if isinstance(lag, Mapping) and lag:
+    if isinstance(lag, Mapping) and any(isinstance(v, Mapping) for v in lag.values()):
         sec.blocks.append(_lag_table(lag))
+    else:
+        sec.blocks.append(
+            Text(
+                "No lag in these results (compared without the lag fit, or too little "
+                "motion to fit one).",
+                css="neutral",
+            )
+        )
     topics = doc.get("topics") or {}
     for topic, axes_doc in list(topics.items())[:1]:  # the vehicle; the others in the JSON
         if not isinstance(axes_doc, Mapping):

@@ -56,6 +56,7 @@ def _analysis(factors: dict[str, list[float]]) -> dict[str, object]:
             "f": 80.1,
             "p": 3.2e-5,
             "partial_eta_sq": 0.91,
+            "eta_sq": 0.913,
         },
         {
             "term": "force:current",
@@ -167,9 +168,11 @@ def test_the_answer_comes_first_in_html_and_on_pdf_page_1(built: tuple[Path, Pat
     assert ANSWER.replace("'", "&#39;") in header  # before any section
     first = html.index('<section id="answer">')
     assert first == html.index("<section")
+    assert html.count("Unity shows Gazebo&#39;s pose 12.4 ms late") == 1  # said once
     # effect sizes (partial eta^2 in %, p), per-level means with CIs (mm), the lag (ms)
-    assert "current η²p (%)" in html
-    assert ">91.0<" in html and ">3.2e-05<" in html
+    assert "current η² (η²p) %" in html
+    assert ">91.3 (91.0)<" in html and ">3.2e-05<" in html  # eta^2 (partial eta^2)
+    assert ">7.0<" in html  # a term without eta_sq: its partial eta^2 alone
     assert "force:current: 2.0 %" in html
     assert "3.10 [2.90, 3.30]" in html and "4.10 [3.90, 4.30]" in html
     assert ">12.4<" in html and "12.0 to 12.9" in html and ">98.0<" in html
