@@ -192,3 +192,19 @@ def test_results_table_without_warning_rows_reads_as_a_gap() -> None:
     )
     with pytest.raises(GateInputError, match=r"a/t \(reference.n_warnings and other"):
         require_integrity(ResultsTable.from_dataframe(df, []), [], "x.csv")
+
+
+def test_the_report_shows_refused_results_as_refused(experiment: Path, tmp_path: Path) -> None:
+    exp = tmp_path / "exp"
+    shutil.copytree(experiment, exp)
+    comp_path = exp / "results" / "comparisons.json"
+    doc = json.loads(comp_path.read_text())
+    _strip(doc["runs"][0]["comparison"], "warnings")
+    comp_path.write_text(json.dumps(doc))
+    out = tmp_path / "r.html"
+    res = run_uwval("report", exp, "-o", out, "--max-detail-runs", "0")
+    assert res.returncode == 0, res.stdout + res.stderr  # the report is written...
+    assert "verdict REFUSED" in res.stdout  # ...but the gate passes nothing
+    html = out.read_text()
+    assert 'class="verdict-badge fail">REFUSED<' in html
+    assert "other.warnings" in html and "PASS" not in html.split("<main>")[0]
