@@ -239,8 +239,8 @@ def analysis_section(found: Found) -> Section:
 
 
 _SENS_COLUMNS = [
-    "variant (one change to the model)",
-    "model",
+    "variant",
+    "changed",
     "position max (mm)",
     "position at end (mm)",
     "yaw max (deg)",
@@ -276,17 +276,21 @@ def sensitivity_section(found: Found) -> Section:
             css="neutral",
         )
     )
+    variants = [v for v in doc.get("variants") or [] if isinstance(v, Mapping)]
+    sec.blocks.append(
+        Text([f"{v.get('name')}: {v.get('label') or ''}" for v in variants], kind="list")
+    )
     t = Table(
         "Distance between each variant's pose and the baseline model's",
         list(_SENS_COLUMNS),
         [],
         caption="A diverged variant shows where it diverged, never a number from it.",
     )
-    for v in doc.get("variants") or []:
-        if not isinstance(v, Mapping):
-            continue
-        model = ", ".join(f"{k} {x}" for k, x in (v.get("model") or {}).items())
-        row = [str(v.get("label") or v.get("name")), model]
+    for v in variants:
+        # only what the variant changes (the baseline is named above the table)
+        changed = {k: x for k, x in (v.get("model") or {}).items() if base.get(k) != x}
+        model = ", ".join(f"{k} {x}" for k, x in changed.items()) or "as the baseline"
+        row = [str(v.get("name") or v.get("label")), model]
         if v.get("diverged"):
             row += [f"diverged at {fmt_level(v.get('diverged_at_s'))} s"] + ["n/a"] * 4
             t.flags[(len(t.rows), 2)] = "bad"

@@ -626,8 +626,8 @@ def _detail_sections(
             sec.blocks.append(
                 Plot(
                     f"Trajectory coloured by the position error: {name}",
-                    plots.trajectory_error_figure(pair, name),
-                    "Gazebo path from above (ENU x-y, m) coloured by |p_Unity - p_Gazebo| (m); "
+                    plots.trajectory_error_figure(pair, name, error_in_mm=True),
+                    "Gazebo path from above (ENU x-y, m) coloured by |p_Unity - p_Gazebo| (mm); "
                     "Unity dashed grey (as evo_ape --plot_mode xy).",
                 )
             )

@@ -337,7 +337,9 @@ def write_pdf(report: Report, path: Path) -> Path:
             ]
             pager.text(f"Verdict: {report.verdict}", size=14, weight="bold", colour=colour)
             for line in report.headline:  # the answer, in a sentence, on page 1
+                pager.y -= 0.006
                 pager.text(line, size=10.5, weight="bold")
+            pager.y -= 0.006
             if report.method:
                 pager.text(report.method, size=8.5)
             pager.text(f"generated {report.generated}", size=8, colour="#57606a")

@@ -448,20 +448,23 @@ def trajectory_error_figure(
     title: str = "",
     error: str = "position_norm",
     cmap: str = "jet",
+    error_in_mm: bool = False,
 ) -> Figure:
     """The reference trajectory seen from above (x-y, ENU m) coloured by the per-sample
-    ``error`` (``position_norm`` in m, or ``rotation_angle`` in deg): evo_ape's
-    ``--plot_mode xy`` colour map. Unity's path is drawn thin and grey for context."""
+    ``error`` (``position_norm`` in m, or in mm with ``error_in_mm`` as the report shows
+    errors; ``rotation_angle`` in deg): evo_ape's ``--plot_mode xy`` colour map. Unity's
+    path is drawn thin and grey for context."""
     from matplotlib.collections import LineCollection
 
     errs = error_series(pair)
     if error not in errs:
         raise KeyError(f"no per-sample error {error!r} in this comparison")
-    unit = "m" if error == "position_norm" else "deg"
-    what = "position error norm" if error == "position_norm" else error.replace("_", " ")
+    length = error == "position_norm"
+    unit = ("mm" if error_in_mm else "m") if length else "deg"
+    what = "position error norm" if length else error.replace("_", " ")
     ref = np.asarray(pair.reference.position, dtype=np.float64)
     oth = np.asarray(pair.other.position, dtype=np.float64)
-    e = np.asarray(errs[error], dtype=np.float64)
+    e = np.asarray(errs[error], dtype=np.float64) * (1e3 if length and error_in_mm else 1.0)
     s = _decimate(len(ref))
     xy, c = ref[s, :2], e[s]
     fig = _new_figure(8, 6.5)

@@ -192,13 +192,17 @@ def test_sensitivity_is_a_table_and_a_diverged_variant_shows_no_number(
 ) -> None:
     _, _, html = built
     sec = html.split('<section id="sensitivity">')[1].split("</section>")[0]
-    assert "Coriolis entries of gz-sim 8.0-8.11" in sec
-    row = sec.split("Coriolis entries of gz-sim 8.0-8.11")[1].split("</tr>")[0]
+    assert "coriolis: Coriolis entries of gz-sim 8.0-8.11" in sec  # the labels, listed
+    row = sec.split('<td class="">coriolis</td>')[1].split("</tr>")[0]
     cells = re.findall(r"<td[^>]*>([^<]*)</td>", row)
-    assert cells[1:] == ["1.20", "1.10", "0.300", "0.250", "0.400"]  # mm, mm, deg x 3
-    div = sec.split("explicit added mass")[1].split("</tr>")[0]
+    # what the variant changes, then mm, mm, deg x 3
+    assert cells == ["coriolis legacy", "1.20", "1.10", "0.300", "0.250", "0.400"]
+    div = sec.split('<td class="">added_mass</td>')[1].split("</tr>")[0]
     assert "diverged at 1.25 s" in div
-    assert re.findall(r"<td[^>]*>([^<]*)</td>", div)[2:] == ["n/a"] * 4
+    assert re.findall(r"<td[^>]*>([^<]*)</td>", div)[1:] == [
+        "diverged at 1.25 s",
+        *["n/a"] * 4,
+    ]
 
 
 def test_pass_fail_per_level_and_rule_with_the_bound(
