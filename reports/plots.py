@@ -501,15 +501,18 @@ def trajectory_error_figure(
 THRESHOLD_COLOUR = "#cf222e"
 
 
-def _fixed_figure(w: float, h: float, rows: int, cols: int, **adjust: float) -> tuple[Figure, Any]:
+def _fixed_figure(
+    w: float, h: float, rows: int, cols: int, head_in: float = 0.0, **adjust: float
+) -> tuple[Figure, Any]:
     """A figure with a fixed grid (no layout engine: solving one costs as much as drawing),
-    the caption and heading strips of :func:`_new_figure` kept free."""
+    the caption and heading strips of :func:`_new_figure` kept free, and ``head_in``
+    inches more under the title (for legends placed above the top panels)."""
     fig = Figure(figsize=(w, h), dpi=100)
     params = dict(left=0.08, right=0.98, wspace=0.25, hspace=0.55)
     params.update(adjust)
     fig.subplots_adjust(
         bottom=CAPTION_STRIP_IN / h + 0.06,
-        top=1.0 - HEADING_STRIP_IN / h - 0.05,
+        top=1.0 - (HEADING_STRIP_IN + head_in) / h - 0.05,
         **params,
     )
     return fig, np.atleast_2d(fig.subplots(rows, cols, squeeze=False))
@@ -556,7 +559,7 @@ def level_means_figure(
     bound drawn as a dashed line. ``bounds``: "position"/"rotation" -> (bound in mm or deg,
     label)."""
     rows = max(1, len(factors))
-    fig, grid = _fixed_figure(11, 2.3 * rows + 1.2, rows, 2, hspace=0.6)
+    fig, grid = _fixed_figure(11, 2.3 * rows + 1.6, rows, 2, head_in=0.4, hspace=0.6)
     sub = table.select(metric="mae", topic=topic)
     groups = (
         ("position", ("x", "y", "z"), 1e3, "mm"),
@@ -614,7 +617,7 @@ def error_time_figure(
     ts, _, _ = pair_series(pair)
     errs = error_series(pair)
     s = _decimate(len(ts), 3000)
-    fig, grid = _fixed_figure(11, 6.0, 2, 1, hspace=0.55)
+    fig, grid = _fixed_figure(11, 6.3, 2, 1, head_in=0.35, hspace=0.6)
     for r, (kind, axes, scale, unit) in enumerate(
         (
             ("position", ("x", "y", "z"), 1e3, "mm"),
