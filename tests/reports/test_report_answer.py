@@ -143,6 +143,11 @@ def built(
         "--thresholds", thresholds[0], "--max-detail-runs", "1",
     )  # fmt: skip
     assert res.returncode == 0, res.stdout + res.stderr
+    # piped: one line per finished stage, then the summary line, none wrapped
+    stages = [ln for ln in res.stdout.splitlines() if ln.startswith("report: ")]
+    assert [ln.split(":")[1].strip() for ln in stages][-2:] == ["write HTML", "write PDF"]
+    assert all(re.fullmatch(r"report: .+: \d+\.\d s \(total \d+\.\d s\)", ln) for ln in stages)
+    assert re.search(r"wrote .*r\.html and .*r\.pdf \(8 run\(s\), \d+\.\d s\)", res.stdout)
     return out / "r.html", out / "r.pdf", (out / "r.html").read_text()
 
 
