@@ -323,3 +323,18 @@ def test_compare_html_states_its_method(tmp_path: Path) -> None:
     html = page.read_text()
     assert '<p class="method">Method: sync nearest stamp (max dt 10.0 ms); clock offset' in html
     assert "alignment none; errors in ENU" in html
+
+
+def test_compare_html_table_uses_the_report_number_format(tmp_path: Path) -> None:
+    from results_logs import write_pair_log
+
+    log = write_pair_log(tmp_path / "run.mcap", lag_s=0.02, noise=0.001)
+    page = tmp_path / "page.html"
+    assert run_uwval("compare", log, "--html", page).returncode == 0
+    doc = json.loads(run_uwval("compare", log, "--json").stdout)
+    html = page.read_text()
+    table = html.split("<tbody>")[1].split("</tbody>")[0]
+    cells = re.findall(r"<td>([^<]*)</td>", table)
+    assert not [c for c in cells if "e-" in c]
+    x = doc["axes"]["x"]
+    assert f"<td>x</td><td>mm</td><td>{x['mae'] * 1e3:.2f}</td>" in table
