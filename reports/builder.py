@@ -428,7 +428,6 @@ def _verdict_sentence(inp: _Inputs, scopes: Sequence[RuleScope]) -> str:
         return f"REFUSED: {inp.refused}"
     if gate is None:
         return "Not gated: no thresholds or baseline were given."
-    failed_rules = {v.rule for v in gate.violations}
     if gate.passed:
         close = [
             (s.worst()[0] / s.rule.max, s)
@@ -448,13 +447,35 @@ def _verdict_sentence(inp: _Inputs, scopes: Sequence[RuleScope]) -> str:
                 f"{s.bound()} ({ratio * 100:.0f} %, run {run})"
             )
         return text + "."
-    bad = [s.rule.label() for s in scopes if s.rule.label() in failed_rules]
     kinds = sorted({v.kind.value for v in gate.violations})
+    parts = [_where_rule_fails(inp.exp.table, s, gate) for s in scopes]
+    parts = [p for p in parts if p]
     return (
         f"FAIL: {len(gate.violations)} violation(s) among {gate.checked} values"
-        + (f"; failing rules: {', '.join(bad)}" if bad else "")
-        + f" (kinds: {', '.join(kinds)}); see the pass/fail table for the levels."
+        + (f"; {'; '.join(parts)}" if parts else "")
+        + f" (kinds: {', '.join(kinds)})."
     )
+
+
+def _where_rule_fails(table: ResultsTable, scope: RuleScope, gate: GateResult) -> str:
+    """ "vehicle x MAE fails only at current = 0.25 m/s (worst 3.78 of <= 3.00 mm)": the
+    levels of each factor holding every failing run, when they are not all the levels."""
+    label = scope.rule.label()
+    bad_runs = {v.run for v in gate.violations if v.rule == label and v.run}
+    if not bad_runs and not any(v.rule == label for v in gate.violations):
+        return ""
+    worst, _ = scope.worst(scope.rows[scope.rows["run"].isin(bad_runs)] if bad_runs else None)
+    text = f"{label} fails"
+    rf = table.run_factors()
+    only = []
+    for f in table.varying_factors():
+        levels = rf[f].dropna().unique().tolist()
+        failing = rf.loc[rf.index.isin(bad_runs), f].dropna().unique().tolist()
+        if failing and len(failing) < len(levels):
+            only.append(" or ".join(level_label(f, lv) for lv in sorted(failing)))
+    if only:
+        text += " only at " + ", ".join(only)
+    return text + f" (worst {fmt(worst, scope.quantity)} of {scope.bound()})"
 
 
 def _passfail_section(inp: _Inputs, scopes: Sequence[RuleScope]) -> Section:

@@ -231,6 +231,10 @@ def test_pass_fail_per_level_and_rule_with_the_bound(
     # both force levels hold current = 0.2 runs: both fail
     assert cell("force = 5 N")[0] == "bad" and cell("force = 10 N")[0] == "bad"
     assert cell("all runs") == ("bad", f"FAIL {x['value'].max() * 1e3:.2f}")
+    # the page head says where it fails, in a sentence
+    head = html.split("<main>")[0]
+    assert "vehicle x MAE fails only at current = 0.2 m/s (worst " in head
+    assert f"{worst[0.2] * 1e3:.2f} of ≤ {bound * 1e3:.2f} mm)" in head
     # the rules table: the bound as a number, the worst value, FAIL
     rules = sec.split("Threshold rules")[1].split("</table>")[0]
     assert f"≤ {bound * 1e3:.2f} mm" in rules and ">FAIL<" in rules
