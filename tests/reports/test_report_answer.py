@@ -147,7 +147,9 @@ def built(
     stages = [ln for ln in res.stdout.splitlines() if ln.startswith("report: ")]
     assert [ln.split(":")[1].strip() for ln in stages][-2:] == ["write HTML", "write PDF"]
     assert all(re.fullmatch(r"report: .+: \d+\.\d s \(total \d+\.\d s\)", ln) for ln in stages)
-    assert re.search(r"wrote .*r\.html and .*r\.pdf \(8 run\(s\), \d+\.\d s\)", res.stdout)
+    assert re.search(
+        r"wrote .*r\.html and .*r\.pdf \(8 run\(s\)\); verdict FAIL \(in \d+\.\d s\)", res.stdout
+    )
     return out / "r.html", out / "r.pdf", (out / "r.html").read_text()
 
 

@@ -315,7 +315,7 @@ def report(
     console.print(
         f"[green]wrote[/] {escape(str(outcome.html))}"
         + (f" and {escape(str(outcome.pdf))}" if outcome.pdf else "")
-        + f" ({outcome.n_runs} run(s), {took:.1f} s); verdict {verdict}"
+        + f" ({outcome.n_runs} run(s)); verdict {verdict} (in {took:.1f} s)"
     )
 
 
