@@ -49,8 +49,16 @@ class Plot:
     figure: Figure
     caption: str = ""
     png_base64: str = ""  # filled by the HTML renderer
+    #: The figure drawn once (RGB, uint8, rows x columns x 3) at :data:`RASTER_DPI`: the HTML
+    #: embeds it as PNG and the PDF places the same pixels on its page, so no figure is
+    #: drawn twice (drawing is most of a report's time).
+    raster: Any = None
 
     block: str = "plot"
+
+
+#: Resolution of the figures' single drawing (dots per inch): sharp on screen and on A4.
+RASTER_DPI = 110
 
 
 Block = Text | Table | Plot
@@ -73,9 +81,13 @@ class Report:
 
     title: str
     subtitle: str = ""
-    verdict: str = "not checked"  # "PASS", "FAIL" or "not checked"
+    verdict: str = "not checked"  # "PASS", "FAIL", "REFUSED" or "not checked"
     sections: list[Section] = field(default_factory=list)
     generated: str = ""
+    #: How the numbers were made (sync, offset, alignment, frame): on every page.
+    method: str = ""
+    #: The answer in a sentence or two: first thing on the page and on page 1 of the PDF.
+    headline: list[str] = field(default_factory=list)
 
     def figures(self) -> list[Figure]:
         return [b.figure for s in self.sections for b in s.blocks if isinstance(b, Plot)]

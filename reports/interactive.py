@@ -22,7 +22,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from uwval.reports.content import fmt_num, fmt_r
 from uwval.reports.html import TEMPLATES, ReportError, environment
 from uwval.reports.plots import AXIS_COLOURS, AlignedPair, error_series
 from uwval.results import AXES, AXIS_UNITS
@@ -108,26 +107,30 @@ def topic_payload(name: str, pair: AlignedPair, max_points: int = MAX_POINTS) ->
 
 
 def _table(doc: Mapping[str, Any]) -> tuple[list[str], list[list[str]]]:
+    """The errors per axis in the report's number format (mm, deg, r with 4+ decimals)."""
+    from uwval.reports.numbers import Quantity, fmt
+
     cols = ["axis", "unit", "MAE", "RMSE", "max |e|", "bias", "Pearson r"]
     rows = []
     for a in AXES:
         m = doc.get("axes", {}).get(a, {})
+        q = Quantity.LENGTH if AXIS_UNITS[a] == "m" else Quantity.ANGLE
         rows.append(
             [
                 a,
-                AXIS_UNITS[a],
-                *[fmt_num(m.get(k)) for k in ("mae", "rmse", "max", "bias")],
-                fmt_r(m.get("pearson_r")),
+                "mm" if q is Quantity.LENGTH else "deg",
+                *[fmt(m.get(k), q) for k in ("mae", "rmse", "max", "bias")],
+                fmt(m.get("pearson_r"), Quantity.CORRELATION),
             ]
         )
-    for key, label, unit in (
-        ("position_error_norm", "position norm", "m"),
-        ("rotation_error_deg", "rotation angle", "deg"),
+    for key, label, q in (
+        ("position_error_norm", "position norm", Quantity.LENGTH),
+        ("rotation_error_deg", "rotation angle", Quantity.ANGLE),
     ):
         s = doc.get(key) or {}
         rows.append(
-            [label, unit, fmt_num(s.get("mean")), fmt_num(s.get("rmse")), fmt_num(s.get("max")),
-             "", ""]
+            [label, "mm" if q is Quantity.LENGTH else "deg", fmt(s.get("mean"), q),
+             fmt(s.get("rmse"), q), fmt(s.get("max"), q), "", ""]
         )  # fmt: skip
     return cols, rows
 
@@ -137,11 +140,15 @@ def render_interactive(
 ) -> str:
     """The page for ``results``: topic name -> ComparisonResult (an :class:`AlignedPair`
     with ``to_json()``), in order."""
-    topics, payload = [], []
+    from uwval.reports.method import method_line
+
+    topics, payload, docs = [], [], []
     for name, res in results.items():
         p = topic_payload(name, res, max_points)
         payload.append({"columns": p["columns"], "charts": p["charts"]})
-        cols, rows = _table(res.to_json())
+        doc = res.to_json()
+        docs.append(doc)
+        cols, rows = _table(doc)
         note = f"; every {p['stride']}th drawn" if p["stride"] > 1 else ""
         describe = getattr(res.other, "describe", None)
         ref_describe = getattr(res.reference, "describe", None)
@@ -167,6 +174,7 @@ def render_interactive(
             subtitle=subtitle,
             generated=datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
             topics=topics,
+            method=method_line(docs, {}),
             data=data,
             script=(TEMPLATES / "interactive.js").read_text(encoding="utf-8"),
             css=(TEMPLATES / "report.css").read_text(encoding="utf-8"),

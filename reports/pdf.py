@@ -11,9 +11,10 @@ import textwrap
 from datetime import datetime, timezone
 from pathlib import Path
 
+import numpy as np
 from matplotlib.backends.backend_pdf import PdfPages
 from matplotlib.figure import Figure
-from matplotlib.transforms import Bbox
+from matplotlib.lines import Line2D
 
 from uwval.reports.content import Plot, Report, Section, Table, Text
 from uwval.reports.html import ReportError
@@ -24,6 +25,20 @@ LINE = 0.018  # fraction of the page height per text line at 9 pt
 ROWS_PER_PAGE = 42
 CAPTION_WIDTH = 140  # characters per line of a 7 pt caption
 COLOURS = {"pass": "#1a7f37", "fail": "#cf222e", "neutral": "#57606a", "": "#1f2328"}
+
+
+def footer(fig: Figure, report: Report, page: int) -> None:
+    """The foot of every page: the method line (how the numbers were made), title, page."""
+    lines = textwrap.wrap(latin(report.method), CAPTION_WIDTH) if report.method else []
+    fig.text(
+        MARGIN,
+        0.021,
+        "\n".join([*lines[:2], f"{report.title} - page {page}"]),
+        fontsize=6.5,
+        color="#57606a",
+        va="bottom",
+        linespacing=1.3,
+    )
 
 
 class _Pager:
@@ -41,9 +56,7 @@ class _Pager:
         self.flush()
         self.fig = Figure(figsize=A4)
         self.page += 1
-        self.fig.text(
-            MARGIN, 0.02, f"{self.report.title} - page {self.page}", fontsize=7, color="#57606a"
-        )
+        footer(self.fig, self.report, self.page)
         self.y = 1.0 - MARGIN
         return self.fig
 
@@ -75,6 +88,7 @@ class _Pager:
         width: int = 110,
     ) -> None:
         self.put_heading()
+        s = latin(s)
         # viz: characters per line from the font size (<= 0.65 em each, bold too), so that a
         # heading or a long run name wraps instead of running off the page
         width = min(width, int(A4[0] * (1 - 2 * MARGIN) * 72 / (0.65 * size)))
@@ -91,13 +105,19 @@ class _Pager:
                 weight=weight,
                 color=colour,
                 va="top",
-                family="DejaVu Sans",
             )
             self.y -= LINE * size / 9
 
     def table(self, t: Table) -> None:
         """A table; one too wide for a readable font is split into column groups, each
         repeating the first (key) column, rather than shrunk to an unreadable size."""
+        t = Table(
+            latin(t.title),
+            [latin(str(c)) for c in t.columns],
+            [[latin(str(c)) for c in r] for r in t.rows],
+            latin(t.caption),
+            dict(t.flags),
+        )
         groups = _column_groups(t)
         if len(groups) == 1:
             self._table(t)
@@ -117,10 +137,11 @@ class _Pager:
     def _table(self, t: Table) -> None:
         rows = t.rows or [["(no rows)"] + [""] * (len(t.columns) - 1)]
         layout = _TableLayout(t.columns, rows)
-        size, row_h = layout.font_size, 0.016 * layout.font_size / 7
+        size = layout.font_size
+        pitch = line_pitch(size) / (A4[1] * 72)  # one text line, fraction of the page
         first = min(len(rows), ROWS_PER_PAGE)
         if self.heading:  # keep a section title on the page of its first table rows
-            self.need(0.05 + 0.02 + row_h * (first + layout.header_lines) + 0.03)
+            self.need(0.05 + 0.02 + pitch * (first + layout.header_lines) + 0.03)
         self.put_heading()
         # the caption goes with the last rows: never alone at the top of a page
         caption_h = (
@@ -128,46 +149,95 @@ class _Pager:
         )
         for start in range(0, len(rows), ROWS_PER_PAGE):
             chunk = rows[start : start + ROWS_PER_PAGE]
-            n_lines = len(chunk) + layout.header_lines
-            height = row_h * n_lines + 0.035  # title line + rows + gap below
+            height = pitch * (len(chunk) + layout.header_lines) + 0.04
             if start + ROWS_PER_PAGE >= len(rows):
                 height += caption_h
             fig = self.need(height)
             cont = " (continued)" if start else ""
             fig.text(MARGIN, self.y, t.title + cont, fontsize=8.5, weight="bold", va="top")
             self.y -= 0.02
-            ax = fig.add_axes((MARGIN, self.y - row_h * n_lines, 1 - 2 * MARGIN, row_h * n_lines))
-            ax.axis("off")
-            tab = ax.table(
-                cellText=[[_clip(c) for c in r] for r in chunk],
-                colLabels=layout.headers,
-                colWidths=layout.widths,
-                loc="upper left",
-                cellLoc="right",
-                colLoc="center",
-                bbox=Bbox.from_bounds(0, 0, 1, 1),
-            )
-            tab.auto_set_font_size(False)
-            tab.set_fontsize(size)
-            for (r, c), cell in tab.get_celld().items():
-                cell.set_linewidth(0.3)
-                cell.PAD = 0.03
-                if r == 0:
-                    cell.set_height(cell.get_height() * layout.header_lines)
-                    cell.set_facecolor("#f0f2f5")
-                    cell.set_text_props(weight="bold")
-                    continue
-                if not layout.numeric[c]:
-                    cell.set_text_props(ha="left")
-                    setattr(cell, "_loc", "left")  # noqa: B010 (Cell has no public setter)
-                if t.flag(start + r - 1, c) == "bad":
-                    cell.set_facecolor("#ffebe9")
-                elif t.flag(start + r - 1, c) == "warn":
-                    cell.set_facecolor("#fff8c5")
-            self.y -= row_h * n_lines + 0.012
+            flags = {
+                (r - start, c): f
+                for (r, c), f in t.flags.items()
+                if start <= r < start + len(chunk)
+            }
+            self.y = _draw_columns(fig, self.y, layout, chunk, flags, pitch)
+            self.y -= 0.01
         if t.caption:
             self.text(t.caption, size=7, colour="#57606a", width=CAPTION_WIDTH)
         self.y -= 0.008
+
+
+#: Ascender + descender of Helvetica per point of font size (AFM: 718 and 207 per 1000):
+#: with a numeric linespacing, matplotlib spaces every line by linespacing x this, whatever
+#: glyphs it holds, so the columns of a table (one text each) stay row-aligned.
+LP_HEIGHT = (718 + 207) / 1000
+
+#: Characters outside the PDF core fonts' encoding (cp1252), as the pages write them.
+_NOT_IN_CORE_FONTS = {"≤": "<=", "≥": ">=", "η": "eta", "−": "-", "→": "->"}
+
+
+def latin(text: str) -> str:
+    """``text`` in the PDF core fonts' encoding: "≤" as "<=", "η²" as "eta²", anything
+    else outside cp1252 as "?" (the core fonts cannot draw it)."""
+    for k, v in _NOT_IN_CORE_FONTS.items():
+        text = text.replace(k, v)
+    return text.encode("cp1252", "replace").decode("cp1252")
+
+
+#: Text colours of flagged table cells in the PDF.
+FLAG_COLOURS = {"bad": "#cf222e", "warn": "#9a6700", "good": "#1a7f37", "strong": "#1f2328"}
+
+
+def line_pitch(size: float, spacing: float = 1.25) -> float:
+    """Distance (points) between two lines of a multi-line text at ``size`` pt, as matplotlib
+    lays them out: ``spacing`` x (ascender + descender) of Helvetica (the PDF core font
+    the pages are written in)."""
+    return float(LP_HEIGHT * size * spacing)
+
+
+def _draw_columns(
+    fig: Figure,
+    top: float,
+    layout: _TableLayout,
+    rows: list[list[str]],
+    flags: dict[tuple[int, int], str],
+    pitch: float,
+) -> float:
+    """Draw a table as one multi-line text per column (plus one per flag colour), rules
+    above and below the header and below the last row; returns the y below the table.
+    A text per column, not per cell: a PDF table of a few thousand cells draws in tens of
+    milliseconds instead of seconds."""
+    width = 1 - 2 * MARGIN
+    size = layout.font_size
+    head_h = pitch * layout.header_lines
+    body_top = top - head_h - 0.004
+    lefts = np.concatenate([[0.0], np.cumsum(layout.widths)]) * width + MARGIN
+    common = dict(fontsize=size, va="top", linespacing=1.25)
+    for c in range(len(layout.headers)):
+        left, right = float(lefts[c]), float(lefts[c + 1])
+        numeric = layout.numeric[c]
+        x, ha = (right - 0.004, "right") if numeric else (left + 0.002, "left")
+        fig.text(x, top, layout.headers[c], ha=ha, weight="bold", **common)  # type: ignore[arg-type]
+        by_colour: dict[str, list[str]] = {}
+        plain = []
+        for r, row in enumerate(rows):
+            cell = _clip(row[c]) if c < len(row) else ""
+            flag = flags.get((r, c), "")
+            colour = FLAG_COLOURS.get(flag)
+            plain.append("" if colour else cell)
+            for col in {*FLAG_COLOURS.values()}:
+                by_colour.setdefault(col, [])
+            for col in by_colour:
+                by_colour[col].append(cell if col == colour else "")
+        fig.text(x, body_top, "\n".join(plain), ha=ha, **common)  # type: ignore[arg-type]
+        for col, lines in by_colour.items():
+            if any(lines):
+                fig.text(x, body_top, "\n".join(lines), ha=ha, color=col, weight="bold", **common)  # type: ignore[arg-type]
+    bottom = body_top - pitch * len(rows)
+    for y, lw in ((top + 0.002, 0.8), (body_top + 0.002, 0.5), (bottom - 0.002, 0.8)):
+        fig.add_artist(Line2D([MARGIN, 1 - MARGIN], [y, y], lw=lw, color="#57606a"))
+    return bottom - 0.006
 
 
 class _TableLayout:
@@ -240,9 +310,20 @@ def _clip(s: str, n: int = 72) -> str:
 
 def write_pdf(report: Report, path: Path) -> Path:
     """Write the report as a PDF to ``path``; returns the path."""
+    import logging
+
+    import matplotlib
+
+    # the core Helvetica's AFM says "Medium" where matplotlib asks for "normal": the same
+    # face, but font_manager logs a warning per lookup
+    font_log = logging.getLogger("matplotlib.font_manager")
+    level = font_log.level
+    font_log.setLevel(logging.ERROR)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        with PdfPages(path) as pdf:
+        # the PDF core fonts (Helvetica): no glyphs to lay out and embed per line of text,
+        # which made text pages most of the PDF's time
+        with matplotlib.rc_context({"pdf.use14corefonts": True}), PdfPages(path) as pdf:
             pager = _Pager(pdf, report)
             pager.new_page()
             pager.text(report.title, size=16, weight="bold")
@@ -251,10 +332,16 @@ def write_pdf(report: Report, path: Path) -> Path:
                 "pass"
                 if report.verdict == "PASS"
                 else "fail"
-                if report.verdict == "FAIL"
+                if report.verdict in ("FAIL", "REFUSED")
                 else "neutral"
             ]
             pager.text(f"Verdict: {report.verdict}", size=14, weight="bold", colour=colour)
+            for line in report.headline:  # the answer, in a sentence, on page 1
+                pager.y -= 0.006
+                pager.text(line, size=10.5, weight="bold")
+            pager.y -= 0.006
+            if report.method:
+                pager.text(report.method, size=8.5)
             pager.text(f"generated {report.generated}", size=8, colour="#57606a")
             pager.y -= 0.01
             for sec in report.sections:
@@ -268,6 +355,8 @@ def write_pdf(report: Report, path: Path) -> Path:
             meta["CreationDate"] = datetime.now(timezone.utc)
     except OSError as exc:
         raise ReportError(f"{path}: cannot write the PDF report: {exc}") from exc
+    finally:
+        font_log.setLevel(level)
     return path
 
 
@@ -294,70 +383,36 @@ def _section(pager: _Pager, sec: Section) -> None:
 
 
 def _figure_page(pager: _Pager, plot: Plot, heading: str) -> None:
-    """One A4 portrait page holding ``plot``: the figure scaled down as a whole (size and
-    fonts, so it looks as in the HTML) to fit the margins, ``heading`` above it, its title
-    and caption wrapped below it, the page footer as on text pages. Every page of the PDF
-    thus has the same size. The figure is restored afterwards."""
-    from matplotlib.text import Text as MplText
+    """One A4 portrait page holding ``plot``: its pixels (drawn once, shared with the HTML
+    page: :func:`uwval.reports.html.rasterize`) scaled to fit the margins, ``heading``
+    above, its title and caption wrapped below, the footer as on text pages."""
+    from uwval.reports.html import rasterize
 
-    fig = plot.figure
-    w, h = (float(v) for v in fig.get_size_inches())
+    pixels = rasterize(plot)
+    page = Figure(figsize=A4)
     page_w, page_h = A4
     margin = MARGIN * page_w  # inches, all sides
-    caption = textwrap.wrap(f"{plot.title}. {plot.caption}", CAPTION_WIDTH - 20) or [""]
+    caption = textwrap.wrap(latin(f"{plot.title}. {plot.caption}"), CAPTION_WIDTH - 20) or [""]
     line = 7 * 1.35 / 72  # a 7 pt caption line, inches
-    usable_pt = (page_w - 2 * margin) * 72
-    head = textwrap.wrap(heading, int(usable_pt / (0.65 * 11))) if heading else []
+    head = (
+        textwrap.wrap(latin(heading), int((page_w - 2 * margin) * 72 / (0.65 * 11)))
+        if heading
+        else []
+    )
     head_h = 0.1 + 11 * 1.3 / 72 * len(head) if head else 0.0
-    room_h = page_h - 2 * margin - head_h - (len(caption) + 1) * line
-    scale = min(1.0, (page_w - 2 * margin) / w, room_h / h)
-    texts = list(fig.findobj(MplText))
-    sizes = [float(t.get_fontsize()) for t in texts]
-    for t, size in zip(texts, sizes, strict=True):
-        t.set_fontsize(size * scale)
-    fig.set_size_inches(w * scale, h * scale)
-    fw, fh = w * scale, h * scale
-    x0 = -(page_w - fw) / 2  # the page's corner, in the figure's inches
-    top = page_h - margin - head_h  # the figure's top edge on the page
-    y0 = -(top - fh)
-    notes = []
+    img_h_px, img_w_px = pixels.shape[:2]
+    room_w = page_w - 2 * margin
+    room_h = page_h - 2 * margin - head_h - (len(caption) + 1) * line - 0.3
+    scale = min(room_w / img_w_px, room_h / img_h_px)  # inches per pixel
+    w, h = img_w_px * scale, img_h_px * scale
+    top = page_h - margin - head_h
     if head:
-        notes.append(
-            fig.text(
-                (margin + x0) / fw,
-                (top + 0.08 + y0) / fh,
-                "\n".join(head),
-                fontsize=11,
-                weight="bold",
-                va="bottom",
-                linespacing=1.3,
-            )
-        )
-    notes.append(
-        fig.text(
-            (margin + x0) / fw,
-            -line / fh,
-            "\n".join(caption),
-            fontsize=7,
-            color="#57606a",
-            va="top",
-            linespacing=1.35,
-        )
-    )
-    notes.append(
-        fig.text(
-            (MARGIN * page_w + x0) / fw,
-            (0.02 * page_h + y0) / fh,
-            f"{pager.report.title} - page {pager.page}",
-            fontsize=7,
-            color="#57606a",
-        )
-    )
-    try:
-        pager.pdf.savefig(fig, bbox_inches=Bbox.from_bounds(x0, y0, page_w, page_h))
-    finally:
-        for n in notes:
-            n.remove()
-        fig.set_size_inches(w, h)
-        for t, size in zip(texts, sizes, strict=True):
-            t.set_fontsize(size)
+        page.text(margin / page_w, (top + 0.08) / page_h, "\n".join(head), fontsize=11,
+                  weight="bold", va="bottom", linespacing=1.3)  # fmt: skip
+    ax = page.add_axes((margin / page_w, (top - h) / page_h, w / page_w, h / page_h))
+    ax.imshow(pixels, interpolation="none", aspect="auto")
+    ax.axis("off")
+    page.text(margin / page_w, (top - h - line) / page_h, "\n".join(caption), fontsize=7,
+              color="#57606a", va="top", linespacing=1.35)  # fmt: skip
+    footer(page, pager.report, pager.page)
+    pager.pdf.savefig(page)

@@ -448,20 +448,23 @@ def trajectory_error_figure(
     title: str = "",
     error: str = "position_norm",
     cmap: str = "jet",
+    error_in_mm: bool = False,
 ) -> Figure:
     """The reference trajectory seen from above (x-y, ENU m) coloured by the per-sample
-    ``error`` (``position_norm`` in m, or ``rotation_angle`` in deg): evo_ape's
-    ``--plot_mode xy`` colour map. Unity's path is drawn thin and grey for context."""
+    ``error`` (``position_norm`` in m, or in mm with ``error_in_mm`` as the report shows
+    errors; ``rotation_angle`` in deg): evo_ape's ``--plot_mode xy`` colour map. Unity's
+    path is drawn thin and grey for context."""
     from matplotlib.collections import LineCollection
 
     errs = error_series(pair)
     if error not in errs:
         raise KeyError(f"no per-sample error {error!r} in this comparison")
-    unit = "m" if error == "position_norm" else "deg"
-    what = "position error norm" if error == "position_norm" else error.replace("_", " ")
+    length = error == "position_norm"
+    unit = ("mm" if error_in_mm else "m") if length else "deg"
+    what = "position error norm" if length else error.replace("_", " ")
     ref = np.asarray(pair.reference.position, dtype=np.float64)
     oth = np.asarray(pair.other.position, dtype=np.float64)
-    e = np.asarray(errs[error], dtype=np.float64)
+    e = np.asarray(errs[error], dtype=np.float64) * (1e3 if length and error_in_mm else 1.0)
     s = _decimate(len(ref))
     xy, c = ref[s, :2], e[s]
     fig = _new_figure(8, 6.5)
@@ -490,4 +493,161 @@ def trajectory_error_figure(
     ax.set_title(f"Gazebo trajectory from above, coloured by the {what} ({unit})")
     if title:
         fig.suptitle(literal(title))
+    return fig
+
+
+# ----------------------------------------------------------------------------- at a glance
+#: Colour of a threshold line (the gate's bound) in every figure.
+THRESHOLD_COLOUR = "#cf222e"
+
+
+def _fixed_figure(
+    w: float, h: float, rows: int, cols: int, head_in: float = 0.0, **adjust: float
+) -> tuple[Figure, Any]:
+    """A figure with a fixed grid (no layout engine: solving one costs as much as drawing),
+    the caption and heading strips of :func:`_new_figure` kept free, and ``head_in``
+    inches more under the title (for legends placed above the top panels)."""
+    fig = Figure(figsize=(w, h), dpi=100)
+    params = dict(left=0.08, right=0.98, wspace=0.25, hspace=0.55)
+    params.update(adjust)
+    fig.subplots_adjust(
+        bottom=CAPTION_STRIP_IN / h + 0.06,
+        top=1.0 - (HEADING_STRIP_IN + head_in) / h - 0.05,
+        **params,
+    )
+    return fig, np.atleast_2d(fig.subplots(rows, cols, squeeze=False))
+
+
+def draw_threshold(
+    ax: Any, bound: float, label: str, data_top: float, *, both: bool = False
+) -> None:
+    """The gate's bound on ``ax``'s y axis (shown units): a dashed line, the axis extended
+    to show it, when it lies within 3x the data's scale; else a note at the top that the
+    bound is above the scale (a line far above the data would flatten it). ``both``: also
+    at -bound (signed errors)."""
+    if not math.isfinite(bound):
+        return
+    top = data_top if math.isfinite(data_top) and data_top > 0 else abs(bound)
+    if abs(bound) <= 3.0 * top:
+        ax.axhline(bound, color=THRESHOLD_COLOUR, lw=1.2, ls="--", label=label)
+        lo, hi = ax.get_ylim()
+        ax.set_ylim(min(lo, -1.08 * abs(bound)) if both else lo, max(hi, 1.08 * abs(bound)))
+        if both:
+            ax.axhline(-bound, color=THRESHOLD_COLOUR, lw=1.2, ls="--")
+    else:
+        ax.text(
+            0.99,
+            0.97,
+            f"{label}: above this scale",
+            transform=ax.transAxes,
+            ha="right",
+            va="top",
+            fontsize=7,
+            color=THRESHOLD_COLOUR,
+        )
+
+
+def level_means_figure(
+    table: ResultsTable,
+    topic: str,
+    factors: Sequence[str],
+    bounds: Mapping[str, tuple[float, str]],
+    skip_axes: Sequence[str] = (),
+) -> Figure:
+    """Mean MAE per factor level (lines; bars: lowest to highest run) for the position axes
+    (mm, left) and the rotation axes (deg, right), one row per factor, with the gate's MAE
+    bound drawn as a dashed line. ``bounds``: "position"/"rotation" -> (bound in mm or deg,
+    label)."""
+    rows = max(1, len(factors))
+    fig, grid = _fixed_figure(11, 2.3 * rows + 1.6, rows, 2, head_in=0.4, hspace=0.6)
+    sub = table.select(metric="mae", topic=topic)
+    groups = (
+        ("position", ("x", "y", "z"), 1e3, "mm"),
+        ("rotation", ("roll", "pitch", "yaw"), 1.0, "deg"),
+    )
+    for r, f in enumerate(factors):
+        levels = sorted(
+            sub[f].dropna().unique().tolist(),
+            key=lambda v: (0, v) if isinstance(v, (int, float)) else (1, str(v)),
+        )
+        xs = np.arange(len(levels))
+        for c, (kind, axes, scale, unit) in enumerate(groups):
+            ax = grid[r][c]
+            top = 0.0
+            for a in axes:
+                if a in skip_axes:
+                    continue
+                rows_a = sub[sub["axis"] == a]
+                g = rows_a.groupby(f)["value"].agg(["mean", "min", "max"]).reindex(levels) * scale
+                mean = g["mean"].to_numpy(dtype=float)
+                lo = mean - g["min"].to_numpy(dtype=float)
+                hi = g["max"].to_numpy(dtype=float) - mean
+                ax.errorbar(xs, mean, yerr=[lo, hi], fmt="o-", color=AXIS_COLOURS[a], label=a,
+                            capsize=3, lw=1.2, ms=4)  # fmt: skip
+                if np.isfinite(g["max"]).any():
+                    top = max(top, float(np.nanmax(g["max"].to_numpy(dtype=float))))
+            ax.set_xticks(xs, [_fmt(v) for v in levels])
+            ax.set_xlabel(literal(factor_label(f)))
+            ax.set_ylabel(f"MAE ({unit})")
+            ax.set_ylim(0.0, 1.1 * top if top > 0 else 1.0)
+            if kind in bounds:
+                bound, label = bounds[kind]
+                draw_threshold(ax, bound, label, top)
+            ax.grid(True, alpha=0.3)
+            if r == 0:  # above the top panels, clear of the data and the bound's note
+                ax.legend(
+                    loc="lower left",
+                    bbox_to_anchor=(0.0, 1.02),
+                    fontsize=7,
+                    ncol=5,
+                    title=f"{kind} axes",
+                    title_fontsize=8,
+                    frameon=False,
+                )
+    fig.suptitle(literal(f"{topic}: mean MAE per level (bars: lowest to highest run)"))
+    return fig
+
+
+def error_time_figure(
+    pair: AlignedPair, title: str, bounds: Mapping[str, tuple[float, str]]
+) -> Figure:
+    """Signed error over time: position axes (mm) above, rotation axes (deg) below, with the
+    gate's max-|error| bound (``bounds``: "position"/"rotation" -> (bound, label)) drawn at
+    +-bound."""
+    ts, _, _ = pair_series(pair)
+    errs = error_series(pair)
+    s = _decimate(len(ts), 3000)
+    fig, grid = _fixed_figure(11, 6.3, 2, 1, head_in=0.35, hspace=0.6)
+    for r, (kind, axes, scale, unit) in enumerate(
+        (
+            ("position", ("x", "y", "z"), 1e3, "mm"),
+            ("rotation", ("roll", "pitch", "yaw"), 1.0, "deg"),
+        )
+    ):
+        ax = grid[r][0]
+        top = 0.0
+        for a in axes:
+            e = np.asarray(errs.get(a, np.zeros(0)), dtype=np.float64) * scale
+            if len(e) == 0:
+                continue
+            ax.plot(ts[s][: len(e[s])], e[s], color=AXIS_COLOURS[a], lw=0.9, label=a)
+            if np.isfinite(e).any():
+                top = max(top, float(np.nanmax(np.abs(e))))
+        ax.axhline(0.0, color="black", lw=0.5)
+        if kind in bounds:
+            bound, label = bounds[kind]
+            draw_threshold(ax, bound, label, top, both=True)
+        ax.set_ylabel(f"Unity - Gazebo ({unit})")
+        ax.grid(True, alpha=0.3)
+        ax.legend(
+            loc="lower left",
+            bbox_to_anchor=(0.0, 1.01),
+            fontsize=7,
+            ncol=5,
+            title=f"{kind} error over time",
+            title_fontsize=8,
+            frameon=False,
+        )
+    grid[-1][0].set_xlabel("time (s)")
+    fig.suptitle(literal(title))
     return fig

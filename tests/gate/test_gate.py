@@ -261,9 +261,10 @@ def test_cli_check_exit_codes(experiment: Path, table: ResultsTable, tmp_path: P
     )
     bad = _uwval("check", str(experiment / "results"), "--thresholds", str(tight))
     assert bad.returncode == 1
-    assert f"FAIL - {len(table.runs)} regression(s)" in bad.stderr
-    assert "[vehicle x MAE]" in bad.stderr
-    assert "must be <= 1e-06 m" in bad.stderr
+    # the verdict is the command's output: stdout, FAIL as PASS
+    assert f"FAIL - {len(table.runs)} regression(s)" in bad.stdout
+    assert "[vehicle x MAE]" in bad.stdout
+    assert "must be <= 1e-06 m" in bad.stdout
     js = _uwval("check", str(experiment), "--thresholds", str(tight), "--json")
     assert js.returncode == 1
     obj = json.loads(js.stdout)
@@ -289,7 +290,7 @@ def test_cli_check_against_baseline(experiment: Path, table: ResultsTable, tmp_p
     df.to_csv(golden, index=False)
     res = _uwval("check", str(experiment), "--baseline", str(golden))
     assert res.returncode == 1
-    assert "max run=" in res.stderr
+    assert "max run=" in res.stdout
 
 
 # ----------------------------------------------------------------------------- pytest plugin
@@ -472,7 +473,7 @@ def test_nan_error_metrics_fail_instead_of_being_skipped(
     th = _toml(tmp_path, '[[threshold]]\nmetric = "mae"\nmax = 1.0\n')
     res = _uwval("check", tmp_path / "results.csv", "--thresholds", th)
     assert res.returncode == 1, res.stdout + res.stderr
-    assert "undefined (NaN)" in res.stderr
+    assert "undefined (NaN)" in res.stdout
 
 
 def test_a_missing_gated_value_in_the_compare_json_fails(table: ResultsTable) -> None:
@@ -575,7 +576,7 @@ def test_runs_of_the_manifest_missing_from_the_results_fail(
     th_file = _toml(tmp_path, '[[threshold]]\nmetric = "mae"\nmax = 1.0\n')
     res = _uwval("check", exp, "--thresholds", th_file)
     assert res.returncode == 1, res.stdout + res.stderr
-    assert f"run={dropped}: the run is missing from the results" in res.stderr
+    assert f"run={dropped}: the run is missing from the results" in res.stdout
 
 
 def _warned_comparison(log: Path, warning: str, dropped: int) -> dict[str, object]:
@@ -640,7 +641,7 @@ def test_a_log_warning_reaches_the_command_line_gate_and_the_report(
     th = _toml(tmp_path, '[[threshold]]\nmetric = "mae"\nmax = 1.0\n')
     res = _uwval("check", tmp_path / "comparisons.json", "--thresholds", th)
     assert res.returncode == 1, res.stdout + res.stderr
-    assert text in res.stderr
+    assert text in res.stdout
     exp = load_experiment_results(tmp_path / "comparisons.json")
     assert exp.run_warnings()["cut"][0] == text
     from uwval.reports.builder import build_report

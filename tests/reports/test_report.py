@@ -79,30 +79,37 @@ def test_experiment_report_sections_and_self_containment(
     assert not re.search(r"url\((?!data:)", html)  # no CSS-fetched resources
     assert "@import" not in html
     for section in (
+        "answer",
         "verdict",
+        "sensitivity",
+        "paper",
         "summary",
-        "factor-force",
-        "factor-current",
-        "main-effects",
+        "level-plots",
+        "one-way",
         "two-way",
         "runs",
         "bridge",
         "provenance",
     ):
         assert section in refs.ids, section
-    assert "factor-torque" not in refs.ids  # torque does not vary: no section
+    # the answer first, then pass/fail; the one-way view is secondary (after the summary)
+    assert refs.ids.index("answer") < refs.ids.index("verdict") < refs.ids.index("summary")
+    assert refs.ids.index("summary") < refs.ids.index("one-way")
     assert "One-way ANOVA of MAE across levels of current" in html
+    assert "of torque" not in html  # torque does not vary: no one-way table of it
     assert "Pearson r" in html
     assert "MAE" in html
     assert "Absolute error" in html
-    # per-run details for the first 2 runs only, with the three per-run plots each
+    # per-run details for the 2 worst runs (distinct cells of the design), 2 plots each
     run_sections = [i for i in refs.ids if i.startswith("run-")]
     assert len(run_sections) == 2
-    for title in ("Trajectory overlay", "Per-axis series and error", "Unity vs Gazebo"):
+    for title in ("Error over time", "Trajectory coloured by the position error"):
         assert html.count(f'alt="{title}: ') == 2
-    assert "per-run plots shown for the first 2 of 8 runs" in html
-    # bridge statistics from the manifest
-    assert "latency_mean_ms" in html
+    assert "per-run plots shown for the 2 worst of 8 runs" in html
+    # the worst: the largest lag is at current 0.2 (write_experiment: 0.3 s per m/s)
+    assert all("current0.2" in i for i in run_sections)
+    # bridge statistics from the manifest, summarised over the runs (ms, counts)
+    assert "latency_mean" in html
     assert "dropped" in html
 
 
@@ -258,8 +265,9 @@ def test_pdf_pages_render_and_are_not_blank(
     if text is not None and text.returncode == 0:
         for words in (
             "Verdict",
+            "Pass or fail: per factor level and per threshold rule",
             "Summary: absolute error, MAE and Pearson r",
-            "Factor: current",
+            "Secondary view: one factor at a time",
             "Provenance",
         ):
             assert words in text.stdout
@@ -381,8 +389,8 @@ def test_pdf_tables_fit_the_page_and_headings_stay_with_their_tables(
         ["pdftotext", "-layout", str(pdf), "-"], capture_output=True, text=True, timeout=60
     ).stdout.split("\f")
     for title, first_table in (
-        ("Factor: force (N)", "Per level of force"),
-        ("Factor: current (m/s)", "Per level of current"),
+        ("Pass or fail: per factor level and per", "Pass or fail per factor level"),
+        ("Secondary view: one factor at a time", "Per level of force"),
     ):
         page = next(p for p in pages if title in p)
         assert first_table in page, f"{title!r} is separated from its table"

@@ -31,18 +31,19 @@ def test_roundoff_axes_are_the_ones_that_do_not_move(experiment: Path) -> None:
     assert roundoff_axes(table, floor=0.0)[VEHICLE] == ["z"]
 
 
-def test_report_skips_roundoff_and_opens_with_the_paper_table(
+def test_report_skips_roundoff_and_puts_the_paper_table_after_the_verdict(
     experiment: Path, tmp_path: Path
 ) -> None:
     html, pdf = tmp_path / "r.html", tmp_path / "r.pdf"
     build_report(experiment, html, pdf=pdf, max_detail_runs=1)
     text = html.read_text()
     assert "The paper&#39;s validation metrics per factor level" in text
-    # the first section of the report, before the verdict's details
-    assert text.index('<section id="paper">') < text.index('<section id="verdict">')
-    assert text.index('<section id="paper">') == text.index("<section")
-    assert "force (N) = 5" in text and "current (m/s) = 0.2" in text
-    assert f"Not analysed (no ANOVA, no box plot): {VEHICLE} z" in text
+    # the answer and pass/fail per level first, then the paper's table, then the summary
+    assert text.index('<section id="answer">') == text.index("<section")
+    assert text.index('<section id="verdict">') < text.index('<section id="paper">')
+    assert text.index('<section id="paper">') < text.index('<section id="summary">')
+    assert "force = 5 N" in text and "current = 0.2 m/s" in text
+    assert f"Not analysed (no ANOVA, no level plot): {VEHICLE} z" in text
     # the ANOVA tables list no round-off axis
     blocks = text.split("One-way ANOVA of MAE")[1:]
     assert len(blocks) == 2  # force and current vary
@@ -58,5 +59,7 @@ def test_report_skips_roundoff_and_opens_with_the_paper_table(
             text=True,
             check=True,
         ).stdout
-        assert "validation metrics per factor level" in page1
-        assert "force (N) = 10" in page1
+        # page 1 says the answer: the verdict per level, with the thresholds
+        assert "Pass or fail per factor level" in page1
+        assert "force = 10 N" in page1
+        assert "position" in page1 and "<= 20.00 mm" in page1  # the bound, in the header

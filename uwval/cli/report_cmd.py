@@ -5,7 +5,10 @@ from __future__ import annotations
 import json
 import shlex
 import sys
+import time
 import warnings
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -17,8 +20,10 @@ from uwval.cli import app
 from uwval.cli.notes import warnings_as_notes
 from uwval.errors import ConfigError
 
-console = Console()
-err_console = Console(stderr=True)
+# soft_wrap: lines are never cut at the terminal width (piped output is 80 columns wide to
+# rich, and a wrapped verdict line defeats grep)
+console = Console(soft_wrap=True)
+err_console = Console(stderr=True, soft_wrap=True)
 
 #: Suffixes of one results file that is not a log: tables and JSON results.
 _RESULT_SUFFIXES = (".json", ".csv", ".parquet")
@@ -33,7 +38,10 @@ SyncOpt = Annotated[str | None, typer.Option(help="interp or nearest, as compare
 MaxDiffOpt = Annotated[
     float | None,
     typer.Option(
-        "--max-diff", "--t_max_diff", help="nearest: max dt (s); without --sync it means nearest"
+        "--max-diff",
+        "--t-max-diff",
+        "--t_max_diff",
+        help="nearest: max dt (s); without --sync it means nearest",
     ),
 ]
 OffsetOpt = Annotated[
@@ -148,6 +156,33 @@ def _is_log(path: Path) -> bool:
     return is_log(path)
 
 
+@contextmanager
+def _progress(what: str) -> Iterator[Callable[[str, float | None], None]]:
+    """Report progress per stage: a live status line on a terminal (rich), one plain line
+    per finished stage when piped (a CI log shows where the time went)."""
+    started = time.perf_counter()
+    if console.is_terminal:
+        with console.status(f"report of {what}: starting") as status:
+
+            def live(stage: str, took: float | None) -> None:
+                if took is None:
+                    status.update(f"report of {escape(what)}: {escape(stage)}...")
+
+            yield live
+        return
+
+    def plain(stage: str, took: float | None) -> None:
+        if took is not None:
+            total = time.perf_counter() - started
+            console.print(
+                f"report: {stage}: {took:.1f} s (total {total:.1f} s)",
+                markup=False,
+                highlight=False,
+            )
+
+    yield plain
+
+
 @app.command()
 def report(
     source: Annotated[
@@ -172,12 +207,15 @@ def report(
         ),
     ] = "default",
     baseline: Annotated[
-        Path | None, typer.Option(help="Golden results JSON/CSV to gate on.")
+        str | None,
+        typer.Option(help="Golden results JSON/CSV to gate on; 'default' = embedded."),
     ] = None,
     manifest: Annotated[
         Path | None, typer.Option(help="manifest.json, when not next to the results.")
     ] = None,
-    max_detail_runs: Annotated[int, typer.Option(help="Runs with per-run plots.", min=0)] = 8,
+    max_detail_runs: Annotated[
+        int, typer.Option(help="Runs with per-run plots: the worst ones (failing first).", min=0)
+    ] = 3,
     topic: Annotated[
         list[str] | None,
         typer.Option(help="Topic(s) with per-run plots (default: the vehicle topic)."),
@@ -238,11 +276,7 @@ def report(
         source_for_report = where / "comparisons.json"
     else:
         source_for_report = source
-    with (
-        scratch,
-        console.status(f"building the report of {source}..."),
-        warnings.catch_warnings(),
-    ):
+    with scratch, _progress(str(source)) as progress, warnings.catch_warnings():
         # build_report collects what the readers warned about into outcome.warnings
         warnings.simplefilter("ignore")
         outcome = build_report(
@@ -256,6 +290,7 @@ def report(
             max_detail_runs=max_detail_runs,
             detail_topics=topic,
             command=shlex.join(["uwval", *sys.argv[1:]]),
+            progress=progress,
         )
     if results_out is not None:
         import uwval
@@ -270,15 +305,17 @@ def report(
         outcome.table.save(results_out)
     for w in outcome.warnings:
         console.print(f"[yellow]note:[/] {escape(w)}")
-    verdict = (
-        "not checked"
-        if outcome.gate is None
-        else ("[green]PASS[/]" if outcome.gate.passed else "[red]FAIL[/]")
-    )
+    if outcome.refused:
+        verdict = "[red]REFUSED[/] (" + escape(outcome.refused) + ")"
+    elif outcome.gate is None:
+        verdict = "not checked"
+    else:
+        verdict = "[green]PASS[/]" if outcome.gate.passed else "[red]FAIL[/]"
+    took = sum(outcome.timings.values())
     console.print(
-        f"[green]wrote[/] {outcome.html}"
-        + (f" and {outcome.pdf}" if outcome.pdf else "")
-        + f" ({outcome.n_runs} run(s)); verdict {verdict}"
+        f"[green]wrote[/] {escape(str(outcome.html))}"
+        + (f" and {escape(str(outcome.pdf))}" if outcome.pdf else "")
+        + f" ({outcome.n_runs} run(s)); verdict {verdict} (in {took:.1f} s)"
     )
 
 
@@ -295,9 +332,13 @@ def check(
         Path | None,
         typer.Argument(help="Second file of a pair (RESULTS is then the reference), as compare"),
     ] = None,
-    thresholds: Annotated[Path | None, typer.Option(help="Thresholds TOML (see docs).")] = None,
+    thresholds: Annotated[
+        str | None,
+        typer.Option(help="Thresholds TOML (see docs); 'default' = the embedded defaults."),
+    ] = None,
     baseline: Annotated[
-        Path | None, typer.Option(help="Golden baseline (results JSON/CSV).")
+        str | None,
+        typer.Option(help="Golden baseline (results JSON/CSV); 'default' = embedded."),
     ] = None,
     json_out: Annotated[bool, typer.Option("--json", help="Print the verdict as JSON.")] = False,
     limit: Annotated[int, typer.Option(help="Violations listed at most (0 = all).", min=0)] = 200,
@@ -323,11 +364,14 @@ def check(
     """
     from uwval.config import load_config
     from uwval.gate import check as run_check
+    from uwval.gate import require_integrity, resolve_input
     from uwval.results import compare_pending, load_experiment_results
 
     project = load_config(config)
-    if thresholds is None and project is not None:
-        thresholds = project.thresholds
+    if thresholds is None and project is not None and project.thresholds is not None:
+        thresholds = str(project.thresholds)
+    th_path = resolve_input("thresholds", thresholds)
+    base_path = resolve_input("baselines", baseline)
     if thresholds is None and baseline is None and write_baseline is None:
         raise ConfigError(
             "uwval check needs --thresholds FILE.toml and/or --baseline FILE.json "
@@ -360,8 +404,8 @@ def check(
                 "uwval_version": uwval.__version__,
                 "source": str(results),
                 "command": shlex.join(["uwval", *sys.argv[1:]]),
-                "regenerate": "uwval simulate data/experiments/default.toml -o DIR && "
-                "uwval check DIR --write-baseline data/baselines/default.json",
+                "regenerate": "uwval simulate default -o DIR && "
+                "uwval check DIR --write-baseline baseline.json",
             },
         )
         written = golden.save(write_baseline)
@@ -372,14 +416,13 @@ def check(
         if exp.failed:
             raise typer.Exit(1)
         return
-    verdict = run_check(exp.table, thresholds, baseline, expected_runs=[r.name for r in exp.runs])
+    require_integrity(exp.table, [(r.name, r.comparison) for r in exp.runs], results)
+    verdict = run_check(exp.table, th_path, base_path, expected_runs=[r.name for r in exp.runs])
     if json_out:
         typer.echo(json.dumps(verdict.to_json(), indent=1))
-    else:
+    else:  # the verdict is the command's output: stdout, PASS or FAIL alike
         text = verdict.format(limit=None if limit == 0 else limit)
-        (console if verdict.passed else err_console).print(
-            text, highlight=False, soft_wrap=True, markup=False
-        )
+        console.print(text, highlight=False, soft_wrap=True, markup=False)
     if exp.failed:
         err_console.print(
             f"{len(exp.failed)} run(s) failed to simulate or compare: "

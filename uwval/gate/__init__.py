@@ -44,7 +44,13 @@ baseline (a results table saved as JSON/CSV), error metrics regress when
 axis that barely moves has a noise-level, meaningless correlation); a run, topic or axis
 present in the baseline but missing from the results is a failure too, as is a run or topic
 of the results the baseline does not cover. A baseline that holds no gated value, or an error
-metric that is NaN or negative, is refused (exit 2): it cannot gate anything.
+metric that is NaN or negative, is refused (exit 2): it cannot gate anything. A gated metric
+(``[baseline] metrics``) that the baseline lacks for a run/topic/axis it covers is a failure
+that names the metric: a baseline of Pearson r alone cannot pass a regressed MAE.
+
+Results that do not say what their log readers dropped and warned about (``dropped`` and
+``warnings`` of each source of a compare JSON, ``n_warnings`` rows of a table) are refused
+(:func:`require_integrity`, exit 2). ``default`` names the embedded thresholds or baseline.
 """
 
 from __future__ import annotations
@@ -55,11 +61,20 @@ from pathlib import Path
 from uwval.errors import ConfigError
 from uwval.gate.checks import (
     baseline_from,
+    baseline_gaps,
     check_baseline,
     check_log_warnings,
     check_runs,
     check_thresholds,
     check_values,
+)
+from uwval.gate.integrity import (
+    DEFAULT_NAME,
+    GateInputError,
+    display_path,
+    missing_integrity,
+    require_integrity,
+    resolve_input,
 )
 from uwval.gate.rules import (
     ABS_IS_WORSE,
@@ -83,12 +98,14 @@ THRESHOLDS_FORMAT = __doc__ or ""
 __all__ = [
     "ABS_IS_WORSE",
     "DEFAULT_BASELINE_METRICS",
+    "DEFAULT_NAME",
     "ERROR_AXES",
     "HIGHER_IS_WORSE",
     "LOWER_IS_WORSE",
     "NON_NEGATIVE",
     "THRESHOLDS_FORMAT",
     "BaselineTolerance",
+    "GateInputError",
     "GateResult",
     "ThresholdRule",
     "Thresholds",
@@ -96,6 +113,7 @@ __all__ = [
     "Violation",
     "ViolationKind",
     "baseline_from",
+    "baseline_gaps",
     "check",
     "check_baseline",
     "check_log_warnings",
@@ -103,8 +121,12 @@ __all__ = [
     "check_runs",
     "check_thresholds",
     "check_values",
+    "display_path",
     "load_thresholds",
+    "missing_integrity",
     "parse_thresholds",
+    "require_integrity",
+    "resolve_input",
 ]
 
 
@@ -115,7 +137,8 @@ def check(
     *,
     expected_runs: Sequence[str] = (),
 ) -> GateResult:
-    """The gate: thresholds and/or baseline (paths are loaded). At least one is required.
+    """The gate: thresholds and/or baseline (paths are loaded; ``"default"`` names the
+    embedded file). At least one is required.
 
     Besides the rules and the baseline, every gate run also fails impossible values
     (:func:`check_values`), runs whose logs a reader warned about unless the thresholds allow
@@ -124,7 +147,10 @@ def check(
     """
     if thresholds is None and baseline is None:
         raise ConfigError("uwval check needs --thresholds FILE.toml and/or --baseline FILE.json")
-    th = load_thresholds(thresholds) if isinstance(thresholds, (str, Path)) else thresholds
+    if isinstance(thresholds, (str, Path)):
+        th: Thresholds | None = load_thresholds(resolve_input("thresholds", thresholds) or "")
+    else:
+        th = thresholds
     if th is not None and not th.rules and baseline is None:
         # an empty rule list would pass every table: a gate that checks nothing is a mistake
         raise ConfigError(
@@ -139,7 +165,10 @@ def check(
     if th is not None:
         result = result.merge(check_thresholds(table, th))
     if baseline is not None:
-        base = ResultsTable.load(baseline) if isinstance(baseline, (str, Path)) else baseline
+        if isinstance(baseline, (str, Path)):
+            base = ResultsTable.load(resolve_input("baselines", baseline) or "")
+        else:
+            base = baseline
         tol = th.baseline if th is not None else BaselineTolerance()
         result = result.merge(check_baseline(table, base, tol))
     return result

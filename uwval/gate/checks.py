@@ -7,6 +7,7 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
 from uwval.errors import ConfigError
@@ -18,15 +19,16 @@ from uwval.gate.rules import (
     LOWER_IS_WORSE,
     NON_NEGATIVE,
     BaselineTolerance,
+    ThresholdRule,
     Thresholds,
     UndefinedPolicy,
 )
 from uwval.gate.verdict import GateResult, Violation, ViolationKind
-from uwval.results import AXIS_UNITS, MAY_BE_UNDEFINED, MISSING_NOTE, ResultsTable
+from uwval.results import AXES, AXIS_UNITS, MAY_BE_UNDEFINED, MISSING_NOTE, ResultsTable
 from uwval.results.schema import SOURCES
 
 
-def _factor_dict(row: pd.Series, factors: Sequence[str]) -> dict[str, Any]:
+def _factor_dict(row: Mapping[Any, Any], factors: Sequence[str]) -> dict[str, Any]:
     out = {}
     for f in factors:
         v = row[f]
@@ -45,7 +47,7 @@ def _level_matches(cell: Any, want: Any) -> bool:
     return str(cell) == str(want)
 
 
-def _where(row: pd.Series) -> str:
+def _where(row: Mapping[Any, Any]) -> str:
     return f"{row['run']}/{row['topic']}/{row['axis']}"
 
 
@@ -124,52 +126,7 @@ def check_thresholds(table: ResultsTable, thresholds: Thresholds) -> GateResult:
                         f"axis {', '.join(lacking)}",
                     )
                 )
-        for _, row in rows.iterrows():
-            value = float(row["value"])
-            unit = str(row["unit"])
-            note = str(row["note"])
-            fac = _factor_dict(row, table.factors)
-            common: dict[str, Any] = dict(
-                metric=rule.metric,
-                topic=str(row["topic"]),
-                axis=str(row["axis"]),
-                run=str(row["run"]),
-                factors=fac,
-                unit=unit,
-                rule=rule.label(),
-            )
-            result.checked += 1
-            if math.isnan(value):
-                if rule.undefined is UndefinedPolicy.SKIP and _may_skip_undefined(
-                    rule.metric, note
-                ):
-                    result.skipped.append(f"{rule.metric} {_where(row)}: {note}")
-                    continue
-                bound = rule.min if rule.min is not None else rule.max
-                op = ">=" if rule.min is not None else "<="
-                result.violations.append(
-                    Violation(
-                        ViolationKind.UNDEFINED,
-                        value=value,
-                        bound=float(bound or 0.0),
-                        op=op,
-                        note=note or MISSING_NOTE,
-                        **common,
-                    )
-                )
-                continue
-            if rule.max is not None and value > rule.max:
-                result.violations.append(
-                    Violation(
-                        ViolationKind.THRESHOLD, value=value, bound=rule.max, op="<=", **common
-                    )
-                )
-            if rule.min is not None and value < rule.min:
-                result.violations.append(
-                    Violation(
-                        ViolationKind.THRESHOLD, value=value, bound=rule.min, op=">=", **common
-                    )
-                )
+        result = result.merge(_rule_rows(rule, rows, table.factors))
     if thresholds.rules and result.checked == 0 and not result.violations:
         # every rule was skipped (no topic of its role): a gate that checked nothing must
         # not pass
@@ -192,6 +149,58 @@ def check_thresholds(table: ResultsTable, thresholds: Thresholds) -> GateResult:
     return result
 
 
+def _rule_rows(rule: ThresholdRule, rows: pd.DataFrame, factors: Sequence[str]) -> GateResult:
+    """One rule over its rows: the bounds compared in one numpy pass, a Violation built
+    only for a row that breaks them (or is NaN without a reason to skip it)."""
+    result = GateResult(checked=len(rows))
+    values = rows["value"].to_numpy(dtype=float)
+    nan = np.isnan(values)
+    bad = nan.copy()
+    with np.errstate(invalid="ignore"):
+        if rule.max is not None:
+            bad |= values > rule.max
+        if rule.min is not None:
+            bad |= values < rule.min
+    for i in np.flatnonzero(bad):  # only the failures (and NaNs) reach Python
+        row = rows.iloc[i].to_dict()
+        value, note = float(values[i]), str(row["note"])
+        common: dict[str, Any] = dict(
+            metric=rule.metric,
+            topic=str(row["topic"]),
+            axis=str(row["axis"]),
+            run=str(row["run"]),
+            factors=_factor_dict(row, factors),
+            unit=str(row["unit"]),
+            rule=rule.label(),
+        )
+        if nan[i]:
+            if rule.undefined is UndefinedPolicy.SKIP and _may_skip_undefined(rule.metric, note):
+                result.skipped.append(f"{rule.metric} {_where(row)}: {note}")
+                continue
+            bound = rule.min if rule.min is not None else rule.max
+            op = ">=" if rule.min is not None else "<="
+            result.violations.append(
+                Violation(
+                    ViolationKind.UNDEFINED,
+                    value=value,
+                    bound=float(bound or 0.0),
+                    op=op,
+                    note=note or MISSING_NOTE,
+                    **common,
+                )
+            )
+            continue
+        if rule.max is not None and value > rule.max:
+            result.violations.append(
+                Violation(ViolationKind.THRESHOLD, value=value, bound=rule.max, op="<=", **common)
+            )
+        if rule.min is not None and value < rule.min:
+            result.violations.append(
+                Violation(ViolationKind.THRESHOLD, value=value, bound=rule.min, op=">=", **common)
+            )
+    return result
+
+
 def _impossible(metric: str, axis: str, value: float) -> str:
     """Why ``value`` cannot be a result of the compare engine ('' when it can)."""
     if math.isnan(value):
@@ -210,7 +219,12 @@ def check_values(table: ResultsTable) -> GateResult:
     result = GateResult()
     df = table.df
     cand = df[df["metric"].isin(NON_NEGATIVE | MAY_BE_UNDEFINED) & df["axis"].isin(ERROR_AXES)]
-    for _, row in cand.iterrows():
+    values = cand["value"].to_numpy(dtype=float)
+    with np.errstate(invalid="ignore"):
+        # a superset of the impossible values (negative, or beyond +-1): judged one by one
+        suspect = (values < 0) | (np.abs(values) > 1) | np.isinf(values)
+    cand = cand[suspect]
+    for row in cand.to_dict("records"):
         why = _impossible(str(row["metric"]), str(row["axis"]), float(row["value"]))
         if why:
             result.violations.append(
@@ -264,7 +278,7 @@ def check_log_warnings(table: ResultsTable, *, allow: bool = False) -> GateResul
                 str(topic),
                 str(axis),
                 str(run),
-                _factor_dict(first, table.factors),
+                _factor_dict(first.to_dict(), table.factors),
                 math.nan,
                 math.nan,
                 "",
@@ -308,7 +322,7 @@ def _validate_baseline(base: pd.DataFrame, tol: BaselineTolerance) -> None:
     values = base["value"].astype(float)
     if not values.notna().any():
         raise ConfigError("every gated value of the baseline is NaN: it cannot gate anything")
-    for _, row in base.iterrows():
+    for row in base.to_dict("records"):
         metric, v = str(row["metric"]), float(row["value"])
         if math.isnan(v) and not _may_skip_undefined(metric, str(row["note"])):
             raise ConfigError(
@@ -320,6 +334,45 @@ def _validate_baseline(base: pd.DataFrame, tol: BaselineTolerance) -> None:
             raise ConfigError(f"baseline {metric} {_where(row)} = {v:.6g}: {why}")
 
 
+def baseline_gaps(base: pd.DataFrame, tol: BaselineTolerance) -> GateResult:
+    """A FAIL per gated metric (``tol.metrics``) that the baseline does not hold for every
+    run/topic/axis it covers: such a value would pass unchecked (a baseline of Pearson r
+    alone must not pass a run whose MAE regressed)."""
+    result = GateResult()
+    pose = base[base["axis"].isin(AXES)]
+    keys = set(zip(pose["run"], pose["topic"], pose["axis"], strict=True))
+    for metric in tol.metrics:
+        rows = pose[pose["metric"] == metric]
+        have = set(zip(rows["run"], rows["topic"], rows["axis"], strict=True))
+        lacking = sorted(keys - have)
+        if not lacking:
+            continue
+        if not have:
+            note = f"the baseline holds no {metric} value ([baseline] metrics gates it)"
+        else:
+            first = "/".join(lacking[0])
+            note = (
+                f"the baseline lacks {metric} for {len(lacking)} of {len(keys)} "
+                f"run/topic/axis values (e.g. {first})"
+            )
+        result.violations.append(
+            Violation(
+                ViolationKind.UNCOVERED,
+                metric,
+                "",
+                "",
+                "",
+                {},
+                math.nan,
+                math.nan,
+                "",
+                rule="baseline",
+                note=note,
+            )
+        )
+    return result
+
+
 def check_baseline(
     table: ResultsTable, baseline: ResultsTable, tolerance: BaselineTolerance | None = None
 ) -> GateResult:
@@ -328,7 +381,7 @@ def check_baseline(
     key = ["run", "topic", "axis", "metric"]
     base = baseline.df[baseline.df["metric"].isin(tol.metrics)]
     _validate_baseline(base, tol)
-    result = GateResult()
+    result = baseline_gaps(base, tol)
     # runs and topics of the results that the baseline does not cover would pass unchecked
     covered = set(zip(base["run"], base["topic"], strict=True))
     cur_pairs = table.df[table.df["metric"].isin(tol.metrics)][["run", "topic"]]
@@ -356,7 +409,7 @@ def check_baseline(
         columns={"value": "_current_value", "note": "_current_note"}
     )
     merged = base.merge(cur, on=key, how="left", indicator=True)
-    for _, row in merged.iterrows():
+    for row in merged.to_dict("records"):  # dicts: ~50x cheaper per row than iterrows
         b = float(row["value"])
         metric = str(row["metric"])
         unit = str(row["unit"]) or AXIS_UNITS.get(str(row["axis"]), "")

@@ -21,6 +21,7 @@ class ViolationKind(str, Enum):
     NO_MATCH = "no-match"  # a rule matched no row (or none of one run's)
     UNGATED = "ungated"  # a run/topic of the results the baseline does not cover
     LOG_WARNING = "log-warning"  # a reader warned about the run's log
+    UNCOVERED = "uncovered"  # a gated metric the baseline holds no value of
 
     def __str__(self) -> str:
         return self.value
@@ -68,6 +69,8 @@ class Violation:
             return f"{where}: the run is missing from the results{why}"
         if self.kind is K.UNGATED:
             return f"{where}: not covered by the baseline, so not gated{why}"
+        if self.kind is K.UNCOVERED:
+            return f"{self.metric}: not checked against the baseline: {self.note}"
         if self.kind is K.LOG_WARNING:
             return f"{where}: the log reader warned: {self.note} [{self.rule}]"
         if self.kind is K.INVALID:
