@@ -8,7 +8,6 @@ run (:func:`uwval.bridge.experiment.run_experiment`, :func:`uwval.batch.compare_
 
 from __future__ import annotations
 
-import importlib
 import sys
 import time
 from pathlib import Path
@@ -84,17 +83,11 @@ def demo(
 def _write_study_files(table: Any, experiment: Path, results_dir: Path) -> None:
     """analysis.json (the factorial analysis) and sensitivity.json (how far the choice of
     the Gazebo model moves the pose) beside the results."""
+    from uwval.results.analysis import write_analysis
     from uwval.simulator import load_experiment
     from uwval.simulator.sensitivity import model_sensitivity, write_sensitivity
 
-    # the study engineer's factorial analysis (docs/analysis.md); until it is merged, say so
-    write_analysis = getattr(
-        importlib.import_module("uwval.results.analysis"), "write_analysis", None
-    )
-    if write_analysis is None:
-        console.print("[yellow]warning:[/] analysis.json not written (no write_analysis)")
-    else:
-        console.print(f"[green]analysis[/] {write_analysis(table, results_dir / 'analysis.json')}")
+    console.print(f"[green]analysis[/] {write_analysis(table, results_dir / 'analysis.json')}")
     exp = load_experiment(experiment)
     report = model_sensitivity(exp.vehicle, duration_s=exp.duration_s, baseline=exp.model)
     path = write_sensitivity(report, results_dir / "sensitivity.json")
