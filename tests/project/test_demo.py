@@ -42,3 +42,19 @@ def test_demo_end_to_end(tmp_path: Path) -> None:
     assert "PASS" in html
     assert "<img" in html
     assert (out / "report.pdf").read_bytes()[:5] == b"%PDF-"
+    # issue 31: the answer, not only the numbers. analysis.json holds the factorial analysis
+    # with partial eta^2 for force, torque and current per axis of the vehicle ...
+    analysis = json.loads((out / "results" / "analysis.json").read_text())
+    assert analysis["n_runs"] == 54
+    assert set(analysis["factors"]) == {"force", "torque", "current"}
+    for axis in ("x", "y", "z", "roll", "pitch", "yaw"):
+        terms = {t["term"]: t for t in analysis["topics"]["model_rov_pose"][axis]["mae"]["terms"]}
+        for factor in ("force", "torque", "current"):
+            assert 0.0 <= terms[factor]["partial_eta_sq"] <= 1.0, (axis, factor)
+    assert "late" in analysis["answer"]
+    # ... and its two seeds are real replicates: each cell's runs differ in x MAE
+    x_mae = df[(df["topic"] == "model_rov_pose") & (df["axis"] == "x") & (df["metric"] == "mae")]
+    cell = {r["name"]: tuple(sorted(r["factors"].items())) for r in manifest["runs"]}
+    spread = x_mae.groupby(x_mae["run"].map(cell))["value"].agg(lambda v: v.max() - v.min())
+    assert len(spread) == 27 and (spread > 0).all()
+    assert (out / "results" / "sensitivity.json").is_file()
