@@ -7,17 +7,17 @@ The command builds one :class:`uwval.comparison.options.CompareOptions`
 
 from __future__ import annotations
 
-import inspect
 import json
 import sys
 from pathlib import Path
-from typing import Annotated, Any, Optional
+from typing import Annotated, Any
 
 import typer
 
 from uwval.cli import app
 from uwval.cli.compare_args import COMPARE_OPTIONS, EvoCommand, compare_options
 from uwval.cli.console import error_console, output_console, warn
+from uwval.cli.declare import Arg, declare_signature, given_options
 from uwval.comparison.logs import LogComparison
 from uwval.comparison.options import CompareOptions
 from uwval.errors import ConfigError
@@ -37,46 +37,20 @@ _SINGLE_RUN_ONLY = {
 _BATCH_ONLY = ("results_dir", "executor", "workers", "scheduler", "allow_protocol")
 
 
-def _parameters() -> list[inspect.Parameter]:
-    """The typer signature of ``compare``: the positional words, then :data:`COMPARE_OPTIONS`."""
-    kw = inspect.Parameter.KEYWORD_ONLY
-    params = [
-        inspect.Parameter("ctx", kw, annotation=typer.Context),
-        inspect.Parameter(
-            "words",
-            kw,
-            annotation=Annotated[
-                list[str],
-                typer.Argument(
-                    help="LOG (both sides), REF EST (two files), LOG /ref_topic /other_topic; "
-                    "evo's shapes: tum|kitti|euroc REF EST, bag|bag2 LOG /ref_topic /other_topic",
-                    show_default=False,
-                    metavar="INPUTS",
-                ),
-            ],
-        ),
-    ]
-    for o in COMPARE_OPTIONS:
-        kind: Any = o.kind if o.default is not None else Optional[o.kind]  # noqa: UP045
-        params.append(
-            inspect.Parameter(
-                o.dest,
-                kw,
-                default=o.default,
-                annotation=Annotated[kind, typer.Option(*o.flags, help=o.help)],
-            )
-        )
-    return params
+#: The positional words of ``compare``.
+_WORDS = Arg(
+    "words",
+    list[str],
+    "LOG (both sides), REF EST (two files), LOG /ref_topic /other_topic; "
+    "evo's shapes: tum|kitti|euroc REF EST, bag|bag2 LOG /ref_topic /other_topic",
+    metavar="INPUTS",
+    show_default=False,
+)
 
 
 def compare_command(**kwargs: Any) -> None:
     """Compare the Gazebo and Unity pose streams: per-axis errors, Pearson r, evo's APE stats."""
-    ctx: typer.Context = kwargs.pop("ctx")
-    given = {
-        k: v
-        for k, v in kwargs.items()
-        if getattr(ctx.get_parameter_source(k), "name", "DEFAULT") != "DEFAULT"
-    }
+    given = given_options(kwargs.pop("ctx"), kwargs)
     if kwargs["batch"]:
         _batch(kwargs, given)
         return
@@ -94,11 +68,7 @@ def compare_command(**kwargs: Any) -> None:
     _emit(result, options, kwargs)
 
 
-_signature = inspect.Signature(_parameters(), return_annotation=None)
-compare_command.__signature__ = _signature  # type: ignore[attr-defined]
-compare_command.__annotations__ = {p.name: p.annotation for p in _signature.parameters.values()} | {
-    "return": None
-}
+declare_signature(compare_command, (_WORDS, *COMPARE_OPTIONS), context=True)
 app.command("compare", cls=EvoCommand)(compare_command)
 
 

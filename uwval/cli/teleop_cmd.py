@@ -12,7 +12,6 @@ quits. A held key (terminal auto-repeat) keeps its wrench increment applied; rel
 from __future__ import annotations
 
 import contextlib
-import inspect
 import math
 import os
 import select
@@ -20,13 +19,13 @@ import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any, Optional
+from typing import Any
 
 import numpy as np
-import typer
 from rich.console import Console
 
 from uwval.cli import app
+from uwval.cli.declare import Opt, declare_signature
 from uwval.cli.simulate_cmd import parse_vector
 from uwval.cli.simulate_endpoint import endpoint_topics, parse_endpoint
 from uwval.errors import ConfigError
@@ -154,23 +153,7 @@ def teleop(**kw: Any) -> None:
     run_teleop(options)
 
 
-def _parameters() -> list[inspect.Parameter]:
-    """The typer signature of ``teleop``, from :data:`TELEOP_OPTIONS`."""
-    params = []
-    for dest, flags, kind, default, help_text in TELEOP_OPTIONS:
-        typ: Any = kind if default is not None else Optional[kind]  # noqa: UP045
-        params.append(
-            inspect.Parameter(
-                dest,
-                inspect.Parameter.KEYWORD_ONLY,
-                default=default,
-                annotation=Annotated[typ, typer.Option(*flags, help=help_text)],
-            )
-        )
-    return params
-
-
-teleop.__signature__ = inspect.Signature(_parameters())  # type: ignore[attr-defined]
+declare_signature(teleop, (Opt(*row) for row in TELEOP_OPTIONS))
 app.command(name="teleop")(teleop)
 
 
