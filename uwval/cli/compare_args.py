@@ -15,6 +15,21 @@ from typing import Any
 from typer.core import TyperCommand
 
 from uwval.cli.declare import Opt
+from uwval.cli.shared_options import (
+    ALIGN,
+    CONFIG,
+    EXECUTOR,
+    FORMAT,
+    FRAME,
+    GAZEBO_TOPIC,
+    JSON,
+    MAX_DIFF,
+    OFFSET,
+    SCHEDULER,
+    SYNC,
+    UNITY_TOPIC,
+    WORKERS,
+)
 from uwval.comparison.options import (
     AlignmentMode,
     ApeUnit,
@@ -49,39 +64,13 @@ class EvoCommand(TyperCommand):
         return rest
 
 
-FRAME_HELP = (
-    "Convention of the second (Unity) stream: unity-flu, unity-enu, ned, enu or auto "
-    "(default: from the log's frame_id; enu for trajectory files)"
-)
-
 #: Every option of ``uwval compare``, in ``--help`` order.
 COMPARE_OPTIONS: tuple[Opt, ...] = (
-    Opt(
-        "gazebo_topic",
-        ("--gazebo-topic",),
-        str,
-        None,
-        "Reference topic (a TF child: /tf#CHILD, chained through /tf_static; "
-        "`uwval inspect` lists them)",
-    ),
-    Opt("unity_topic", ("--unity-topic",), str, None, "Other (Unity) topic (/tf#CHILD too)"),
-    Opt(
-        "fmt",
-        ("--format",),
-        str,
-        None,
-        "Input format: tum, kitti, euroc, mcap, bag, rosbag2, db3, csv (default: by suffix)",
-    ),
-    Opt("frame", ("--frame",), str, None, FRAME_HELP),
-    Opt(
-        "sync",
-        ("--sync",),
-        str,
-        None,
-        "nearest (evo's association within --t-max-diff) or interp (lerp+slerp at the "
-        "reference stamps). Default: nearest for trajectory files (TUM, KITTI, EuRoC), as "
-        "evo_ape; interp for logs",
-    ),
+    GAZEBO_TOPIC,
+    UNITY_TOPIC,
+    FORMAT,
+    FRAME,
+    SYNC,
     Opt(
         "sync_method",
         ("--sync_method",),
@@ -97,21 +86,8 @@ COMPARE_OPTIONS: tuple[Opt, ...] = (
         None,
         "interp: mask samples in gaps longer than this (s; default 5 periods)",
     ),
-    Opt(
-        "max_diff",
-        ("--t-max-diff", "--t_max_diff", "--max-diff"),
-        float,
-        0.01,
-        "nearest: max stamp difference (s). Given without --sync, it means --sync nearest",
-    ),
-    Opt(
-        "offset",
-        ("--offset", "--t_offset", "--t-offset"),
-        str,
-        "0",
-        "Clock offset added to the second stream's stamps (s, evo's --t_offset sign), or "
-        "'auto' to estimate it",
-    ),
+    MAX_DIFF,
+    OFFSET,
     Opt("max_offset", ("--max-offset",), float, None, "Bound for --offset auto (s)"),
     Opt(
         "drift",
@@ -122,14 +98,7 @@ COMPARE_OPTIONS: tuple[Opt, ...] = (
         "lag's trend) and removes it; off (the default) leaves it (a long drifting run gets "
         "a warning)",
     ),
-    Opt(
-        "align",
-        ("--align",),
-        str,
-        "none",
-        "Alignment: none, se3, sim3 (Umeyama), origin, scale or scale_origin "
-        "(evo's flags -a, -as, --align_origin, -s do the same)",
-    ),
+    ALIGN,
     Opt("evo_align", ("-a",), bool, False, "evo's -a: SE(3) Umeyama (-as: Sim(3))"),
     Opt(
         "correct_scale",
@@ -279,7 +248,7 @@ COMPARE_OPTIONS: tuple[Opt, ...] = (
         None,
         "Write an interactive, self-contained HTML page (no network)",
     ),
-    Opt("as_json", ("--json",), bool, False, "Print the JSON result on stdout"),
+    JSON,
     Opt(
         "output",
         ("-o", "--output"),
@@ -288,14 +257,7 @@ COMPARE_OPTIONS: tuple[Opt, ...] = (
         "Write the JSON result to this file (-o is always the JSON result in compare, rpe, "
         "doctor and inspect)",
     ),
-    Opt(
-        "config",
-        ("--config",),
-        Path,
-        None,
-        "Project file naming pairs, frames and option defaults (default: ./uwval.toml when "
-        "present; options given here win)",
-    ),
+    CONFIG,
     Opt(
         "batch",
         ("--batch",),
@@ -310,9 +272,9 @@ COMPARE_OPTIONS: tuple[Opt, ...] = (
         None,
         "--batch: the folder of comparisons.json and results.csv (default: <experiment>/results)",
     ),
-    Opt("executor", ("--executor",), str, "local", "--batch: local (process pool), dask or inline"),
-    Opt("workers", ("--workers",), int, None, "--batch: worker processes"),
-    Opt("scheduler", ("--scheduler",), str, None, "--batch: Dask scheduler address"),
+    EXECUTOR,
+    WORKERS,
+    SCHEDULER,
     Opt(
         "allow_protocol",
         ("--allow-protocol",),

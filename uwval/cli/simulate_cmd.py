@@ -32,6 +32,7 @@ from uwval.bridge.experiment import (
 from uwval.bridge.options import REAL_UNITY, SessionOptions
 from uwval.cli import app
 from uwval.cli.declare import Arg, Opt, declare_signature, opt
+from uwval.cli.shared_options import EXECUTOR, JSON, SCHEDULER, WORKERS
 from uwval.cli.simulate_endpoint import EndpointTarget, publish_to_endpoint
 from uwval.errors import ConfigError
 from uwval.simulator.model import AddedMass, CaSign, CoriolisEntries, GazeboModel
@@ -95,12 +96,11 @@ SIMULATE_OPTIONS: tuple[Opt, ...] = (
     _o("float32", bool, bool(REAL_UNITY["float32"]),
        "Store poses as Unity's Transform does (float32).", "--float32/--no-float32"),
     _o("seed", int, 0, "Seed for jitter/drops (and the experiment)."),
-    _o("as_json", bool, False, _ONE + "print its record (bridge statistics, sim info, "
-       "options) as JSON.", "--json"),
+    JSON,
     _o("realtime", bool, False, "Pace the virtual clock to the wall clock."),
-    _o("executor", str, "local", "local (process pool), dask or inline."),
-    _o("workers", int, None, "Worker processes (default: all cores)."),
-    _o("scheduler", str, None, "Dask scheduler address (tcp://...)."),
+    EXECUTOR,
+    WORKERS,
+    SCHEDULER,
     _o("batch_physics", bool, False, "Experiment: step all runs' physics together in one "
        "vectorised state first (large sweeps of short runs).", "--batch-physics"),
     _o("endpoint", str, None, _ONE + "publish the simulated Gazebo poses INTO a running "
