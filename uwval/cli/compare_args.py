@@ -25,6 +25,7 @@ from uwval.cli.shared_options import (
     JSON,
     MAX_DIFF,
     OFFSET,
+    RESULT_FILE,
     SCHEDULER,
     SYNC,
     UNITY_TOPIC,
@@ -249,14 +250,7 @@ COMPARE_OPTIONS: tuple[Opt, ...] = (
         "Write an interactive, self-contained HTML page (no network)",
     ),
     JSON,
-    Opt(
-        "output",
-        ("-o", "--output"),
-        Path,
-        None,
-        "Write the JSON result to this file (-o is always the JSON result in compare, rpe, "
-        "doctor and inspect)",
-    ),
+    RESULT_FILE,
     CONFIG,
     Opt(
         "batch",

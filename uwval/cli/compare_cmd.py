@@ -10,14 +10,23 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Any
 
 import typer
 
 from uwval.cli import app
 from uwval.cli.compare_args import COMPARE_OPTIONS, EvoCommand, compare_options
 from uwval.cli.console import error_console, output_console, warn
-from uwval.cli.declare import Arg, declare_signature, given_options
+from uwval.cli.declare import Arg, Opt, declare_signature, given_options
+from uwval.cli.shared_options import (
+    FORMAT,
+    FRAME,
+    GAZEBO_TOPIC,
+    JSON,
+    OFFSET,
+    RESULT_FILE,
+    UNITY_TOPIC,
+)
 from uwval.comparison.logs import LogComparison
 from uwval.comparison.options import CompareOptions
 from uwval.errors import ConfigError
@@ -245,50 +254,53 @@ def _batch_options(
     return out
 
 
-@app.command("doctor")
-def doctor_command(
-    log_a: Annotated[Path, typer.Argument(help="Log holding both streams, or the reference file")],
-    log_b: Annotated[Path | None, typer.Argument(help="Second file (the Unity side)")] = None,
-    gazebo_topic: Annotated[str | None, typer.Option(help="Reference topic")] = None,
-    unity_topic: Annotated[str | None, typer.Option(help="Other (Unity) topic")] = None,
-    fmt: Annotated[str | None, typer.Option("--format", help="Input format (tum, ...)")] = None,
-    frame: Annotated[
-        str | None, typer.Option(help="The configured convention to check (default: from the log)")
-    ] = None,
-    offset: Annotated[str, typer.Option(help="Clock offset (s) or 'auto'")] = "0",
-    as_json: Annotated[bool, typer.Option("--json", help="Print JSON")] = False,
-    output: Annotated[
-        Path | None, typer.Option("-o", "--output", help="Write the JSON result to this file")
-    ] = None,
-) -> None:
+#: The options of ``uwval doctor``, in ``--help`` order.
+DOCTOR_OPTIONS: tuple[Arg | Opt, ...] = (
+    Arg("log_a", Path, "Log holding both streams, or the reference file"),
+    Arg("log_b", Path, "Second file (the Unity side)", default=None),
+    GAZEBO_TOPIC,
+    UNITY_TOPIC,
+    FORMAT,
+    FRAME,
+    OFFSET,
+    JSON,
+    RESULT_FILE,
+)
+
+
+def doctor_command(**kw: Any) -> None:
     """Name the frame convention the Unity stream is really in (tries every signed axis map)."""
     from uwval.cli.compare_args import choice
     from uwval.cli.compare_files import write_output
     from uwval.comparison.logs import run_comparison
     from uwval.comparison.options import ClockOffset, CompareInputs, InputFormat
 
+    fmt = kw["fmt"]
     inputs = CompareInputs(
-        log_a,
-        log_b,
-        gazebo_topic,
-        unity_topic,
+        kw["log_a"],
+        kw["log_b"],
+        kw["gazebo_topic"],
+        kw["unity_topic"],
         choice(InputFormat, fmt, "--format") if fmt else None,
     )
-    options = CompareOptions(
-        inputs, frame=frame, offset=ClockOffset.parse(offset), check_frame=True
-    )
+    offset = ClockOffset.parse(kw["offset"])
+    options = CompareOptions(inputs, frame=kw["frame"], offset=offset, check_frame=True)
     result = run_comparison(options)
     report = {
         name: (res.diagnosis.to_json() if res.diagnosis else None)
         for name, res in result.results.items()
     }
     text = json.dumps(report, indent=1, allow_nan=False)
-    if output is not None:
-        write_output(output, text + "\n", "the JSON result")
-    if as_json:
+    if kw["output"] is not None:
+        write_output(kw["output"], text + "\n", "the JSON result")
+    if kw["as_json"]:
         sys.stdout.write(text + "\n")
         return
     _print_diagnoses(report)
+
+
+declare_signature(doctor_command, DOCTOR_OPTIONS)
+app.command("doctor")(doctor_command)
 
 
 def _print_diagnoses(report: dict[str, Any]) -> None:

@@ -19,6 +19,15 @@ from uwval.cli import app
 from uwval.cli.compare_args import EvoCommand, choice, read_positionals
 from uwval.cli.console import error_console, output_console, warn
 from uwval.cli.declare import Arg, Opt, declare_signature
+from uwval.cli.shared_options import (
+    ALIGN,
+    FORMAT,
+    FRAME,
+    JSON,
+    MAX_DIFF,
+    OFFSET,
+    RESULT_FILE,
+)
 from uwval.comparison.logs import RpeComparison
 from uwval.comparison.options import (
     AlignmentMode,
@@ -51,8 +60,8 @@ _ALIGN_TITLES = {
 RPE_OPTIONS: tuple[Opt, ...] = (
     Opt("ref_topic", ("--ref-topic", "--gazebo-topic"), str, None, "Reference topic"),
     Opt("est_topic", ("--est-topic", "--unity-topic"), str, None, "Estimate topic"),
-    Opt("fmt", ("--format",), str, None, "tum, kitti, euroc or a log format (default: by suffix)"),
-    Opt("frame", ("--frame",), str, None, "Convention of the estimate (default: from the log)"),
+    FORMAT,
+    FRAME,
     Opt(
         "relation",
         ("-r", "--pose_relation", "--pose-relation"),
@@ -84,13 +93,7 @@ RPE_OPTIONS: tuple[Opt, ...] = (
         False,
         "Choose the pairs on the reference (default: on the estimate, as evo)",
     ),
-    Opt(
-        "align",
-        ("--align",),
-        str,
-        "none",
-        "Alignment: none, se3, sim3, origin or scale (evo's -a, -as, --align_origin, -s)",
-    ),
+    ALIGN,
     Opt("evo_align", ("-a",), bool, False, "evo's -a: SE(3) Umeyama (-as: Sim(3))"),
     Opt(
         "correct_scale",
@@ -107,20 +110,8 @@ RPE_OPTIONS: tuple[Opt, ...] = (
         "evo's --align_origin: align the first poses",
     ),
     Opt("n_to_align", ("--n_to_align", "--n-to-align"), int, -1, "Poses used to align (-1: all)"),
-    Opt(
-        "max_diff",
-        ("--t-max-diff", "--t_max_diff", "--max-diff"),
-        float,
-        0.01,
-        "Max stamp difference of evo's nearest association (s)",
-    ),
-    Opt(
-        "offset",
-        ("--t-offset", "--t_offset", "--offset"),
-        float,
-        0.0,
-        "Added to the estimate's stamps (s)",
-    ),
+    MAX_DIFF,
+    OFFSET,
     Opt("t_start", ("--t_start", "--t-start"), float, None, "evo's --t_start (s)"),
     Opt("t_end", ("--t_end", "--t-end"), float, None, "evo's --t_end (s)"),
     Opt("downsample", ("--downsample",), int, None, "evo's --downsample N"),
@@ -150,8 +141,8 @@ RPE_OPTIONS: tuple[Opt, ...] = (
         "evo's --save_results: a .zip in evo's layout when evo_rpe would give the same "
         "numbers (an estimate in ENU); otherwise without evo's stats.json/info.json",
     ),
-    Opt("as_json", ("--json",), bool, False, "Print the JSON result"),
-    Opt("output", ("-o", "--output"), Path, None, "Write the JSON result to this file"),
+    JSON,
+    RESULT_FILE,
 )
 
 
@@ -194,6 +185,18 @@ def _align_mode(flags: _Flags) -> AlignmentMode:
     return mode
 
 
+def _offset_s(text: str) -> float:
+    """--offset as rpe takes it: seconds added to the estimate's stamps (compare's
+    'auto' estimate is not part of evo_rpe's options)."""
+    try:
+        return float(text)
+    except ValueError:
+        raise ConfigError(
+            f"--offset {text!r}: rpe takes a clock offset in seconds (estimate one with "
+            "uwval compare --offset auto)"
+        ) from None
+
+
 def rpe_options(kw: dict[str, Any]) -> RpeOptions:
     """The typed options of one ``uwval rpe`` from its command line."""
     pos = read_positionals(list(kw["words"]))
@@ -218,7 +221,7 @@ def rpe_options(kw: dict[str, Any]) -> RpeOptions:
         align=_align_mode(flags),
         n_to_align=kw["n_to_align"],
         max_diff=kw["max_diff"],
-        offset=kw["offset"],
+        offset=_offset_s(kw["offset"]),
         window=TimeWindow(kw["t_start"], kw["t_end"], kw["downsample"]),
     )
 

@@ -47,7 +47,8 @@ MAX_DIFF = Opt(
     ("--t-max-diff", "--t_max_diff", "--max-diff"),
     float,
     0.01,
-    "nearest: max stamp difference (s). Given without --sync, it means --sync nearest",
+    "nearest: max stamp difference (s) of evo's association. Given without --sync "
+    "(compare, report, check), it means --sync nearest",
 )
 OFFSET = Opt(
     "offset",
@@ -55,7 +56,7 @@ OFFSET = Opt(
     str,
     "0",
     "Clock offset added to the second stream's stamps (s, evo's --t_offset sign), or "
-    "'auto' to estimate it",
+    "'auto' to estimate it (compare, report, check)",
 )
 ALIGN = Opt(
     "align",
@@ -72,6 +73,14 @@ CONFIG = Opt(
     None,
     "Project file naming pairs, frames and option defaults (default: ./uwval.toml when "
     "present; options given here win)",
+)
+RESULT_FILE = Opt(
+    "output",
+    ("-o", "--output"),
+    Path,
+    None,
+    "Write the JSON result to this file (-o is always the JSON result in compare, rpe, "
+    "doctor and inspect)",
 )
 JSON = Opt("as_json", ("--json",), bool, False, "Print the JSON result on stdout")
 THRESHOLDS = Opt(
