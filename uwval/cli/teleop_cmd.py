@@ -110,24 +110,25 @@ class TeleopOptions:
 
 
 #: Every option of ``uwval teleop``: (keyword, flags, kind, default, help).
-TELEOP_OPTIONS: tuple[tuple[str, tuple[str, ...], Any, Any, str], ...] = (
-    ("vehicle", ("--vehicle",), str, "tethys", "Preset name, MODEL.sdf or VEHICLE.toml."),
-    ("host", ("--host",), str, "127.0.0.1", "Address the endpoint binds."),
-    ("port", ("--port",), int, 10000, "Endpoint port (0: a free port)."),
-    ("keys", ("--keys",), str, None, "Scripted keys, e.g. 'i@0:5;j@2:3'."),
-    ("duration", ("--duration",), float, 0.0, "Stop after S seconds (0: until q)."),
-    ("current", ("--current",), str, "0,0,0", "Initial current CX,CY,CZ, m/s (ENU)."),
-    ("force_step", ("--force-step",), float, 10.0, "Force per held key, N."),
-    ("torque_step", ("--torque-step",), float, 1.0, "Torque per held key, N m."),
-    ("hold", ("--hold",), float, 0.6, "A key counts as held this long after it was last seen, s."),
-    ("publish_rate", ("--publish-rate",), float, 50.0, "Pose publish rate, Hz."),
-    ("speed", ("--speed",), float, 1.0,
+TELEOP_OPTIONS: tuple[Opt, ...] = (
+    Opt("vehicle", ("--vehicle",), str, "tethys", "Preset name, MODEL.sdf or VEHICLE.toml."),
+    Opt("host", ("--host",), str, "127.0.0.1", "Address the endpoint binds."),
+    Opt("port", ("--port",), int, 10000, "Endpoint port (0: a free port)."),
+    Opt("keys", ("--keys",), str, None, "Scripted keys, e.g. 'i@0:5;j@2:3'."),
+    Opt("duration", ("--duration",), float, 0.0, "Stop after S seconds (0: until q)."),
+    Opt("current", ("--current",), str, "0,0,0", "Initial current CX,CY,CZ, m/s (ENU)."),
+    Opt("force_step", ("--force-step",), float, 10.0, "Force per held key, N."),
+    Opt("torque_step", ("--torque-step",), float, 1.0, "Torque per held key, N m."),
+    Opt("hold", ("--hold",), float, 0.6,
+        "A key counts as held this long after it was last seen, s."),
+    Opt("publish_rate", ("--publish-rate",), float, 50.0, "Pose publish rate, Hz."),
+    Opt("speed", ("--speed",), float, 1.0,
      "Sim time per wall second (0: as fast as possible, scripted runs only)."),
-    ("record", ("--record",), Path, None, "Also record the Gazebo side here (MCAP)."),
-    ("endpoint", ("--endpoint",), str, None, "Publish INTO a running ROS-TCP endpoint at "
+    Opt("record", ("--record",), Path, None, "Also record the Gazebo side here (MCAP)."),
+    Opt("endpoint", ("--endpoint",), str, None, "Publish INTO a running ROS-TCP endpoint at "
      "HOST:PORT (Unity's ROS-TCP-Endpoint) as a ROS publisher, instead of serving on "
      "--host/--port."),
-    ("endpoint_namespace", ("--endpoint-namespace",), str, "",
+    Opt("endpoint_namespace", ("--endpoint-namespace",), str, "",
      "With --endpoint: ROS namespace of the topics (e.g. /gazebo)."),
 )  # fmt: skip
 
@@ -153,7 +154,7 @@ def teleop(**kw: Any) -> None:
     run_teleop(options)
 
 
-declare_signature(teleop, (Opt(*row) for row in TELEOP_OPTIONS))
+declare_signature(teleop, TELEOP_OPTIONS)
 app.command(name="teleop")(teleop)
 
 
