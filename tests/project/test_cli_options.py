@@ -144,3 +144,25 @@ def test_report_and_check_refuse_bad_input_in_one_line(tmp_path: Path) -> None:
     out = run_uwval("report", missing, "--max-detail-runs", "-1")
     assert out.returncode == 2 and "Traceback" not in out.stderr
     assert "max-detail-runs" in out.stderr
+
+
+def test_rpe_takes_the_shared_offset_in_seconds(tmp_path: Path, shared_data: Path) -> None:
+    """rpe's --offset is compare's declaration (a string): seconds work under every
+    spelling, 'auto' (compare's estimate) is refused in one line."""
+    import json
+    import shutil
+
+    ref, est = (
+        shutil.copy(shared_data / "evo" / name, tmp_path / name)
+        for name in ("fr2_desk_groundtruth.txt", "fr2_desk_ORB.txt")
+    )
+    plain = run_uwval("rpe", "tum", ref, est, "--json")
+    zero = run_uwval("rpe", "tum", ref, est, "--json", "--t_offset", "0")
+    assert plain.returncode == 0 and zero.returncode == 0, plain.stderr + zero.stderr
+    assert json.loads(plain.stdout) == json.loads(zero.stdout)
+    shifted = run_uwval("rpe", "tum", ref, est, "--json", "--offset", "0.5")
+    assert shifted.returncode == 0, shifted.stderr
+    assert json.loads(shifted.stdout) != json.loads(plain.stdout)
+    auto = run_uwval("rpe", "tum", ref, est, "--offset", "auto")
+    assert auto.returncode == 2 and "Traceback" not in auto.stderr
+    assert "--offset 'auto'" in auto.stderr and len(auto.stderr.strip().splitlines()) == 1
