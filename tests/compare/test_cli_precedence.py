@@ -91,8 +91,8 @@ def test_report_and_check_read_t_max_diff_as_compare_does() -> None:
     sync method means evo's nearest association there too; an explicit --sync wins."""
     from uwval.cli.report_cmd import _compare_opts
 
-    given = _compare_opts(None, None, None, None, None, 0.01, None, None, None)
+    given = _compare_opts({"max_diff": 0.01})
     assert given["sync"] == "nearest" and given["max_diff"] == 0.01
-    explicit = _compare_opts(None, None, None, None, "interp", 0.01, None, None, None)
+    explicit = _compare_opts({"sync": "interp", "max_diff": 0.01})
     assert explicit["sync"] == "interp"
-    assert "sync" not in _compare_opts(None, None, None, None, None, None, None, None, None)
+    assert "sync" not in _compare_opts({})

@@ -14,6 +14,23 @@ from typing import Any
 
 from typer.core import TyperCommand
 
+from uwval.cli.declare import Opt
+from uwval.cli.shared_options import (
+    ALIGN,
+    CONFIG,
+    EXECUTOR,
+    FORMAT,
+    FRAME,
+    GAZEBO_TOPIC,
+    JSON,
+    MAX_DIFF,
+    OFFSET,
+    RESULT_FILE,
+    SCHEDULER,
+    SYNC,
+    UNITY_TOPIC,
+    WORKERS,
+)
 from uwval.comparison.options import (
     AlignmentMode,
     ApeUnit,
@@ -48,51 +65,14 @@ class EvoCommand(TyperCommand):
         return rest
 
 
-@dataclass(frozen=True)
-class CliOption:
-    """One option of ``uwval compare``: keyword, flags, kind, default and help."""
-
-    dest: str
-    flags: tuple[str, ...]
-    kind: Any  # str, float, int, bool (a flag), Path, list[str], tuple[float, float]
-    default: Any
-    help: str
-
-
-FRAME_HELP = (
-    "Convention of the second (Unity) stream: unity-flu, unity-enu, ned, enu or auto "
-    "(default: from the log's frame_id; enu for trajectory files)"
-)
-
 #: Every option of ``uwval compare``, in ``--help`` order.
-COMPARE_OPTIONS: tuple[CliOption, ...] = (
-    CliOption(
-        "gazebo_topic",
-        ("--gazebo-topic",),
-        str,
-        None,
-        "Reference topic (a TF child: /tf#CHILD, chained through /tf_static; "
-        "`uwval inspect` lists them)",
-    ),
-    CliOption("unity_topic", ("--unity-topic",), str, None, "Other (Unity) topic (/tf#CHILD too)"),
-    CliOption(
-        "fmt",
-        ("--format",),
-        str,
-        None,
-        "Input format: tum, kitti, euroc, mcap, bag, rosbag2, db3, csv (default: by suffix)",
-    ),
-    CliOption("frame", ("--frame",), str, None, FRAME_HELP),
-    CliOption(
-        "sync",
-        ("--sync",),
-        str,
-        None,
-        "nearest (evo's association within --t-max-diff) or interp (lerp+slerp at the "
-        "reference stamps). Default: nearest for trajectory files (TUM, KITTI, EuRoC), as "
-        "evo_ape; interp for logs",
-    ),
-    CliOption(
+COMPARE_OPTIONS: tuple[Opt, ...] = (
+    GAZEBO_TOPIC,
+    UNITY_TOPIC,
+    FORMAT,
+    FRAME,
+    SYNC,
+    Opt(
         "sync_method",
         ("--sync_method",),
         str,
@@ -100,30 +80,17 @@ COMPARE_OPTIONS: tuple[CliOption, ...] = (
         "evo's spelling: nearest_time (= --sync nearest); evo's 'interpolation' is refused "
         "(it resamples the denser stream, uwval's interp the other one)",
     ),
-    CliOption(
+    Opt(
         "max_gap",
         ("--max-gap",),
         float,
         None,
         "interp: mask samples in gaps longer than this (s; default 5 periods)",
     ),
-    CliOption(
-        "max_diff",
-        ("--t-max-diff", "--t_max_diff", "--max-diff"),
-        float,
-        0.01,
-        "nearest: max stamp difference (s). Given without --sync, it means --sync nearest",
-    ),
-    CliOption(
-        "offset",
-        ("--offset", "--t_offset", "--t-offset"),
-        str,
-        "0",
-        "Clock offset added to the second stream's stamps (s, evo's --t_offset sign), or "
-        "'auto' to estimate it",
-    ),
-    CliOption("max_offset", ("--max-offset",), float, None, "Bound for --offset auto (s)"),
-    CliOption(
+    MAX_DIFF,
+    OFFSET,
+    Opt("max_offset", ("--max-offset",), float, None, "Bound for --offset auto (s)"),
+    Opt(
         "drift",
         ("--drift",),
         str,
@@ -132,37 +99,30 @@ COMPARE_OPTIONS: tuple[CliOption, ...] = (
         "lag's trend) and removes it; off (the default) leaves it (a long drifting run gets "
         "a warning)",
     ),
-    CliOption(
-        "align",
-        ("--align",),
-        str,
-        "none",
-        "Alignment: none, se3, sim3 (Umeyama), origin, scale or scale_origin "
-        "(evo's flags -a, -as, --align_origin, -s do the same)",
-    ),
-    CliOption("evo_align", ("-a",), bool, False, "evo's -a: SE(3) Umeyama (-as: Sim(3))"),
-    CliOption(
+    ALIGN,
+    Opt("evo_align", ("-a",), bool, False, "evo's -a: SE(3) Umeyama (-as: Sim(3))"),
+    Opt(
         "correct_scale",
         ("-s", "--correct_scale", "--correct-scale"),
         bool,
         False,
         "evo's -s: correct the scale (with -a: Sim(3); alone: the scale only)",
     ),
-    CliOption(
+    Opt(
         "align_origin",
         ("--align_origin", "--align-origin"),
         bool,
         False,
         "evo's --align_origin: = --align origin",
     ),
-    CliOption(
+    Opt(
         "n_to_align",
         ("--n_to_align", "--n-to-align"),
         int,
         -1,
         "Fit the alignment on the first N aligned samples only, apply it to all (-1: all)",
     ),
-    CliOption(
+    Opt(
         "pose_relation",
         ("-r", "--pose_relation", "--pose-relation"),
         str,
@@ -170,7 +130,7 @@ COMPARE_OPTIONS: tuple[CliOption, ...] = (
         "Also give evo_ape's statistics of this relation: trans_part, rot_part, full, "
         "angle_deg, angle_rad or point_distance (printed, and under 'ape' in the JSON)",
     ),
-    CliOption(
+    Opt(
         "change_unit",
         ("--change_unit", "--change-unit"),
         str,
@@ -178,70 +138,70 @@ COMPARE_OPTIONS: tuple[CliOption, ...] = (
         "evo's --change_unit: the APE statistics in deg, rad, mm, cm, m or km (implies "
         "-r trans_part when no -r is given)",
     ),
-    CliOption(
+    Opt(
         "t_start",
         ("--t_start", "--t-start"),
         float,
         None,
         "evo's --t_start: only reference poses stamped at or after this time (s)",
     ),
-    CliOption(
+    Opt(
         "t_end",
         ("--t_end", "--t-end"),
         float,
         None,
         "evo's --t_end: only reference poses stamped at or before this time (s)",
     ),
-    CliOption(
+    Opt(
         "downsample",
         ("--downsample",),
         int,
         None,
         "evo's --downsample: both streams to at most N evenly spaced poses, before the sync",
     ),
-    CliOption(
+    Opt(
         "project_to_plane",
         ("--project_to_plane", "--project-to-plane"),
         str,
         None,
         "evo's --project_to_plane: refused (use evo_traj --project_to_plane --save_as_tum first)",
     ),
-    CliOption(
+    Opt(
         "motion_filter",
         ("--motion_filter", "--motion-filter"),
         tuple[float, float],
         None,
         "evo's --motion_filter DISTANCE ANGLE: refused (use evo_traj --motion_filter first)",
     ),
-    CliOption(
+    Opt(
         "verbose",
         ("-v", "--verbose"),
         bool,
         False,
         "evo's -v: also print the alignment (rotation, translation, scale)",
     ),
-    CliOption(
+    Opt(
         "silent",
         ("--silent",),
         bool,
         False,
         "evo's --silent: print nothing on stdout (files are still written; errors on stderr)",
     ),
-    CliOption(
+    Opt(
         "no_warnings",
         ("--no_warnings", "--no-warnings"),
         bool,
         False,
         "evo's --no_warnings: accepted; uwval never asks for confirmation (it overwrites)",
     ),
-    CliOption(
+    Opt(
         "logfile",
         ("--logfile",),
         Path,
         None,
         "evo's --logfile: also write what is printed (the table) to this file",
     ),
-    CliOption(
+    Opt(
         "plot",
         ("--plot", "-p"),
         bool,
@@ -250,7 +210,7 @@ COMPARE_OPTIONS: tuple[CliOption, ...] = (
         "histograms, trajectory coloured by the error: to --save_plot, else "
         "uwval_<topic>_{trajectory,errors,histogram,errormap}.png here",
     ),
-    CliOption(
+    Opt(
         "plot_mode",
         ("--plot_mode", "--plot-mode"),
         str,
@@ -258,14 +218,14 @@ COMPARE_OPTIONS: tuple[CliOption, ...] = (
         "evo's --plot_mode: xy or xz (uwval's trajectory figure draws both views); "
         "other views are refused",
     ),
-    CliOption(
+    Opt(
         "save_plot",
         ("--save_plot", "--save-plot"),
         Path,
         None,
         "Path of the trajectory figure (the others go beside it); implies --plot",
     ),
-    CliOption(
+    Opt(
         "save_errors",
         ("--save-errors", "--save_errors"),
         Path,
@@ -273,7 +233,7 @@ COMPARE_OPTIONS: tuple[CliOption, ...] = (
         "Write the per-sample signed errors as CSV (stamp, x y z m, roll pitch yaw deg, "
         "position norm m, rotation angle deg)",
     ),
-    CliOption(
+    Opt(
         "save_results",
         ("--save_results", "--save-results"),
         Path,
@@ -282,50 +242,34 @@ COMPARE_OPTIONS: tuple[CliOption, ...] = (
         "numbers (otherwise without evo's stats.json/info.json, so evo_res refuses it); "
         "any other suffix: the JSON result",
     ),
-    CliOption(
+    Opt(
         "html",
         ("--html",),
         Path,
         None,
         "Write an interactive, self-contained HTML page (no network)",
     ),
-    CliOption("as_json", ("--json",), bool, False, "Print the JSON result on stdout"),
-    CliOption(
-        "output",
-        ("-o", "--output"),
-        Path,
-        None,
-        "Write the JSON result to this file (-o is always the JSON result in compare, rpe, "
-        "doctor and inspect)",
-    ),
-    CliOption(
-        "config",
-        ("--config",),
-        Path,
-        None,
-        "Project file naming pairs, frames and option defaults (default: ./uwval.toml when "
-        "present; options given here win)",
-    ),
-    CliOption(
+    JSON,
+    RESULT_FILE,
+    CONFIG,
+    Opt(
         "batch",
         ("--batch",),
         bool,
         False,
         "LOG is an experiment directory or manifest: compare every log into one results table",
     ),
-    CliOption(
+    Opt(
         "results_dir",
         ("--results-dir",),
         Path,
         None,
         "--batch: the folder of comparisons.json and results.csv (default: <experiment>/results)",
     ),
-    CliOption(
-        "executor", ("--executor",), str, "local", "--batch: local (process pool), dask or inline"
-    ),
-    CliOption("workers", ("--workers",), int, None, "--batch: worker processes"),
-    CliOption("scheduler", ("--scheduler",), str, None, "--batch: Dask scheduler address"),
-    CliOption(
+    EXECUTOR,
+    WORKERS,
+    SCHEDULER,
+    Opt(
         "allow_protocol",
         ("--allow-protocol",),
         list[str],

@@ -7,17 +7,26 @@ The command builds one :class:`uwval.comparison.options.CompareOptions`
 
 from __future__ import annotations
 
-import inspect
 import json
 import sys
 from pathlib import Path
-from typing import Annotated, Any, Optional
+from typing import Any
 
 import typer
 
 from uwval.cli import app
 from uwval.cli.compare_args import COMPARE_OPTIONS, EvoCommand, compare_options
 from uwval.cli.console import error_console, output_console, warn
+from uwval.cli.declare import Arg, Opt, declare_signature, given_options
+from uwval.cli.shared_options import (
+    FORMAT,
+    FRAME,
+    GAZEBO_TOPIC,
+    JSON,
+    OFFSET,
+    RESULT_FILE,
+    UNITY_TOPIC,
+)
 from uwval.comparison.logs import LogComparison
 from uwval.comparison.options import CompareOptions
 from uwval.errors import ConfigError
@@ -37,46 +46,20 @@ _SINGLE_RUN_ONLY = {
 _BATCH_ONLY = ("results_dir", "executor", "workers", "scheduler", "allow_protocol")
 
 
-def _parameters() -> list[inspect.Parameter]:
-    """The typer signature of ``compare``: the positional words, then :data:`COMPARE_OPTIONS`."""
-    kw = inspect.Parameter.KEYWORD_ONLY
-    params = [
-        inspect.Parameter("ctx", kw, annotation=typer.Context),
-        inspect.Parameter(
-            "words",
-            kw,
-            annotation=Annotated[
-                list[str],
-                typer.Argument(
-                    help="LOG (both sides), REF EST (two files), LOG /ref_topic /other_topic; "
-                    "evo's shapes: tum|kitti|euroc REF EST, bag|bag2 LOG /ref_topic /other_topic",
-                    show_default=False,
-                    metavar="INPUTS",
-                ),
-            ],
-        ),
-    ]
-    for o in COMPARE_OPTIONS:
-        kind: Any = o.kind if o.default is not None else Optional[o.kind]  # noqa: UP045
-        params.append(
-            inspect.Parameter(
-                o.dest,
-                kw,
-                default=o.default,
-                annotation=Annotated[kind, typer.Option(*o.flags, help=o.help)],
-            )
-        )
-    return params
+#: The positional words of ``compare``.
+_WORDS = Arg(
+    "words",
+    list[str],
+    "LOG (both sides), REF EST (two files), LOG /ref_topic /other_topic; "
+    "evo's shapes: tum|kitti|euroc REF EST, bag|bag2 LOG /ref_topic /other_topic",
+    metavar="INPUTS",
+    show_default=False,
+)
 
 
 def compare_command(**kwargs: Any) -> None:
     """Compare the Gazebo and Unity pose streams: per-axis errors, Pearson r, evo's APE stats."""
-    ctx: typer.Context = kwargs.pop("ctx")
-    given = {
-        k: v
-        for k, v in kwargs.items()
-        if getattr(ctx.get_parameter_source(k), "name", "DEFAULT") != "DEFAULT"
-    }
+    given = given_options(kwargs.pop("ctx"), kwargs)
     if kwargs["batch"]:
         _batch(kwargs, given)
         return
@@ -94,11 +77,7 @@ def compare_command(**kwargs: Any) -> None:
     _emit(result, options, kwargs)
 
 
-_signature = inspect.Signature(_parameters(), return_annotation=None)
-compare_command.__signature__ = _signature  # type: ignore[attr-defined]
-compare_command.__annotations__ = {p.name: p.annotation for p in _signature.parameters.values()} | {
-    "return": None
-}
+declare_signature(compare_command, (_WORDS, *COMPARE_OPTIONS), context=True)
 app.command("compare", cls=EvoCommand)(compare_command)
 
 
@@ -275,50 +254,53 @@ def _batch_options(
     return out
 
 
-@app.command("doctor")
-def doctor_command(
-    log_a: Annotated[Path, typer.Argument(help="Log holding both streams, or the reference file")],
-    log_b: Annotated[Path | None, typer.Argument(help="Second file (the Unity side)")] = None,
-    gazebo_topic: Annotated[str | None, typer.Option(help="Reference topic")] = None,
-    unity_topic: Annotated[str | None, typer.Option(help="Other (Unity) topic")] = None,
-    fmt: Annotated[str | None, typer.Option("--format", help="Input format (tum, ...)")] = None,
-    frame: Annotated[
-        str | None, typer.Option(help="The configured convention to check (default: from the log)")
-    ] = None,
-    offset: Annotated[str, typer.Option(help="Clock offset (s) or 'auto'")] = "0",
-    as_json: Annotated[bool, typer.Option("--json", help="Print JSON")] = False,
-    output: Annotated[
-        Path | None, typer.Option("-o", "--output", help="Write the JSON result to this file")
-    ] = None,
-) -> None:
+#: The options of ``uwval doctor``, in ``--help`` order.
+DOCTOR_OPTIONS: tuple[Arg | Opt, ...] = (
+    Arg("log_a", Path, "Log holding both streams, or the reference file"),
+    Arg("log_b", Path, "Second file (the Unity side)", default=None),
+    GAZEBO_TOPIC,
+    UNITY_TOPIC,
+    FORMAT,
+    FRAME,
+    OFFSET,
+    JSON,
+    RESULT_FILE,
+)
+
+
+def doctor_command(**kw: Any) -> None:
     """Name the frame convention the Unity stream is really in (tries every signed axis map)."""
     from uwval.cli.compare_args import choice
     from uwval.cli.compare_files import write_output
     from uwval.comparison.logs import run_comparison
     from uwval.comparison.options import ClockOffset, CompareInputs, InputFormat
 
+    fmt = kw["fmt"]
     inputs = CompareInputs(
-        log_a,
-        log_b,
-        gazebo_topic,
-        unity_topic,
+        kw["log_a"],
+        kw["log_b"],
+        kw["gazebo_topic"],
+        kw["unity_topic"],
         choice(InputFormat, fmt, "--format") if fmt else None,
     )
-    options = CompareOptions(
-        inputs, frame=frame, offset=ClockOffset.parse(offset), check_frame=True
-    )
+    offset = ClockOffset.parse(kw["offset"])
+    options = CompareOptions(inputs, frame=kw["frame"], offset=offset, check_frame=True)
     result = run_comparison(options)
     report = {
         name: (res.diagnosis.to_json() if res.diagnosis else None)
         for name, res in result.results.items()
     }
     text = json.dumps(report, indent=1, allow_nan=False)
-    if output is not None:
-        write_output(output, text + "\n", "the JSON result")
-    if as_json:
+    if kw["output"] is not None:
+        write_output(kw["output"], text + "\n", "the JSON result")
+    if kw["as_json"]:
         sys.stdout.write(text + "\n")
         return
     _print_diagnoses(report)
+
+
+declare_signature(doctor_command, DOCTOR_OPTIONS)
+app.command("doctor")(doctor_command)
 
 
 def _print_diagnoses(report: dict[str, Any]) -> None:

@@ -19,6 +19,7 @@ from rich.table import Table
 
 from uwval.bridge.experiment import SimulateOptions, resolve_experiment, run_experiment
 from uwval.cli import app
+from uwval.cli.shared_options import WORKERS
 
 console = Console()
 
@@ -32,9 +33,7 @@ def demo(
         str | None,
         typer.Option(help="Experiment TOML or an embedded experiment's name (default: default)."),
     ] = None,
-    workers: Annotated[
-        int | None, typer.Option(help="Worker processes (default: all cores).")
-    ] = None,
+    workers: Annotated[int | None, typer.Option(*WORKERS.flags, help=WORKERS.help)] = None,
     pdf: Annotated[bool, typer.Option(help="Also write report.pdf.")] = True,
 ) -> None:
     """Run the embedded default experiment end to end: logs, results, report, verdict."""

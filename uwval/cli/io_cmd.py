@@ -16,6 +16,7 @@ from rich.table import Table
 
 from uwval.cli import app
 from uwval.cli.console import output_console
+from uwval.cli.shared_options import JSON, RESULT_FILE
 
 
 @dataclass
@@ -93,11 +94,9 @@ def inspect_cmd(
     log: Annotated[
         Path, typer.Argument(help="Log file (.mcap, .bag, .db3, .csv, .txt) or rosbag2 directory")
     ],
-    as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table")] = False,
+    as_json: Annotated[bool, typer.Option(*JSON.flags, help=JSON.help)] = False,
     gaps: Annotated[int, typer.Option(help="Largest gaps to list per topic", min=0)] = 3,
-    output: Annotated[
-        Path | None, typer.Option("-o", "--output", help="Write the JSON result to this file")
-    ] = None,
+    output: Annotated[Path | None, typer.Option(*RESULT_FILE.flags, help=RESULT_FILE.help)] = None,
 ) -> None:
     """Show a log's topics, types, message counts, rates, time span and largest gaps, and
     the TF children compare can take as TOPIC#CHILD (with their chains through /tf_static)."""

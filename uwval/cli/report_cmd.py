@@ -9,15 +9,18 @@ import time
 import warnings
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Any
 
 import typer
 from rich.console import Console
 from rich.markup import escape
 
 from uwval.cli import app
+from uwval.cli.declare import Arg, Opt, declare_signature, given_options
 from uwval.cli.notes import warnings_as_notes
+from uwval.cli.shared_options import BASELINE, COMPARE_SUBSET, JSON, THRESHOLDS
 from uwval.errors import ConfigError
 
 # soft_wrap: lines are never cut at the terminal width (piped output is 80 columns wide to
@@ -25,63 +28,26 @@ from uwval.errors import ConfigError
 console = Console(soft_wrap=True)
 err_console = Console(stderr=True, soft_wrap=True)
 
+_OTHER_HELP = "Second file of a pair ({first} is then the reference), as compare"
+
 #: Suffixes of one results file that is not a log: tables and JSON results.
 _RESULT_SUFFIXES = (".json", ".csv", ".parquet")
 
 
-#: Compare's options as ``report`` and ``check`` take them (one log, a pair, a saved result).
-FormatOpt = Annotated[
-    str | None, typer.Option("--format", help="Input format (tum, kitti, euroc...), as compare")
-]
-FrameOpt = Annotated[str | None, typer.Option(help="Convention of the second stream, as compare")]
-SyncOpt = Annotated[str | None, typer.Option(help="interp or nearest, as compare")]
-MaxDiffOpt = Annotated[
-    float | None,
-    typer.Option(
-        "--max-diff",
-        "--t-max-diff",
-        "--t_max_diff",
-        help="nearest: max dt (s); without --sync it means nearest",
-    ),
-]
-OffsetOpt = Annotated[
-    str | None, typer.Option("--offset", "--t_offset", help="Clock offset (s) or 'auto'")
-]
-AlignOpt = Annotated[str | None, typer.Option(help="none, se3, sim3, origin or scale, as compare")]
-ConfigOpt = Annotated[
-    Path | None,
-    typer.Option(help="Project file: pairs, frames, thresholds (default: ./uwval.toml)"),
-]
+#: The keywords of compare's options in report and check (what _compare_opts reads).
+_COMPARE_KEYS = tuple(o.dest for o in COMPARE_SUBSET if o.dest != "config")
 
 
-def _compare_opts(
-    gazebo_topic: str | None,
-    unity_topic: str | None,
-    fmt: str | None,
-    frame: str | None,
-    sync: str | None,
-    max_diff: float | None,
-    offset: str | None,
-    align: str | None,
-    project: Any = None,
-) -> dict[str, Any]:
-    """The compare options given on the command line (as ``uwval compare`` takes them),
-    completed by the project file ``project`` (:class:`uwval.config.ProjectConfig`)."""
+def _compare_opts(given: dict[str, Any], project: Any = None) -> dict[str, Any]:
+    """The compare options the user typed (``given``, by keyword, as ``uwval compare``
+    takes them), completed by the project file ``project``
+    (:class:`uwval.config.ProjectConfig`)."""
     from uwval.comparison.options import parse_offset as _parse_offset
     from uwval.config import merged_options
 
-    given: dict[str, Any] = {
-        "gazebo_topic": gazebo_topic,
-        "unity_topic": unity_topic,
-        "fmt": fmt,
-        "frame": frame,
-        "sync": sync,
-        "max_diff": max_diff,
-        "offset": offset,
-        "align": align,
-    }
-    opts = merged_options({k: v for k, v in given.items() if v is not None}, project)
-    if max_diff is not None and "sync" not in opts:  # as compare: evo's association
+    typed = {k: v for k, v in given.items() if k in _COMPARE_KEYS and v is not None}
+    opts = merged_options(typed, project)
+    if "max_diff" in typed and "sync" not in opts:  # as compare: evo's association
         opts["sync"] = "nearest"
     opts.pop("pose_relation", None)  # compare's printout only: not part of the results
     if "offset" in opts:
@@ -183,126 +149,171 @@ def _progress(what: str) -> Iterator[Callable[[str, float | None], None]]:
     yield plain
 
 
-@app.command()
-def report(
-    source: Annotated[
+@dataclass(frozen=True)
+class ReportOptions:
+    """What one ``uwval report`` was asked: the input(s), the pages to write (HTML and
+    PDF paths), the gate (thresholds and baseline as given), the per-run plots, and the
+    compare options the user typed (by keyword, as :func:`_compare_opts` reads them)."""
+
+    source: Path
+    other: Path | None
+    output: Path
+    pdf: Path | None
+    thresholds: str | None
+    baseline: str | None
+    manifest: Path | None
+    max_detail_runs: int
+    topics: tuple[str, ...] | None
+    results_out: Path | None
+    compare_given: dict[str, Any]
+    config: Path | None
+
+
+#: The options of ``uwval report``, in ``--help`` order.
+REPORT_OPTIONS: tuple[Arg | Opt, ...] = (
+    Arg(
+        "source",
         Path,
-        typer.Argument(
-            help="A log (MCAP, rosbag2 dir, .bag) or results: an experiment directory "
-            "(manifest.json), results/ (comparisons.json, results.csv) or a results file."
-        ),
-    ],
-    other: Annotated[
-        Path | None,
-        typer.Argument(help="Second file of a pair (SOURCE is then the reference), as compare"),
-    ] = None,
-    output: Annotated[Path, typer.Option("-o", "--output", help="HTML file to write.")] = Path(
-        "report.html"
+        "A log (MCAP, rosbag2 dir, .bag) or results: an experiment directory "
+        "(manifest.json), results/ (comparisons.json, results.csv) or a results file.",
     ),
-    pdf: Annotated[Path | None, typer.Option(help="Also write this PDF (same content).")] = None,
-    thresholds: Annotated[
-        str,
-        typer.Option(
-            help="Thresholds TOML for the verdict; 'default' = embedded, 'none' = no verdict."
-        ),
-    ] = "default",
-    baseline: Annotated[
-        str | None,
-        typer.Option(help="Golden results JSON/CSV to gate on; 'default' = embedded."),
-    ] = None,
-    manifest: Annotated[
-        Path | None, typer.Option(help="manifest.json, when not next to the results.")
-    ] = None,
-    max_detail_runs: Annotated[
-        int, typer.Option(help="Runs with per-run plots: the worst ones (failing first).", min=0)
-    ] = 3,
-    topic: Annotated[
-        list[str] | None,
-        typer.Option(help="Topic(s) with per-run plots (default: the vehicle topic)."),
-    ] = None,
-    gazebo_topic: Annotated[str | None, typer.Option(help="Reference topic (single log).")] = None,
-    unity_topic: Annotated[str | None, typer.Option(help="Unity topic (single log).")] = None,
-    results_out: Annotated[
-        Path | None,
-        typer.Option(
-            "--results", help="Also save the results table here (.csv/.json/.parquet or a dir)."
-        ),
-    ] = None,
-    fmt: FormatOpt = None,
-    frame: FrameOpt = None,
-    sync: SyncOpt = None,
-    max_diff: MaxDiffOpt = None,
-    offset: OffsetOpt = None,
-    align: AlignOpt = None,
-    config: ConfigOpt = None,
-) -> None:
+    Arg("other", Path, _OTHER_HELP.format(first="SOURCE"), default=None),
+    Opt("output", ("-o", "--output"), Path, Path("report.html"), "HTML file to write."),
+    Opt("pdf", ("--pdf",), Path, None, "Also write this PDF (same content)."),
+    THRESHOLDS,
+    BASELINE,
+    Opt("manifest", ("--manifest",), Path, None, "manifest.json, when not next to the results."),
+    Opt(
+        "max_detail_runs",
+        ("--max-detail-runs",),
+        int,
+        3,
+        "Runs with per-run plots: the worst ones (failing first).",
+        (("min", 0),),
+    ),
+    Opt(
+        "topic",
+        ("--topic",),
+        list[str],
+        None,
+        "Topic(s) with per-run plots (default: the vehicle topic).",
+    ),
+    Opt(
+        "results_out",
+        ("--results",),
+        Path,
+        None,
+        "Also save the results table here (.csv/.json/.parquet or a dir).",
+    ),
+    *COMPARE_SUBSET,
+)
+
+
+def report(**kw: Any) -> None:
     """Write a self-contained HTML report (and optionally a PDF) of pose correspondence.
 
     SOURCE: an experiment or results location, one log, a saved ``uwval compare -o`` JSON,
     or a reference trajectory file with OTHER (as ``uwval compare gt.txt est.txt``).
     """
+    given = given_options(kw.pop("ctx"), kw)
+    topics = kw["topic"]
+    options = ReportOptions(
+        source=kw["source"],
+        other=kw["other"],
+        output=kw["output"],
+        pdf=kw["pdf"],
+        thresholds=kw["thresholds"],
+        baseline=kw["baseline"],
+        manifest=kw["manifest"],
+        max_detail_runs=kw["max_detail_runs"],
+        topics=tuple(topics) if topics else None,
+        results_out=kw["results_out"],
+        compare_given=given,
+        config=kw["config"],
+    )
+    run_report(options)
+
+
+declare_signature(report, REPORT_OPTIONS, context=True)
+app.command(name="report")(report)
+
+
+def _report_input(
+    options: ReportOptions, opts: dict[str, Any], scratch: Path
+) -> tuple[Path, dict[str, Any]]:
+    """What the report builder reads, and the compare options of its plots: a single
+    comparison (one log, a pair, a saved result) becomes a one-run comparisons.json
+    under ``scratch``; an experiment or results location is read as it is."""
+    source, other = options.source, options.other
+    one = None
+    if other is not None or _compare_json(source) is not None or not _is_log(source):
+        one = _one_run(source, other, opts)
+    if one is None:
+        return source, opts
+    name, doc, log = one
+    where = scratch / "run" / "results"
+    where.mkdir(parents=True)
+    if log is None:  # a saved result: re-read its files for the plots, as compared
+        # (the saved options, with only what the command line gives over them: a
+        # project file's defaults must not redraw the plots under other options)
+        log, saved_opts = _saved_inputs(doc)
+        opts = {**saved_opts, **_compare_opts(options.compare_given, None)}
+    elif other is not None:
+        opts = {**opts, "path_b": other}  # the plots re-read the pair
+    rec = {"name": name, "factors": {}, "comparison": doc, "log": str(log) if log else None}
+    (where / "comparisons.json").write_text(json.dumps({"runs": [rec], "failed": []}))
+    return where / "comparisons.json", opts
+
+
+def run_report(options: ReportOptions) -> None:
+    """Build the report of ``options`` and print where it went and its verdict."""
     import tempfile
 
     from uwval.config import load_config
     from uwval.reports import build_report
 
-    project = load_config(config)
-    opts = _compare_opts(
-        gazebo_topic, unity_topic, fmt, frame, sync, max_diff, offset, align, project
-    )
-    if thresholds == "default" and project is not None and project.thresholds is not None:
-        thresholds = str(project.thresholds)
+    project = load_config(options.config)
+    opts = _compare_opts(options.compare_given, project)
+    thresholds = options.thresholds
+    if thresholds is None:  # the project file's, else the embedded defaults
+        own = project.thresholds if project is not None else None
+        thresholds = str(own) if own is not None else "default"
     th = None if thresholds.lower() == "none" else thresholds
-    scratch = tempfile.TemporaryDirectory(prefix="uwval-report-")
-    one = None
-    if other is not None or _compare_json(source) is not None or not _is_log(source):
-        one = _one_run(source, other, opts)
-    if one is not None:  # one comparison: reported as a one-run comparisons.json
-        name, doc, log = one
-        where = Path(scratch.name) / "run" / "results"
-        where.mkdir(parents=True)
-        if log is None:  # a saved result: re-read its files for the plots, as compared
-            # (the saved options, with only what the command line gives over them: a
-            # project file's defaults must not redraw the plots under other options)
-            log, saved_opts = _saved_inputs(doc)
-            given = _compare_opts(
-                gazebo_topic, unity_topic, fmt, frame, sync, max_diff, offset, align, None
+    with tempfile.TemporaryDirectory(prefix="uwval-report-") as scratch:
+        source_for_report, opts = _report_input(options, opts, Path(scratch))
+        with _progress(str(options.source)) as progress, warnings.catch_warnings():
+            # build_report collects what the readers warned about into outcome.warnings
+            warnings.simplefilter("ignore")
+            outcome = build_report(
+                source_for_report,
+                options.output,
+                pdf=options.pdf,
+                manifest=options.manifest,
+                thresholds=th,
+                baseline=options.baseline,
+                compare_options=opts,
+                max_detail_runs=options.max_detail_runs,
+                detail_topics=options.topics,
+                command=shlex.join(["uwval", *sys.argv[1:]]),
+                progress=progress,
             )
-            opts = {**saved_opts, **given}
-        elif other is not None:
-            opts["path_b"] = other  # the plots re-read the pair
-        rec = {"name": name, "factors": {}, "comparison": doc, "log": str(log) if log else None}
-        (where / "comparisons.json").write_text(json.dumps({"runs": [rec], "failed": []}))
-        source_for_report = where / "comparisons.json"
-    else:
-        source_for_report = source
-    with scratch, _progress(str(source)) as progress, warnings.catch_warnings():
-        # build_report collects what the readers warned about into outcome.warnings
-        warnings.simplefilter("ignore")
-        outcome = build_report(
-            source_for_report,
-            output,
-            pdf=pdf,
-            manifest=manifest,
-            thresholds=th,
-            baseline=baseline,
-            compare_options=opts,
-            max_detail_runs=max_detail_runs,
-            detail_topics=topic,
-            command=shlex.join(["uwval", *sys.argv[1:]]),
-            progress=progress,
-        )
-    if results_out is not None:
+    if options.results_out is not None:
         import uwval
 
         outcome.table.meta.update(
             {
                 "uwval_version": uwval.__version__,
-                "source": str(source),
+                "source": str(options.source),
                 "command": shlex.join(["uwval", *sys.argv[1:]]),
             }
         )
-        outcome.table.save(results_out)
+        outcome.table.save(options.results_out)
+    _print_outcome(outcome)
+
+
+def _print_outcome(outcome: Any) -> None:
+    """The report's notes and its summary line '... (N run(s)); verdict X (in T s)'
+    (``outcome``: :class:`uwval.reports.ReportOutcome`)."""
     for w in outcome.warnings:
         console.print(f"[yellow]note:[/] {escape(w)}")
     if outcome.refused:
@@ -319,57 +330,93 @@ def report(
     )
 
 
-@app.command()
-def check(
-    results: Annotated[
+@dataclass(frozen=True)
+class CheckOptions:
+    """What one ``uwval check`` was asked: the results (or log, pair, saved result), the
+    gate (thresholds and baseline as given), how to print the verdict (JSON; at most
+    ``limit`` violations, 0 = all), a baseline to write instead of checking, and the
+    compare options the user typed (by keyword, as :func:`_compare_opts` reads them)."""
+
+    results: Path
+    other: Path | None
+    thresholds: str | None
+    baseline: str | None
+    as_json: bool
+    limit: int
+    write_baseline: Path | None
+    compare_given: dict[str, Any]
+    config: Path | None
+
+
+#: The options of ``uwval check``, in ``--help`` order.
+CHECK_OPTIONS: tuple[Arg | Opt, ...] = (
+    Arg(
+        "results",
         Path,
-        typer.Argument(
-            help="Results: experiment dir, results/ dir, results.csv/json or comparisons.json; "
-            "or one log, a saved `uwval compare -o` JSON, or a trajectory file with OTHER."
-        ),
-    ],
-    other: Annotated[
-        Path | None,
-        typer.Argument(help="Second file of a pair (RESULTS is then the reference), as compare"),
-    ] = None,
-    thresholds: Annotated[
-        str | None,
-        typer.Option(help="Thresholds TOML (see docs); 'default' = the embedded defaults."),
-    ] = None,
-    baseline: Annotated[
-        str | None,
-        typer.Option(help="Golden baseline (results JSON/CSV); 'default' = embedded."),
-    ] = None,
-    json_out: Annotated[bool, typer.Option("--json", help="Print the verdict as JSON.")] = False,
-    limit: Annotated[int, typer.Option(help="Violations listed at most (0 = all).", min=0)] = 200,
-    write_baseline: Annotated[
-        Path | None,
-        typer.Option(
-            help="Write these results as a golden baseline (JSON/CSV) instead of checking."
-        ),
-    ] = None,
-    gazebo_topic: Annotated[str | None, typer.Option(help="Reference topic (one log).")] = None,
-    unity_topic: Annotated[str | None, typer.Option(help="Unity topic (one log).")] = None,
-    fmt: FormatOpt = None,
-    frame: FrameOpt = None,
-    sync: SyncOpt = None,
-    max_diff: MaxDiffOpt = None,
-    offset: OffsetOpt = None,
-    align: AlignOpt = None,
-    config: ConfigOpt = None,
-) -> None:
+        "Results: experiment dir, results/ dir, results.csv/json or comparisons.json; "
+        "or one log, a saved `uwval compare -o` JSON, or a trajectory file with OTHER.",
+    ),
+    Arg("other", Path, _OTHER_HELP.format(first="RESULTS"), default=None),
+    THRESHOLDS,
+    BASELINE,
+    JSON,
+    Opt(
+        "limit",
+        ("--limit",),
+        int,
+        200,
+        "Violations listed at most (0 = all).",
+        (("min", 0),),
+    ),
+    Opt(
+        "write_baseline",
+        ("--write-baseline",),
+        Path,
+        None,
+        "Write these results as a golden baseline (JSON/CSV) instead of checking.",
+    ),
+    *COMPARE_SUBSET,
+)
+
+
+def check(**kw: Any) -> None:
     """CI gate: exit 1 and list what regressed when a threshold or the baseline is broken.
 
     Exit codes: 0 pass, 1 regression, 2 bad input (unreadable results or thresholds).
     """
+    given = given_options(kw.pop("ctx"), kw)
+    options = CheckOptions(
+        results=kw["results"],
+        other=kw["other"],
+        thresholds=kw["thresholds"],
+        baseline=kw["baseline"],
+        as_json=kw["as_json"],
+        limit=kw["limit"],
+        write_baseline=kw["write_baseline"],
+        compare_given=given,
+        config=kw["config"],
+    )
+    run_check_command(options)
+
+
+declare_signature(check, CHECK_OPTIONS, context=True)
+app.command(name="check")(check)
+
+
+def run_check_command(options: CheckOptions) -> None:
+    """Gate the results of ``options`` (or write their baseline); exit 1 on a regression."""
     from uwval.config import load_config
     from uwval.gate import check as run_check
     from uwval.gate import require_integrity, resolve_input
     from uwval.results import compare_pending, load_experiment_results
 
-    project = load_config(config)
+    project = load_config(options.config)
+    thresholds, baseline = options.thresholds, options.baseline
+    results, write_baseline = options.results, options.write_baseline
     if thresholds is None and project is not None and project.thresholds is not None:
         thresholds = str(project.thresholds)
+    elif thresholds is not None and thresholds.lower() == "none":  # no threshold verdict
+        thresholds = None
     th_path = resolve_input("thresholds", thresholds)
     base_path = resolve_input("baselines", baseline)
     if thresholds is None and baseline is None and write_baseline is None:
@@ -377,10 +424,8 @@ def check(
             "uwval check needs --thresholds FILE.toml and/or --baseline FILE.json "
             "(or thresholds = ... in uwval.toml)"
         )
-    opts = _compare_opts(
-        gazebo_topic, unity_topic, fmt, frame, sync, max_diff, offset, align, project
-    )
-    one = _one_run(results, other, opts)
+    opts = _compare_opts(options.compare_given, project)
+    one = _one_run(results, options.other, opts)
     if one is not None:  # one log, a pair of files or a saved compare result
         from uwval.results import ExperimentResults, ResultsTable, RunRecord
 
@@ -418,10 +463,10 @@ def check(
         return
     require_integrity(exp.table, [(r.name, r.comparison) for r in exp.runs], results)
     verdict = run_check(exp.table, th_path, base_path, expected_runs=[r.name for r in exp.runs])
-    if json_out:
+    if options.as_json:
         typer.echo(json.dumps(verdict.to_json(), indent=1))
     else:  # the verdict is the command's output: stdout, PASS or FAIL alike
-        text = verdict.format(limit=None if limit == 0 else limit)
+        text = verdict.format(limit=None if options.limit == 0 else options.limit)
         console.print(text, highlight=False, soft_wrap=True, markup=False)
     if exp.failed:
         err_console.print(

@@ -8,19 +8,26 @@ positional word (``tum``, ``kitti``, ``euroc``, ``bag``, ``bag2``) is accepted.
 
 from __future__ import annotations
 
-import inspect
 import io
 import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any, Optional
-
-import typer
+from typing import Any
 
 from uwval.cli import app
-from uwval.cli.compare_args import CliOption, EvoCommand, choice, read_positionals
+from uwval.cli.compare_args import EvoCommand, choice, read_positionals
 from uwval.cli.console import error_console, output_console, warn
+from uwval.cli.declare import Arg, Opt, declare_signature
+from uwval.cli.shared_options import (
+    ALIGN,
+    FORMAT,
+    FRAME,
+    JSON,
+    MAX_DIFF,
+    OFFSET,
+    RESULT_FILE,
+)
 from uwval.comparison.logs import RpeComparison
 from uwval.comparison.options import (
     AlignmentMode,
@@ -50,16 +57,12 @@ _ALIGN_TITLES = {
 }
 
 #: Every option of ``uwval rpe``, in ``--help`` order (names and kinds as in ``compare``).
-RPE_OPTIONS: tuple[CliOption, ...] = (
-    CliOption("ref_topic", ("--ref-topic", "--gazebo-topic"), str, None, "Reference topic"),
-    CliOption("est_topic", ("--est-topic", "--unity-topic"), str, None, "Estimate topic"),
-    CliOption(
-        "fmt", ("--format",), str, None, "tum, kitti, euroc or a log format (default: by suffix)"
-    ),
-    CliOption(
-        "frame", ("--frame",), str, None, "Convention of the estimate (default: from the log)"
-    ),
-    CliOption(
+RPE_OPTIONS: tuple[Opt, ...] = (
+    Opt("ref_topic", ("--ref-topic", "--gazebo-topic"), str, None, "Reference topic"),
+    Opt("est_topic", ("--est-topic", "--unity-topic"), str, None, "Estimate topic"),
+    FORMAT,
+    FRAME,
+    Opt(
         "relation",
         ("-r", "--pose_relation", "--pose-relation"),
         str,
@@ -67,94 +70,70 @@ RPE_OPTIONS: tuple[CliOption, ...] = (
         "trans_part, rot_part, full, angle_deg, angle_rad, point_distance, "
         "point_distance_error_ratio",
     ),
-    CliOption("delta", ("-d", "--delta"), float, 1.0, "Delta between poses"),
-    CliOption(
+    Opt("delta", ("-d", "--delta"), float, 1.0, "Delta between poses"),
+    Opt(
         "delta_unit",
         ("-u", "--delta_unit", "--delta-unit"),
         str,
         "f",
         "f (frames), m (metres), d (deg), r (rad)",
     ),
-    CliOption(
+    Opt(
         "delta_tol",
         ("-t", "--delta_tol", "--delta-tol"),
         float,
         0.1,
         "Relative delta tolerance (all pairs)",
     ),
-    CliOption(
-        "all_pairs", ("--all_pairs", "--all-pairs"), bool, False, "All pairs, not consecutive"
-    ),
-    CliOption(
+    Opt("all_pairs", ("--all_pairs", "--all-pairs"), bool, False, "All pairs, not consecutive"),
+    Opt(
         "pairs_from_reference",
         ("--pairs_from_reference", "--pairs-from-reference"),
         bool,
         False,
         "Choose the pairs on the reference (default: on the estimate, as evo)",
     ),
-    CliOption(
-        "align",
-        ("--align",),
-        str,
-        "none",
-        "Alignment: none, se3, sim3, origin or scale (evo's -a, -as, --align_origin, -s)",
-    ),
-    CliOption("evo_align", ("-a",), bool, False, "evo's -a: SE(3) Umeyama (-as: Sim(3))"),
-    CliOption(
+    ALIGN,
+    Opt("evo_align", ("-a",), bool, False, "evo's -a: SE(3) Umeyama (-as: Sim(3))"),
+    Opt(
         "correct_scale",
         ("-s", "--correct_scale", "--correct-scale"),
         bool,
         False,
         "evo's -s: correct the scale",
     ),
-    CliOption(
+    Opt(
         "align_origin",
         ("--align_origin", "--align-origin"),
         bool,
         False,
         "evo's --align_origin: align the first poses",
     ),
-    CliOption(
-        "n_to_align", ("--n_to_align", "--n-to-align"), int, -1, "Poses used to align (-1: all)"
-    ),
-    CliOption(
-        "max_diff",
-        ("--t-max-diff", "--t_max_diff", "--max-diff"),
-        float,
-        0.01,
-        "Max stamp difference of evo's nearest association (s)",
-    ),
-    CliOption(
-        "offset",
-        ("--t-offset", "--t_offset", "--offset"),
-        float,
-        0.0,
-        "Added to the estimate's stamps (s)",
-    ),
-    CliOption("t_start", ("--t_start", "--t-start"), float, None, "evo's --t_start (s)"),
-    CliOption("t_end", ("--t_end", "--t-end"), float, None, "evo's --t_end (s)"),
-    CliOption("downsample", ("--downsample",), int, None, "evo's --downsample N"),
-    CliOption("verbose", ("-v", "--verbose"), bool, False, "evo's -v: also print the alignment"),
-    CliOption("silent", ("--silent",), bool, False, "evo's --silent: print nothing on stdout"),
-    CliOption(
+    Opt("n_to_align", ("--n_to_align", "--n-to-align"), int, -1, "Poses used to align (-1: all)"),
+    MAX_DIFF,
+    OFFSET,
+    Opt("t_start", ("--t_start", "--t-start"), float, None, "evo's --t_start (s)"),
+    Opt("t_end", ("--t_end", "--t-end"), float, None, "evo's --t_end (s)"),
+    Opt("downsample", ("--downsample",), int, None, "evo's --downsample N"),
+    Opt("verbose", ("-v", "--verbose"), bool, False, "evo's -v: also print the alignment"),
+    Opt("silent", ("--silent",), bool, False, "evo's --silent: print nothing on stdout"),
+    Opt(
         "no_warnings",
         ("--no_warnings", "--no-warnings"),
         bool,
         False,
         "evo's --no_warnings: accepted (uwval never asks for confirmation)",
     ),
-    CliOption("logfile", ("--logfile",), Path, None, "evo's --logfile: also write the output"),
-    CliOption(
+    Opt("logfile", ("--logfile",), Path, None, "evo's --logfile: also write the output"),
+    Opt(
         "plot",
         ("--plot", "-p"),
         bool,
         False,
         "Write the RPE over time as a PNG (no window): to --save_plot, else uwval_rpe.png",
     ),
-    CliOption(
-        "save_plot", ("--save_plot", "--save-plot"), Path, None, "Figure path; implies --plot"
-    ),
-    CliOption(
+    Opt("save_plot", ("--save_plot", "--save-plot"), Path, None, "Figure path; implies --plot"),
+    Opt(
         "save_results",
         ("--save_results", "--save-results"),
         Path,
@@ -162,41 +141,20 @@ RPE_OPTIONS: tuple[CliOption, ...] = (
         "evo's --save_results: a .zip in evo's layout when evo_rpe would give the same "
         "numbers (an estimate in ENU); otherwise without evo's stats.json/info.json",
     ),
-    CliOption("as_json", ("--json",), bool, False, "Print the JSON result"),
-    CliOption("output", ("-o", "--output"), Path, None, "Write the JSON result to this file"),
+    JSON,
+    RESULT_FILE,
 )
 
 
-def _parameters() -> list[inspect.Parameter]:
-    """The typer signature of ``rpe``: the positional words, then :data:`RPE_OPTIONS`."""
-    kw = inspect.Parameter.KEYWORD_ONLY
-    params = [
-        inspect.Parameter("ctx", kw, annotation=typer.Context),
-        inspect.Parameter(
-            "words",
-            kw,
-            annotation=Annotated[
-                list[str],
-                typer.Argument(
-                    help="REF EST, or LOG with --ref-topic/--est-topic; evo's shapes: "
-                    "tum|kitti|euroc REF EST, bag|bag2 LOG /ref_topic /est_topic",
-                    show_default=False,
-                    metavar="INPUTS",
-                ),
-            ],
-        ),
-    ]
-    for o in RPE_OPTIONS:
-        kind: Any = o.kind if o.default is not None else Optional[o.kind]  # noqa: UP045
-        params.append(
-            inspect.Parameter(
-                o.dest,
-                kw,
-                default=o.default,
-                annotation=Annotated[kind, typer.Option(*o.flags, help=o.help)],
-            )
-        )
-    return params
+#: The positional words of ``rpe``.
+_WORDS = Arg(
+    "words",
+    list[str],
+    "REF EST, or LOG with --ref-topic/--est-topic; evo's shapes: "
+    "tum|kitti|euroc REF EST, bag|bag2 LOG /ref_topic /est_topic",
+    metavar="INPUTS",
+    show_default=False,
+)
 
 
 @dataclass(frozen=True)
@@ -227,6 +185,18 @@ def _align_mode(flags: _Flags) -> AlignmentMode:
     return mode
 
 
+def _offset_s(text: str) -> float:
+    """--offset as rpe takes it: seconds added to the estimate's stamps (compare's
+    'auto' estimate is not part of evo_rpe's options)."""
+    try:
+        return float(text)
+    except ValueError:
+        raise ConfigError(
+            f"--offset {text!r}: rpe takes a clock offset in seconds (estimate one with "
+            "uwval compare --offset auto)"
+        ) from None
+
+
 def rpe_options(kw: dict[str, Any]) -> RpeOptions:
     """The typed options of one ``uwval rpe`` from its command line."""
     pos = read_positionals(list(kw["words"]))
@@ -251,7 +221,7 @@ def rpe_options(kw: dict[str, Any]) -> RpeOptions:
         align=_align_mode(flags),
         n_to_align=kw["n_to_align"],
         max_diff=kw["max_diff"],
-        offset=kw["offset"],
+        offset=_offset_s(kw["offset"]),
         window=TimeWindow(kw["t_start"], kw["t_end"], kw["downsample"]),
     )
 
@@ -290,11 +260,7 @@ def rpe_command(**kw: Any) -> None:
         write_output(kw["logfile"], console.export_text(), "the log file")
 
 
-_signature = inspect.Signature(_parameters(), return_annotation=None)
-rpe_command.__signature__ = _signature  # type: ignore[attr-defined]
-rpe_command.__annotations__ = {p.name: p.annotation for p in _signature.parameters.values()} | {
-    "return": None
-}
+declare_signature(rpe_command, (_WORDS, *RPE_OPTIONS), context=True)
 app.command("rpe", cls=EvoCommand)(rpe_command)
 
 

@@ -12,13 +12,11 @@ it); the command builds one :class:`~uwval.bridge.experiment.SimulateOptions` an
 
 from __future__ import annotations
 
-import inspect
 import json
 import time
-from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
-from typing import Annotated, Any, Optional, TypeVar
+from typing import Any, TypeVar
 
 import typer
 from rich.console import Console
@@ -33,6 +31,8 @@ from uwval.bridge.experiment import (
 )
 from uwval.bridge.options import REAL_UNITY, SessionOptions
 from uwval.cli import app
+from uwval.cli.declare import Arg, Opt, declare_signature, opt
+from uwval.cli.shared_options import EXECUTOR, JSON, SCHEDULER, WORKERS
 from uwval.cli.simulate_endpoint import EndpointTarget, publish_to_endpoint
 from uwval.errors import ConfigError
 from uwval.simulator.model import AddedMass, CaSign, CoriolisEntries, GazeboModel
@@ -41,24 +41,10 @@ console = Console()
 E = TypeVar("E", bound=Enum)
 
 
-@dataclass(frozen=True)
-class CliOption:
-    """One option of ``uwval simulate``: keyword, flags, kind, default and help."""
-
-    dest: str
-    flags: tuple[str, ...]
-    kind: Any
-    default: Any
-    help: str
-
-
-def _o(dest: str, kind: Any, default: Any, help: str, *flags: str) -> CliOption:
-    return CliOption(dest, flags or (f"--{dest.replace('_', '-')}",), kind, default, help)
-
-
+_o = opt
 _ONE = "One run: "
 #: Every option of ``uwval simulate``, in ``--help`` order.
-SIMULATE_OPTIONS: tuple[CliOption, ...] = (
+SIMULATE_OPTIONS: tuple[Opt, ...] = (
     _o("output", Path, Path("run.mcap"), "Log file (one run) or directory (experiment).",
        "-o", "--output"),
     _o("force", str, "0,0,0", "Force FX,FY,FZ in N (body FLU; see --wrench-frame)."),
@@ -110,12 +96,11 @@ SIMULATE_OPTIONS: tuple[CliOption, ...] = (
     _o("float32", bool, bool(REAL_UNITY["float32"]),
        "Store poses as Unity's Transform does (float32).", "--float32/--no-float32"),
     _o("seed", int, 0, "Seed for jitter/drops (and the experiment)."),
-    _o("as_json", bool, False, _ONE + "print its record (bridge statistics, sim info, "
-       "options) as JSON.", "--json"),
+    JSON,
     _o("realtime", bool, False, "Pace the virtual clock to the wall clock."),
-    _o("executor", str, "local", "local (process pool), dask or inline."),
-    _o("workers", int, None, "Worker processes (default: all cores)."),
-    _o("scheduler", str, None, "Dask scheduler address (tcp://...)."),
+    EXECUTOR,
+    WORKERS,
+    SCHEDULER,
     _o("batch_physics", bool, False, "Experiment: step all runs' physics together in one "
        "vectorised state first (large sweeps of short runs).", "--batch-physics"),
     _o("endpoint", str, None, _ONE + "publish the simulated Gazebo poses INTO a running "
@@ -267,36 +252,14 @@ def _print_run(output: Path, record: dict[str, Any], wall_s: float) -> None:
     )
 
 
-def _parameters() -> list[inspect.Parameter]:
-    """The typer signature of ``simulate``: the experiment argument, then the options."""
-    kw = inspect.Parameter.KEYWORD_ONLY
-    params = [
-        inspect.Parameter(
-            "experiment",
-            kw,
-            default=None,
-            annotation=Annotated[
-                Optional[str],  # noqa: UP045 - typer reads the annotation at run time
-                typer.Argument(
-                    help="Experiment TOML file, or an embedded experiment's name (default, "
-                    "quick, bluerov2_sweep); omit for one run.",
-                    show_default=False,
-                ),
-            ],
-        )
-    ]
-    for o in SIMULATE_OPTIONS:
-        kind: Any = o.kind if o.default is not None else Optional[o.kind]  # noqa: UP045
-        params.append(
-            inspect.Parameter(
-                o.dest,
-                kw,
-                default=o.default,
-                annotation=Annotated[kind, typer.Option(*o.flags, help=o.help)],
-            )
-        )
-    return params
-
-
-simulate.__signature__ = inspect.Signature(_parameters())  # type: ignore[attr-defined]
+#: The experiment argument of ``simulate`` (omitted: one run).
+_EXPERIMENT = Arg(
+    "experiment",
+    str,
+    "Experiment TOML file, or an embedded experiment's name (default, "
+    "quick, bluerov2_sweep); omit for one run.",
+    default=None,
+    show_default=False,
+)
+declare_signature(simulate, (_EXPERIMENT, *SIMULATE_OPTIONS))
 app.command(name="simulate")(simulate)

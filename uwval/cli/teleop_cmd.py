@@ -12,7 +12,6 @@ quits. A held key (terminal auto-repeat) keeps its wrench increment applied; rel
 from __future__ import annotations
 
 import contextlib
-import inspect
 import math
 import os
 import select
@@ -20,13 +19,13 @@ import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any, Optional
+from typing import Any
 
 import numpy as np
-import typer
 from rich.console import Console
 
 from uwval.cli import app
+from uwval.cli.declare import Opt, declare_signature
 from uwval.cli.simulate_cmd import parse_vector
 from uwval.cli.simulate_endpoint import endpoint_topics, parse_endpoint
 from uwval.errors import ConfigError
@@ -111,24 +110,25 @@ class TeleopOptions:
 
 
 #: Every option of ``uwval teleop``: (keyword, flags, kind, default, help).
-TELEOP_OPTIONS: tuple[tuple[str, tuple[str, ...], Any, Any, str], ...] = (
-    ("vehicle", ("--vehicle",), str, "tethys", "Preset name, MODEL.sdf or VEHICLE.toml."),
-    ("host", ("--host",), str, "127.0.0.1", "Address the endpoint binds."),
-    ("port", ("--port",), int, 10000, "Endpoint port (0: a free port)."),
-    ("keys", ("--keys",), str, None, "Scripted keys, e.g. 'i@0:5;j@2:3'."),
-    ("duration", ("--duration",), float, 0.0, "Stop after S seconds (0: until q)."),
-    ("current", ("--current",), str, "0,0,0", "Initial current CX,CY,CZ, m/s (ENU)."),
-    ("force_step", ("--force-step",), float, 10.0, "Force per held key, N."),
-    ("torque_step", ("--torque-step",), float, 1.0, "Torque per held key, N m."),
-    ("hold", ("--hold",), float, 0.6, "A key counts as held this long after it was last seen, s."),
-    ("publish_rate", ("--publish-rate",), float, 50.0, "Pose publish rate, Hz."),
-    ("speed", ("--speed",), float, 1.0,
+TELEOP_OPTIONS: tuple[Opt, ...] = (
+    Opt("vehicle", ("--vehicle",), str, "tethys", "Preset name, MODEL.sdf or VEHICLE.toml."),
+    Opt("host", ("--host",), str, "127.0.0.1", "Address the endpoint binds."),
+    Opt("port", ("--port",), int, 10000, "Endpoint port (0: a free port)."),
+    Opt("keys", ("--keys",), str, None, "Scripted keys, e.g. 'i@0:5;j@2:3'."),
+    Opt("duration", ("--duration",), float, 0.0, "Stop after S seconds (0: until q)."),
+    Opt("current", ("--current",), str, "0,0,0", "Initial current CX,CY,CZ, m/s (ENU)."),
+    Opt("force_step", ("--force-step",), float, 10.0, "Force per held key, N."),
+    Opt("torque_step", ("--torque-step",), float, 1.0, "Torque per held key, N m."),
+    Opt("hold", ("--hold",), float, 0.6,
+        "A key counts as held this long after it was last seen, s."),
+    Opt("publish_rate", ("--publish-rate",), float, 50.0, "Pose publish rate, Hz."),
+    Opt("speed", ("--speed",), float, 1.0,
      "Sim time per wall second (0: as fast as possible, scripted runs only)."),
-    ("record", ("--record",), Path, None, "Also record the Gazebo side here (MCAP)."),
-    ("endpoint", ("--endpoint",), str, None, "Publish INTO a running ROS-TCP endpoint at "
+    Opt("record", ("--record",), Path, None, "Also record the Gazebo side here (MCAP)."),
+    Opt("endpoint", ("--endpoint",), str, None, "Publish INTO a running ROS-TCP endpoint at "
      "HOST:PORT (Unity's ROS-TCP-Endpoint) as a ROS publisher, instead of serving on "
      "--host/--port."),
-    ("endpoint_namespace", ("--endpoint-namespace",), str, "",
+    Opt("endpoint_namespace", ("--endpoint-namespace",), str, "",
      "With --endpoint: ROS namespace of the topics (e.g. /gazebo)."),
 )  # fmt: skip
 
@@ -154,23 +154,7 @@ def teleop(**kw: Any) -> None:
     run_teleop(options)
 
 
-def _parameters() -> list[inspect.Parameter]:
-    """The typer signature of ``teleop``, from :data:`TELEOP_OPTIONS`."""
-    params = []
-    for dest, flags, kind, default, help_text in TELEOP_OPTIONS:
-        typ: Any = kind if default is not None else Optional[kind]  # noqa: UP045
-        params.append(
-            inspect.Parameter(
-                dest,
-                inspect.Parameter.KEYWORD_ONLY,
-                default=default,
-                annotation=Annotated[typ, typer.Option(*flags, help=help_text)],
-            )
-        )
-    return params
-
-
-teleop.__signature__ = inspect.Signature(_parameters())  # type: ignore[attr-defined]
+declare_signature(teleop, TELEOP_OPTIONS)
 app.command(name="teleop")(teleop)
 
 
