@@ -8,10 +8,8 @@
 (c) the same pair as MCAP PoseStamped logs, whole command: target < 1 s.
 
 The whole command is measured as ``python -m uwval`` and as the installed ``uwval`` console
-script (both take the typer-free fast path of :mod:`uwval.cli.compare_run`). Peak RSS is the
-command's own (``benchmarks.common.run_command``); the
-TUM reader forks one child to parse the second file into shared memory, whose private pages
-(~10 MB) are not in that figure.
+script (both go through typer, the only parser). Peak RSS is the command's own
+(``benchmarks.common.run_command``).
 
 Files are generated once per run into a temporary directory (seeded, identical every run).
 """
