@@ -145,3 +145,29 @@ def test_inline_commands_name_real_commands_and_options() -> None:
             assert not unknown, f"README: `{span}` shows {sorted(unknown)}, not options of {path!r}"
             checked += 1
     assert checked >= 15
+
+
+def test_docs_commands_name_real_commands_and_options() -> None:
+    """The commands the docs/ pages show (in backticks and bash blocks) name existing
+    commands, and only options those commands take."""
+    known = _command_names()
+    checked = 0
+    for doc in sorted((REPO / "docs").glob("*.md")):
+        text = doc.read_text(encoding="utf-8")
+        spans = re.findall(r"`(uwval [^`]+)`", text)
+        for block in re.findall(r"```bash\n(.*?)```", text, flags=re.S):
+            spans += [re.sub(r"\s+#.*$", "", ln).strip() for ln in block.splitlines()]
+        for span in spans:
+            words = shlex.split(span) if span.startswith("uwval ") else []
+            if len(words) < 2 or words[1] not in known:
+                continue  # prose that begins with "uwval", or --version
+            path = words[1]
+            for w in words[2:]:
+                if f"{path} {w}" not in known:
+                    break
+                path = f"{path} {w}"
+            options = {w.split("=")[0] for w in words if w.startswith("--")}
+            unknown = options - known[path] - {"--help"}
+            assert not unknown, f"{doc.name}: `{span}` shows {sorted(unknown)}, not of {path!r}"
+            checked += 1
+    assert checked >= 40
