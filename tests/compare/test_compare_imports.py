@@ -18,9 +18,9 @@ NOT_LOADED = (
     "uwval.comparison.rpe",  # RPE code, for its relation names: ~2.5 ms
     "matplotlib",  # plots only with --plot
     "pandas",
-    "tempfile",  # only a zstd-compressed rosbag2 or an unclosed .db3 needs a scratch folder:
-    "shutil",  # ~4 ms with the random module tempfile loads
 )
+# tempfile and shutil are not listed: typer's pydantic (2.14) loads importlib.metadata for its
+# plugin entry points, and that loads both, whatever uwval does
 #: never loaded by a compare of a single-file log (an MCAP file): rosbag2 directories only
 NOT_LOADED_FOR_A_FILE = ("ruamel.yaml",)
 
