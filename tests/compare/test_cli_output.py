@@ -5,7 +5,10 @@ doctor and inspect, ``uwval --version`` naming the embedded defaults, and one pa
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -126,3 +129,20 @@ def test_the_html_page_says_how_the_numbers_were_made(
     p = run_uwval("compare", *pair, "--html", page, "-a")
     assert p.returncode == 0, p.stderr
     assert "sync nearest (max diff 0.01 s), align se3, frame enu" in page.read_text()
+
+
+def test_piped_help_is_not_wrapped_at_80_columns() -> None:
+    """``uwval compare --help | grep`` finds an option with its whole help on one line (as a
+    shell runs it: COLUMNS is a shell variable, not exported; pytest exports COLUMNS=80)."""
+    env = {k: v for k, v in os.environ.items() if k != "COLUMNS"}
+    res = subprocess.run(
+        [sys.executable, "-m", "uwval", "compare", "--help"],
+        capture_output=True,
+        text=True,
+        env=env,
+        stdin=subprocess.DEVNULL,
+        timeout=120,
+    )
+    assert res.returncode == 0
+    line = next(ln for ln in res.stdout.splitlines() if "--gazebo-topic" in ln)
+    assert "chained through /tf_static" in line

@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import importlib
+import os
 import sys
 from typing import TYPE_CHECKING, Any
 
@@ -192,6 +193,10 @@ def main(argv: list[str] | None = None) -> None:
     cannot be written (stdout on a full device); 130 on Ctrl-C.
     """
     args = sys.argv[1:] if argv is None else argv
+    if not sys.stdout.isatty():
+        # typer's help is printed by rich, which wraps at 80 columns when stdout is a file or a
+        # pipe; scripts grep it whole (our own tables never wrap: uwval.cli.console)
+        os.environ.setdefault("COLUMNS", "200")
     try:
         _dispatch(args, argv)
     except UwvalError as exc:
