@@ -58,18 +58,6 @@ def errors_csv(result: Any) -> str:
     return buf.getvalue()
 
 
-def _label_paths(base: Path, names: list[str], primary: str) -> dict[str, Path]:
-    """One output path per topic: ``base`` for the primary topic, base.<name>.suffix else."""
-    out = {}
-    for name in names:
-        if name == primary:
-            out[name] = base
-        else:
-            safe = name.strip("/").replace("/", "_") or "topic"
-            out[name] = base.with_name(f"{base.stem}.{safe}{base.suffix}")
-    return out
-
-
 def label_paths(base: Path, names: list[str], primary: str) -> dict[str, Path]:
     """One output path per topic: ``base`` for the primary topic, base.<name>.suffix else."""
     out = {}
@@ -139,6 +127,23 @@ def save_results_zip(result: LogComparison, relation: str) -> tuple[bytes, str |
         "alignment": res.alignment.mode,
     }
     reason = not_evo_comparable(res)
+    extra = {
+        "uwval.json": json.dumps(result.to_json(), indent=1, allow_nan=False),
+        "errors.csv": errors_csv(res),
+    }
+    return evo_zip(stats, info, reason, _evo_arrays(res, errors), extra), reason
+
+
+def evo_zip(
+    stats: dict[str, Any],
+    info: dict[str, Any],
+    reason: str | None,
+    arrays: dict[str, Any],
+    extra: dict[str, str],
+) -> bytes:
+    """A --save_results zip: evo's layout (stats.json, info.json, the .npy arrays evo_res
+    reads) when ``reason`` is None, else the statistics in uwval_stats.json with the reason,
+    so that evo_res refuses the zip; ``extra`` files (name -> text) are added as they are."""
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
         if reason is None:
@@ -147,13 +152,13 @@ def save_results_zip(result: LogComparison, relation: str) -> tuple[bytes, str |
         else:
             doc = {"not_an_evo_result": reason, "info": info, "stats": stats}
             zf.writestr("uwval_stats.json", json.dumps(doc, allow_nan=False))
-        for name, array in _evo_arrays(res, errors).items():
+        for name, array in arrays.items():
             npy = io.BytesIO()
-            np.save(npy, array)
+            np.save(npy, np.asarray(array, dtype=np.float64))
             zf.writestr(f"{name}.npy", npy.getvalue())
-        zf.writestr("uwval.json", json.dumps(result.to_json(), indent=1, allow_nan=False))
-        zf.writestr("errors.csv", errors_csv(res))
-    return buf.getvalue(), reason
+        for name, text in extra.items():
+            zf.writestr(name, text)
+    return buf.getvalue()
 
 
 def _short(stream: Any) -> str:

@@ -299,11 +299,7 @@ def _lines(found: RpeComparison, verbose: bool) -> list[str]:
 def _save_results(path: Path, found: RpeComparison, text: str) -> Path:
     """evo's --save_results for RPE: evo's layout when evo_rpe would give the same numbers
     (an estimate already in ENU), else a zip evo_res refuses; any other suffix: the JSON."""
-    import zipfile
-
-    import numpy as np
-
-    from uwval.cli.compare_files import write_output
+    from uwval.cli.compare_files import evo_zip, write_output
 
     if path.suffix.lower() != ".zip":
         write_output(path, text + "\n", "the results")
@@ -318,20 +314,9 @@ def _save_results(path: Path, found: RpeComparison, text: str) -> Path:
         "label": f"RPE ({unit})",
     }
     reason = None if found.other_frame == "enu" else f"frame {found.other_frame} converted to ENU"
-    buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
-        if reason is None:
-            zf.writestr("stats.json", json.dumps(stats, allow_nan=False))
-            zf.writestr("info.json", json.dumps(info))
-        else:
-            doc = {"not_an_evo_result": reason, "info": info, "stats": stats}
-            zf.writestr("uwval_stats.json", json.dumps(doc, allow_nan=False))
-        for name, array in (("error_array", res.errors), ("timestamps", res.t * 1e-9)):
-            npy = io.BytesIO()
-            np.save(npy, np.asarray(array, dtype=np.float64))
-            zf.writestr(f"{name}.npy", npy.getvalue())
-        zf.writestr("uwval.json", text)
-    write_output(path, buf.getvalue(), "the results")
+    arrays = {"error_array": res.errors, "timestamps": res.t * 1e-9}
+    data = evo_zip(stats, info, reason, arrays, {"uwval.json": text})
+    write_output(path, data, "the results")
     if reason is not None:
         warn(f"{path} is not an evo result ({reason}): written without evo's stats.json/info.json")
     return path
