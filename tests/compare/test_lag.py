@@ -75,6 +75,24 @@ def test_a_unity_ahead_of_gazebo_gives_a_negative_lag_and_says_early() -> None:
     assert "early" in lag_sentence(fit)
 
 
+def test_an_error_that_is_not_a_lag_is_not_called_one() -> None:
+    """Noise much larger than any lag the motion could show: the sentence says the error is
+    not mostly a lag before it names the best-fitting one."""
+    t = np.arange(0, 20, 1 / F)
+    ref = _motion(t)
+    noisy = _motion(t - 0.01) + np.random.default_rng(3).normal(0, 0.5, ref.shape)
+    fit = fit_lag(t, ref, noisy, seed=0)
+    assert fit is not None
+    assert fit.explained < 0.5
+    text = lag_sentence(fit)
+    assert text.startswith("The error is not mostly a lag")
+    assert "Unity shows Gazebo's pose" not in text
+    # a clean delay keeps the plain answer
+    clean = fit_lag(t, ref, _motion(t - 0.01), seed=0)
+    assert clean is not None
+    assert lag_sentence(clean).startswith("Unity shows Gazebo's pose 10.0 ms late")
+
+
 def test_no_motion_no_lag() -> None:
     t = np.arange(0, 5, 1 / F)
     still = np.zeros((t.size, 3))

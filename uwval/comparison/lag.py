@@ -305,6 +305,10 @@ def _length(metres: float) -> str:
     return f"{metres * 1e3:.1f} mm" if abs(metres) < 1.0 else f"{metres:.3f} m"
 
 
+#: Below this fraction of the error explained, the sentence does not call the error a lag.
+MOSTLY_A_LAG = 0.5
+
+
 def lag_sentence(fit: LagFit, axis: str = "x") -> str:
     """The answer in one sentence, e.g. "Unity shows Gazebo's pose 12.4 ms late (95 % CI
     12.1-12.7 ms); that explains 98 % of the error; what remains is 0.4 mm (x MAE)."; plus
@@ -312,12 +316,17 @@ def lag_sentence(fit: LagFit, axis: str = "x") -> str:
     late = fit.fitted_s >= 0
     lo, hi = fit.ci95_s if late else (-fit.ci95_s[1], -fit.ci95_s[0])
     words = "late" if late else "early (ahead of it)"
-    text = (
-        f"Unity shows Gazebo's pose {_ms(abs(fit.fitted_s))} ms {words} "
-        f"(95 % CI {_ms(lo)}-{_ms(hi)} ms)"
-    )
-    if math.isfinite(fit.explained):
-        text += f"; that explains {max(0.0, fit.explained) * 100:.0f} % of the error"
+    lag = f"{_ms(abs(fit.fitted_s))} ms {words} (95 % CI {_ms(lo)}-{_ms(hi)} ms)"
+    if math.isfinite(fit.explained) and fit.explained < MOSTLY_A_LAG:
+        # a poor fit is no answer: say so first, before any number reads as one
+        text = (
+            f"The error is not mostly a lag: the best-fitting lag, {lag}, explains only "
+            f"{max(0.0, fit.explained) * 100:.0f} % of it"
+        )
+    else:
+        text = f"Unity shows Gazebo's pose {lag}"
+        if math.isfinite(fit.explained):
+            text += f"; that explains {fit.explained * 100:.0f} % of the error"
     if axis in fit.residual:
         mae = fit.residual[axis].mae
         shown = _length(mae) if axis in POSITION_AXES else f"{mae:.3g} deg"
