@@ -30,3 +30,24 @@ def compare_json(*args: str) -> dict[str, Any]:
     assert res.returncode == 0, res.stderr
     out: dict[str, Any] = json.loads(res.stdout)
     return out
+
+
+#: The end-to-end tests' run: surge, yaw torque and a cross current for 20 s.
+STANDARD_RUN = (
+    "--force",
+    "10,0,0",
+    "--torque",
+    "0,0,1",
+    "--current",
+    "0,0.2,0",
+    "--duration",
+    "20",
+)
+
+
+def simulate_log(path: Path, *extra: str) -> Path:
+    """``uwval simulate`` of the standard run (plus ``extra`` options) into ``path``, checked
+    to succeed."""
+    res = run_uwval("simulate", *STANDARD_RUN, *extra, "-o", path)
+    assert res.returncode == 0, res.stderr
+    return path

@@ -10,7 +10,7 @@ import pytest
 TESTS = Path(__file__).resolve().parent
 sys.path.insert(0, str(TESTS))  # module-level task helpers importable by worker processes
 
-SHARED_DATA = TESTS.parents[1] / "shared" / "data"
+from shared_data import SHARED_DATA  # noqa: E402
 
 
 @pytest.fixture

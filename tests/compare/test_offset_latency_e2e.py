@@ -8,21 +8,14 @@ from typing import Any
 
 import pytest
 from cli_runner import run_uwval as _uwval
+from cli_runner import simulate_log
 
 
 @pytest.fixture(scope="module")
 def offset_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     log = tmp_path_factory.mktemp("off") / "off.mcap"
-    res = _uwval(
-        "simulate",
-        "--force",
-        "10,0,0",
-        "--torque",
-        "0,0,1",
-        "--current",
-        "0,0.2,0",
-        "--duration",
-        "20",
+    return simulate_log(
+        log,
         "--unity-clock-offset",
         "3",
         "--latency",
@@ -36,11 +29,7 @@ def offset_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
         "--no-float32",
         "--unity-clock-drift",
         "0",
-        "-o",
-        str(log),
     )
-    assert res.returncode == 0, res.stderr
-    return log
 
 
 def _json(log: Path, *args: str) -> dict[str, Any]:

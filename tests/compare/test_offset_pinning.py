@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_runner import run_uwval
+from cli_runner import run_uwval, simulate_log
 
 from uwval.comparison import compare
 from uwval.comparison.offset import estimate_offset
@@ -102,24 +102,7 @@ def two_clocks(tmp_path_factory: pytest.TempPathFactory) -> tuple[PoseStream, Po
     from uwval.io import read_streams
 
     log = tmp_path_factory.mktemp("clocks") / "clocks.mcap"
-    res = run_uwval(
-        "simulate",
-        "--force",
-        "10,0,0",
-        "--torque",
-        "0,0,1",
-        "--current",
-        "0,0.2,0",
-        "--duration",
-        "20",
-        "--unity-clock-offset",
-        "3",
-        "--latency",
-        "0.05",
-        "-o",
-        log,
-    )
-    assert res.returncode == 0, res.stderr
+    simulate_log(log, "--unity-clock-offset", "3", "--latency", "0.05")
     g, u = "/gazebo/model_rov_pose", "/unity/model_rov_pose"
     streams = read_streams(log, [g, u])
     return streams[g], streams[u].with_(applied_stamp=None)

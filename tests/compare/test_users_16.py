@@ -19,20 +19,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from cli_runner import run_uwval
+from shared_data import EVO_DATA
 
 from uwval.comparison import compare
 from uwval.comparison.engine import ape_statistics
 from uwval.io.tum import read_tum
 
-#: ../shared/data/evo of the checkout (found from a worktree one level deeper too)
-DATA = next(
-    (
-        p / "shared" / "data" / "evo"
-        for p in Path(__file__).resolve().parents
-        if (p / "shared" / "data" / "evo").is_dir()
-    ),
-    Path("shared-data-not-found"),
-)
+DATA = EVO_DATA
 pytestmark = pytest.mark.skipif(not DATA.is_dir(), reason="shared evo data not present")
 GT = "freiburg1_xyz-groundtruth.txt"
 EST = "freiburg1_xyz-rgbdslam.txt"

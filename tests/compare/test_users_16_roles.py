@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 from seeded_motion import moving_vehicle
+from shared_data import shared
 
 from uwval.comparison import compare_logs
 from uwval.errors import ConfigError
@@ -61,16 +62,7 @@ def test_a_bad_renamed_log_still_fails_on_its_values(tmp_path: Path) -> None:
 
 
 def test_ros_example_bag_does_not_fail_for_names(tmp_path: Path) -> None:
-    src = next(
-        (
-            p / "shared" / "data" / "bags" / "evo" / "ROS_example.bag"
-            for p in Path(__file__).resolve().parents
-            if (p / "shared" / "data" / "bags" / "evo" / "ROS_example.bag").exists()
-        ),
-        None,
-    )
-    if src is None:
-        pytest.skip("shared data not present")
+    src = shared("bags", "evo", "ROS_example.bag")
     bag = tmp_path / "ROS_example.bag"
     shutil.copyfile(src, bag)
     res = _gate(bag, gazebo_topic="groundtruth", unity_topic="ORB-SLAM")

@@ -12,19 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from cli_runner import run_uwval
+from shared_data import shared
 
 from uwval.comparison.logs import pair_label
 from uwval.io.writers import open_writer, write_stream
 from uwval.posestream import PoseStream
 
-
-def _shared(*parts: str) -> Path:
-    """../shared/data/<parts> of the checkout (found from a worktree one level deeper too)."""
-    for p in Path(__file__).resolve().parents:
-        cand = p.joinpath("shared", "data", *parts)
-        if cand.exists():
-            return cand
-    pytest.skip("shared data not present")
+_shared = shared
 
 
 @pytest.fixture

@@ -17,16 +17,10 @@ from pathlib import Path
 import pytest
 from browser import DevTools
 from cli_runner import run_uwval
+from shared_data import EVO_DATA
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-DATA = next(
-    (
-        p / "shared" / "data" / "evo"
-        for p in Path(__file__).resolve().parents
-        if (p / "shared" / "data" / "evo").is_dir()
-    ),
-    Path("shared-data-not-found"),
-)
+DATA = EVO_DATA
 GT = "freiburg1_xyz-groundtruth.txt"
 EST = "freiburg1_xyz-rgbdslam.txt"
 pytestmark = pytest.mark.skipif(not DATA.is_dir(), reason="shared evo data not present")

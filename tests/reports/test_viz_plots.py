@@ -11,19 +11,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from cli_runner import run_uwval
+from shared_data import EVO_DATA
 
 from uwval.comparison import compare
 from uwval.io.tum import read_tum
 from uwval.reports import plots
 
-DATA = next(
-    (
-        p / "shared" / "data" / "evo"
-        for p in Path(__file__).resolve().parents
-        if (p / "shared" / "data" / "evo").is_dir()
-    ),
-    Path("shared-data-not-found"),
-)
+DATA = EVO_DATA
 pytestmark = pytest.mark.skipif(not DATA.is_dir(), reason="shared evo data not present")
 GT = "freiburg1_xyz-groundtruth.txt"
 EST = "freiburg1_xyz-rgbdslam.txt"

@@ -5,28 +5,14 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from cli_runner import compare_json
+from cli_runner import compare_json, simulate_log
 from cli_runner import run_uwval as uwval
 
 
 @pytest.fixture(scope="module")
 def run_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     log = tmp_path_factory.mktemp("e2e") / "run.mcap"
-    res = uwval(
-        "simulate",
-        "--force",
-        "10,0,0",
-        "--torque",
-        "0,0,1",
-        "--current",
-        "0,0.2,0",
-        "--duration",
-        "20",
-        "-o",
-        str(log),
-    )
-    assert res.returncode == 0, res.stderr
-    return log
+    return simulate_log(log)
 
 
 def test_simulate_then_compare_small_error_high_correlation(run_log: Path) -> None:
