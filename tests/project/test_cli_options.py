@@ -50,12 +50,18 @@ def _commands() -> dict[str, Any]:
     return dict(walk(root, []))
 
 
+def _kind(ptype: Any) -> tuple[tuple[str, Any], ...]:
+    """A click parameter type as comparable data: its class and its settings (choices,
+    bounds, path checks)."""
+    return ((type(ptype).__name__, ""), *sorted((k, repr(v)) for k, v in vars(ptype).items()))
+
+
 def _shape(param: Any) -> tuple[Any, ...]:
     """What must agree between commands: flags, kind (type, flag, repeatable), default."""
     return (
         tuple(param.opts),
         tuple(param.secondary_opts),
-        param.bare_type(),
+        _kind(param.type),
         param.is_flag,
         param.multiple,
         param.default,
@@ -132,7 +138,7 @@ def test_declare_signature_builds_what_typer_reads() -> None:
     by_name = {p.name: p for p in cmd.params}
     assert by_name["max_runs"].opts == ["--max-runs", "-n"]
     assert by_name["tags"].multiple
-    assert by_name["limit"].min == 0
+    assert by_name["limit"].type.min == 0
     assert opt("max_gap", float, None, "Gap").flags == ("--max-gap",)
 
 
