@@ -68,3 +68,29 @@ def test_a_compare_of_a_log_does_not_load_what_it_does_not_use(tmp_path: Path, f
     assert not [m for m in NOT_LOADED if m in added]
     if fmt == "mcap":
         assert not [m for m in NOT_LOADED_FOR_A_FILE if m in added]
+
+
+def _blas_setting(env_value: str | None) -> tuple[str, str]:
+    """What the command line leaves in OPENBLAS_NUM_THREADS, and whether numpy was loaded
+    before it could set it, in a fresh interpreter (``env_value``: the user's own setting)."""
+    import os
+
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS",)}
+    if env_value is not None:
+        env["OPENBLAS_NUM_THREADS"] = env_value
+    code = (
+        "import os, sys\n"
+        "import uwval.cli\n"
+        "print(os.environ['OPENBLAS_NUM_THREADS'], 'numpy' in sys.modules)\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env
+    ).stdout.split()
+    return out[0], out[1]
+
+
+def test_the_command_line_runs_blas_on_one_thread_unless_the_user_chose() -> None:
+    # one thread (OpenBLAS woke its threads for every vector product: ms a call on 2 cores),
+    # set before numpy loads, and a user's own setting is kept
+    assert _blas_setting(None) == ("1", "False")
+    assert _blas_setting("3") == ("3", "False")

@@ -24,6 +24,15 @@ from uwval.errors import UwvalError
 if TYPE_CHECKING:
     import typer
 
+#: One BLAS thread for the command line, unless the user set it: uwval's arrays are long
+#: vectors and 3x3 matrices, where OpenBLAS's worker threads cost more than they give. On a
+#: 2-core machine a 36,000-element ``np.dot`` took 4-16 ms with its threads woken for every
+#: call, against 5 us on one; a compare made dozens of such calls. Set before numpy loads
+#: (``import uwval`` and this module do not load it); subprocesses inherit it.
+BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+for _var in BLAS_THREADS:
+    os.environ.setdefault(_var, "1")
+
 #: Modules that register commands on ``app`` when imported (missing ones are skipped).
 COMMAND_MODULES = (
     "uwval.cli.compare_cmd",

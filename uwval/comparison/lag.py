@@ -150,7 +150,7 @@ def block_length(products: F64) -> int:
     lo = max(1, math.ceil(float(np.cbrt(n))))
     hi = max(lo, n // 8)
     x = products - products.mean()
-    var = float(np.dot(x, x))
+    var = float(np.einsum("i,i->", x, x))
     if var <= 0.0 or n < 8:
         return min(lo, max(1, n))
     size = 1 << math.ceil(math.log2(2 * n))
@@ -271,7 +271,7 @@ def fit_lag(
             speed_axes[axis] = float(np.abs(gv[:, j]).mean())
             residual[axis] = AxisResidual(
                 float(np.abs(r[:, j]).mean()),
-                math.sqrt(float(np.dot(r[:, j], r[:, j])) / r.shape[0]),
+                math.sqrt(float(np.einsum("i,i->", r[:, j], r[:, j])) / r.shape[0]),
             )
             raw_mae[axis] = float(np.abs(ge[:, j]).mean())
     measured = None
@@ -280,7 +280,7 @@ def fit_lag(
         age = np.asarray(age_s, dtype=np.float64)[::step]
         ok = np.isfinite(age)
         if float(weight[ok].sum()) > 0.0:
-            measured = float(np.dot(age[ok], weight[ok]) / weight[ok].sum())
+            measured = float(np.einsum("i,i->", age[ok], weight[ok]) / weight[ok].sum())
     return LagFit(
         measured_s=measured,
         fitted_s=fitted,

@@ -262,8 +262,9 @@ def effective_n(xm: F64, ym: F64, sxx: float, syy: float) -> float:
     n = int(xm.size)
     if n < 3 or sxx <= 0.0 or syy <= 0.0:
         return float(n)
-    rho_x = float(np.dot(xm[1:], xm[:-1])) / sxx
-    rho_y = float(np.dot(ym[1:], ym[:-1])) / syy
+    # einsum, not np.dot: no BLAS threads woken for a vector product (uwval.cli.BLAS_THREADS)
+    rho_x = float(np.einsum("i,i->", xm[1:], xm[:-1])) / sxx
+    rho_y = float(np.einsum("i,i->", ym[1:], ym[:-1])) / syy
     prod = max(-0.999999, min(0.999999, rho_x * rho_y))
     return float(min(n, n * (1.0 - prod) / (1.0 + prod)))
 
