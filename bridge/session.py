@@ -219,6 +219,8 @@ class BridgeSession:
                         self.reader.run(self._port, frame_ns)
                 self._pace(frame_ns)
                 self._render(frame_ns)
+                if self.conn.connected:  # as the Connector does, or the endpoint's idle
+                    self.conn.keepalive_if_idle()  # timeout closes a run longer than 5 s wall
                 if last_frame:
                     break
                 frame_ns = next(frames)

@@ -371,3 +371,12 @@ def test_options_module_stays_light_and_agrees_with_the_wire() -> None:
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["False", "False"]
+
+
+def test_a_run_longer_than_the_endpoint_idle_timeout_keeps_its_link(tmp_path: Path) -> None:
+    # The Unity-like client only receives; without the Connector's 1 s keepalive the
+    # endpoint closed it after 5 s of wall time (its idle timeout), so a long simulate on a
+    # busy machine failed with "endpoint ... closed the connection". 6 s paced to the clock.
+    _, stats = session(tmp_path, n=300, realtime=True)
+    assert stats.wall_time_s >= 5.9
+    assert stats.received == 600
