@@ -223,6 +223,7 @@ def scan_db3(
 _KEYS_OK = "typeof(topic_id) = 'integer' AND typeof(timestamp) = 'integer'"
 #: A timestamp's 32-bit halves summed (whole stamps would overflow sqlite's int64 SUM)
 _HALVES = "SUM(timestamp & 4294967295), SUM(timestamp >> 32)"
+_SPAN = "MIN(timestamp), MAX(timestamp)"
 
 
 @dataclass
@@ -237,7 +238,6 @@ class _Db3Reader:
     warnings: list[str] = field(default_factory=list)
     builders: dict[str, TopicBuilder] = field(default_factory=dict)
     topic_of: dict[int, str] = field(default_factory=dict)  # selected topic ids -> name
-    fetched: dict[int, tuple[int, int, int]] = field(default_factory=dict)  # id: n, lo, hi
     sums: I64 = field(default_factory=lambda: np.zeros(3, np.int64))  # rows read, _HALVES
 
     def read(self) -> RawLog:
@@ -263,6 +263,7 @@ class _Db3Reader:
         finally:
             con.close()
         raw = {n: _time_ordered(b.build()) for n, b in self.builders.items()}
+        infos += [t.info() for t in raw.values()]  # the rows read
         return RawLog(self.name, merge_infos(infos), raw, warnings=self.warnings)
 
     def _topics(self, con: sqlite3.Connection) -> list[tuple[int, str, str]]:
@@ -295,9 +296,10 @@ class _Db3Reader:
 
     def _fetch(self, con: sqlite3.Connection, picked: str) -> None:
         """The ``picked`` rows, in table order, into the builders, :data:`DB3_BATCH` at a
-        time; count and span per id into ``fetched``, count and :data:`_HALVES` to ``sums``."""
+        time; their count and :data:`_HALVES` added to ``sums`` (the index check)."""
         if not self.topic_of:
             return
+        ids_of = {n: [t for t in self.topic_of if self.topic_of[t] == n] for n in self.builders}
         cur = con.execute(
             f"SELECT topic_id, timestamp, {'NULL' if self.times_only else 'data'} FROM messages "
             f"NOT INDEXED WHERE {picked}"
@@ -315,13 +317,8 @@ class _Db3Reader:
             del datas
             offs = np.cumsum(lens) - lens
             self.sums += (n, (stamps & 0xFFFFFFFF).sum(), (stamps >> 32).sum())
-            ids = np.unique(tids).tolist()
-            for tid in ids:
-                t = stamps[tids == tid]
-                c, lo, hi = self.fetched.get(tid, (0, int(t[0]), int(t[0])))
-                self.fetched[tid] = (c + len(t), min(lo, int(t.min())), max(hi, int(t.max())))
-            for name in {self.topic_of[t] for t in ids}:
-                pick = np.flatnonzero(np.isin(tids, [t for t in ids if self.topic_of[t] == name]))
+            for name, ids in ids_of.items():
+                pick = np.flatnonzero(tids == ids[0] if len(ids) == 1 else np.isin(tids, ids))
                 self.builders[name].add(buf, offs[pick], lens[pick], stamps[pick])
 
     def _decompress(self, datas: Iterable[bytes]) -> list[bytes]:
@@ -333,7 +330,7 @@ class _Db3Reader:
             raise LogReadError(f"{self.name}: a message's zstd data is damaged: {exc}") from exc
 
     def _check(self, con: sqlite3.Connection, tops: list[Any], stats: Any) -> list[TopicInfo]:
-        """Count and log-time span per topic (rows read, and the rest: :func:`_table_stats`),
+        """Count and log-time span per topic id of the rows not read (:func:`_table_stats`),
         and a warning for each thing found wrong: the timestamp index, rows of topic ids the
         topics table lacks, rows of wrong column types (the first three named, per topic)."""
         rest, index = stats
@@ -368,21 +365,18 @@ class _Db3Reader:
             )
         if total > 3:
             self.warnings.append(f"{self.name}: {total - 3} more rows of wrong types skipped")
-        found = {t: (n, lo, hi) for t, n, lo, hi, *_ in rest}
+        spans = {t: (lo, hi) for t, _, lo, hi, *_ in rest}
+        if total:  # text or blob stamps sort above numbers: spans of the numbers alone
+            num = "NOT INDEXED WHERE typeof(timestamp) IN ('integer', 'real') GROUP BY topic_id"
+            spans = {t: r for t, *r in con.execute(f"SELECT topic_id, {_SPAN} FROM messages {num}")}
+        count = {t: n for t, n, *_ in rest}
         return [
-            TopicInfo(name, ttype, *_span(found.get(t), self.fetched.get(t)))
+            TopicInfo(name, ttype, count.get(t, 0), *(int(x) for x in spans.get(t, (0, 0))))
             for t, (name, ttype) in known.items()
         ]
 
 
 _COLUMNS = ("topic_id", "timestamp", "data")
-
-
-def _span(*parts: tuple[Any, Any, Any] | None) -> tuple[int, int, int]:
-    """(count, min, max) of a topic id's parts; text or blob stamps (rows skipped) no time."""
-    have = [p for p in parts if p]
-    stamps = [int(x) for p in have for x in p[1:] if isinstance(x, (int, float))]
-    return sum(int(p[0]) for p in have), min(stamps, default=0), max(stamps, default=0)
 
 
 def _table_stats(uri: str, where: str) -> tuple[list[Any], Any]:
@@ -392,8 +386,8 @@ def _table_stats(uri: str, where: str) -> tuple[list[Any], Any]:
     con = sqlite3.connect(uri, uri=True)
     try:
         rest = con.execute(
-            f"SELECT topic_id, COUNT(*), MIN(timestamp), MAX(timestamp), {_HALVES}, "
-            f"SUM(NOT ({_KEYS_OK})) FROM messages NOT INDEXED WHERE {where} GROUP BY topic_id"
+            f"SELECT topic_id, COUNT(*), {_SPAN}, {_HALVES}, SUM(NOT ({_KEYS_OK})) FROM messages "
+            f"NOT INDEXED WHERE {where} GROUP BY topic_id"
         ).fetchall()
         has = "SELECT 1 FROM sqlite_master WHERE type = 'index' AND name = 'timestamp_idx'"
         index = f"SELECT COUNT(*), {_HALVES} FROM messages INDEXED BY timestamp_idx"
