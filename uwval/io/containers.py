@@ -239,6 +239,7 @@ class _Db3Reader:
     builders: dict[str, TopicBuilder] = field(default_factory=dict)
     topic_of: dict[int, str] = field(default_factory=dict)  # selected topic ids -> name
     sums: I64 = field(default_factory=lambda: np.zeros(3, np.int64))  # rows read, _HALVES
+    raw: dict[str, RawTopic] = field(default_factory=dict)  # the topics built
 
     def read(self) -> RawLog:
         """The storage's topics and the selected topics' messages."""
@@ -256,15 +257,15 @@ class _Db3Reader:
             picked += "" if self.times_only else " AND typeof(data) = 'blob'"
             with ThreadPoolExecutor(1, thread_name_prefix="uwval-db3-stats") as pool:
                 stats = pool.submit(_table_stats, self.uri, f"NOT ({picked})")
-                self._fetch(con, picked)
+                self._fetch(con, picked)  # then the topics built while the stats run on
+                self.raw = {n: _time_ordered(b.build()) for n, b in self.builders.items()}
                 infos = self._check(con, tops, stats.result())
         except sqlite3.DatabaseError as exc:
             raise LogReadError(f"{self.name}: damaged sqlite3 storage: {one_line(exc)}") from exc
         finally:
             con.close()
-        raw = {n: _time_ordered(b.build()) for n, b in self.builders.items()}
-        infos += [t.info() for t in raw.values()]  # the rows read
-        return RawLog(self.name, merge_infos(infos), raw, warnings=self.warnings)
+        infos += [t.info() for t in self.raw.values()]  # the rows read
+        return RawLog(self.name, merge_infos(infos), self.raw, warnings=self.warnings)
 
     def _topics(self, con: sqlite3.Connection) -> list[tuple[int, str, str]]:
         """(id, normalised name, type) of the topics table; builders for the selected ones.
@@ -330,9 +331,8 @@ class _Db3Reader:
             raise LogReadError(f"{self.name}: a message's zstd data is damaged: {exc}") from exc
 
     def _check(self, con: sqlite3.Connection, tops: list[Any], stats: Any) -> list[TopicInfo]:
-        """Count and log-time span per topic id of the rows not read (:func:`_table_stats`),
-        and a warning for each thing found wrong: the timestamp index, rows of topic ids the
-        topics table lacks, rows of wrong column types (the first three named, per topic)."""
+        """Count and log-time span per topic id of the rows not read, and a warning for each
+        thing found wrong: the timestamp index, topic ids unknown, rows of wrong types."""
         rest, index = stats
         table = self.sums + [sum(int(r[k] or 0) for r in rest) for k in (1, 4, 5)]
         if index is not None and table.tolist() != [int(x or 0) for x in index]:
@@ -351,7 +351,8 @@ class _Db3Reader:
         # per topic id: rows of wrong key types (selected ids: every row not read)
         bad = {t: int(n if t in self.topic_of else r[-1] or 0) for t, n, *r in rest}
         for tid in self.topic_of.keys() & bad.keys():
-            self.builders[self.topic_of[tid]].drop("damaged_row", bad[tid])
+            d = self.raw[self.topic_of[tid]].dropped
+            d["damaged_row"] = d.get("damaged_row", 0) + bad[tid]
         total = sum(bad.values())
         sel = ",".join(map(str, self.topic_of))
         named = "SELECT id, typeof(topic_id), typeof(timestamp), typeof(data) FROM messages"
@@ -380,9 +381,8 @@ _COLUMNS = ("topic_id", "timestamp", "data")
 
 
 def _table_stats(uri: str, where: str) -> tuple[list[Any], Any]:
-    """(topic_id, row count, min and max timestamp, :data:`_HALVES`, rows not :data:`_KEYS_OK`)
-    per topic_id of the messages rows ``where`` holds, on a connection of its own; and the
-    count and :data:`_HALVES` of rosbag2's timestamp index (None when it has none)."""
+    """Per topic_id of the messages rows ``where`` holds (own connection): id, count, span,
+    :data:`_HALVES`, rows not :data:`_KEYS_OK`; the timestamp index's count and halves or None."""
     con = sqlite3.connect(uri, uri=True)
     try:
         rest = con.execute(
