@@ -187,6 +187,31 @@ def test_a_blob_that_is_not_a_blob_is_named_not_an_internal_exception(tmp_path: 
     assert "messages row 4" in res.stderr, res.stderr
 
 
+@pytest.mark.parametrize("stamp", ["abc", b"ab", 2.5])
+def test_a_timestamp_that_is_not_an_integer_is_named_and_skipped(
+    tmp_path: Path, stamp: object
+) -> None:
+    """A row whose timestamp sqlite holds as text, blob or real, on the topic read and on
+    another: each is named and skipped, counted as a damaged row, and the topics' counts
+    and spans still come out (a text or blob stamp was an internal ValueError before)."""
+    data = _payloads(10)
+    rows: list[tuple[object, object, object]] = [(1, i * 10**8, data[i]) for i in range(10)]
+    rows += [(2, 5 + i * 10**8, data[i]) for i in range(10)]
+    rows[3], rows[14] = (1, stamp, data[3]), (2, stamp, data[4])
+    path = tmp_path / "stamps.db3"
+    _db3(path, [(1, "/p"), (2, "/q")], rows).close()
+    t, x, warns = _read(path, "/p")
+    np.testing.assert_array_equal(x, [i for i in range(10) if i != 3])
+    assert len(t) == 9
+    assert any("messages row 4: timestamp is of type" in w for w in warns), warns
+    assert any("messages row 15: timestamp is of type" in w for w in warns), warns
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        spans = {i.name: (i.count, i.start_ns, i.end_ns) for i in list_topics(path)}
+    assert spans["/p"] == (10, 0, 9 * 10**8)  # spans of the numbers (a real counts, as ns)
+    assert spans["/q"] == (10, 2 if stamp == 2.5 else 5, 5 + 9 * 10**8)
+
+
 @pytest.mark.parametrize("odd", ["odd#dir", "odd?dir", "odd%23dir"])
 def test_paths_with_uri_characters_open_the_file_named(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, odd: str
