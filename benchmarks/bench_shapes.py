@@ -307,6 +307,7 @@ def run(quick: bool = False) -> list[BenchRow]:
             notes=f"{reps} runs, median; 8x evo's time on a shape cannot go below this",
         )
     )
+    rows.append(_startup_row(d, reps))
     own = files.get("mcap-1h")
     if own is not None:
         rows.append(_own_log_row(own, reps))
@@ -322,6 +323,30 @@ def run(quick: bool = False) -> list[BenchRow]:
     if img is not None and plain is not None:
         rows.append(_memory_row(img, plain, reps, AS_WRITTEN))
     return rows
+
+
+def _startup_row(d: Path, reps: int) -> BenchRow:
+    """The whole command on a 2-second MCAP (one pair, the shapes' command): uwval's
+    start-up and fixed costs, what remains of a compare when the log is almost empty."""
+    from uwval.comparison.synthetic import unity_view, vehicle_motion
+    from uwval.io.writers import open_writer, write_stream
+
+    log = d / "startup-2s.mcap"
+    vehicle = vehicle_motion(100, 50.0)
+    with open_writer(log, "mcap") as w:
+        write_stream(w, vehicle.topic, vehicle, "enu")
+        unity = unity_view(vehicle)
+        write_stream(w, unity.topic, unity, unity.frame)
+    cmd = [
+        *(_exe("uwval"), "compare", str(log), "--gazebo-topic", vehicle.topic),
+        *("--unity-topic", unity.topic, "--sync", "nearest", "--frame", "enu"),
+    ]
+    return BenchRow(
+        "start-up: uwval compare of a 2 s MCAP (100 + 120 poses, one pair)",
+        median([run_command(cmd)[0] for _ in range(reps)]),
+        "s",
+        notes=f"{reps} runs, median; under every whole-command row, like the numpy floor",
+    )
 
 
 def _own_log_row(own: ShapeFiles, reps: int) -> BenchRow:
