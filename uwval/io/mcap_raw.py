@@ -282,9 +282,9 @@ class _Reader:
     def _read(self, found: list[_Chunk | tuple[Any, ...]]) -> None:
         """Read the chunks and unchunked messages in file order: runs of chunks are
         decompressed on the threads, up to ``THREADS`` runs ahead of the one being read."""
-        pending: deque[tuple[list[_Chunk], _Job]] = deque()
+        pending: deque[tuple[list[_Chunk], I64, _Job]] = deque()
         run: list[_Chunk] = []
-        sizes = [0]  # the run's bytes of records so far (summed once per chunk, not per run)
+        sizes = [0]  # where each chunk of the run starts in its buffer, and the buffer's size
         with ThreadPoolExecutor(THREADS, thread_name_prefix="uwval-mcap") as pool:
 
             def submit(keep: int) -> None:
@@ -295,7 +295,8 @@ class _Reader:
                         if fits
                         else np.empty(max(sizes[-1], 2 * BATCH_BYTES), np.uint8)
                     )
-                    pending.append((list(run), pool.submit(self._inflate, list(run), buf)))
+                    at = np.array(sizes, np.int64)
+                    pending.append((list(run), at, pool.submit(self._inflate, list(run), at, buf)))
                     run.clear()
                     sizes[:] = [0]
                 while len(pending) > keep:
@@ -320,20 +321,19 @@ class _Reader:
                         submit(THREADS)
             submit(0)
 
-    def _inflate(self, run: list[_Chunk], buf: U8) -> tuple[U8, list[tuple[str, str]]]:
-        """Decompress and CRC-check a run of chunks into ``buf`` (on an inflate thread)."""
-        at = _starts(run)
+    def _inflate(self, run: list[_Chunk], at: I64, buf: U8) -> tuple[U8, list[tuple[str, str]]]:
+        """Decompress and CRC-check a run of chunks into ``buf`` (chunk k from ``at[k]``; on
+        an inflate thread)."""
         heads = [h for _r, h, _i in run if isinstance(h, ChunkHeader)]
         zstd = zstandard.ZstdDecompressor()  # one context for the run (a new one costs)
         return buf, [
             inflate_into(self.mm, h, buf[at[k] : at[k + 1]], zstd) for k, h in enumerate(heads)
         ]
 
-    def _take(self, run: list[_Chunk], job: _Job) -> None:
+    def _take(self, run: list[_Chunk], at: I64, job: _Job) -> None:
         """Add the wanted messages of a decompressed run: every index checked at once; when
         anything in the run is off, chunk by chunk (each reports what is wrong)."""
         whole, status = job.result()
-        at = _starts(run)
         buf, ents = whole[: at[-1]], [self._entries(index) for _r, _h, index in run]
         if any(what for what, _c in status) or self._indexed(run, buf, at, ents):
             for k, (rec, _hdr, index) in enumerate(run):
@@ -459,12 +459,6 @@ class _Reader:
         if not self.footer:
             log.unclean = "no summary or footer: the writer did not finish"
         return log
-
-
-def _starts(run: list[_Chunk]) -> I64:
-    """Where each chunk of a run starts in the run's buffer, and the buffer's size."""
-    sizes = [h.usize if isinstance(h, ChunkHeader) else 0 for _r, h, _i in run]
-    return np.concatenate(([0], np.cumsum(sizes))).astype(np.int64)
 
 
 def _inside(chunk: int, at: int) -> str:
