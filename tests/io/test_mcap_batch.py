@@ -8,6 +8,7 @@ from __future__ import annotations
 import struct
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -70,9 +71,9 @@ def test_batches_read_what_single_chunks_read(log: Path, monkeypatch: pytest.Mon
     calls: list[int] = []
     check = mcap_raw.check_index
 
-    def counting(buf: np.ndarray, ents: dict, limit: np.ndarray, cuts: np.ndarray) -> object:
-        calls.append(len(cuts) + 1)
-        return check(buf, ents, limit, cuts)
+    def counting(buf: np.ndarray, rows: Any, chunk: Any, groups: Any, at: np.ndarray) -> Any:
+        calls.append(len(at) - 1)  # chunks checked in the call
+        return check(buf, rows, chunk, groups, at)
 
     monkeypatch.setattr(mcap_raw, "check_index", counting)
     batched = _scan(log, mcap_raw.BATCH_BYTES, monkeypatch)

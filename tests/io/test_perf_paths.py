@@ -188,17 +188,26 @@ def _chunk(records: list[tuple[int, int, bytes]]) -> tuple[np.ndarray, dict[int,
 
 
 def check_index(buf: np.ndarray, ents: dict[int, np.ndarray]) -> tuple[str, Any]:
-    """The index check of one chunk (every entry's chunk ends with ``buf``)."""
-    n = sum(len(e) for e in ents.values())
-    return check_chunks(buf, ents, np.full(n, len(buf), np.int64), np.zeros(0, np.int64))
+    """The index check of one chunk (``buf`` holds its records), channel by channel."""
+    groups, lo = [], 0
+    for cid, e in ents.items():
+        groups.append((cid, lo, lo := lo + len(e)))
+    rows = np.concatenate(list(ents.values())).astype(np.uint64)
+    chunk = np.zeros(len(rows), np.intp)
+    return check_chunks(buf, rows, chunk, groups, np.array([0, len(buf)], np.int64))
 
 
 def test_check_index_names_the_channel_and_the_fault() -> None:
     recs = [(c, 1000 + k, bytes([k]) * (8 + c)) for k in range(20) for c in (1, 2, 3)]
     buf, ents = _chunk(recs)
-    reason, walk = check_index(buf, ents)
+    reason, checked = check_index(buf, ents)
     assert reason == ""
-    assert {c: len(v) for c, v in walk.record_lengths.items()} == {1: 20, 2: 20, 3: 20}
+    assert len(checked.rec) == len(checked.length) == 60
+    starts = np.concatenate([e[:, 1] for e in ents.values()]).astype(np.int64)
+    np.testing.assert_array_equal(checked.rec, starts)  # row order: channel by channel
+    np.testing.assert_array_equal(
+        checked.length, [22 + 8 + c for c in (1, 2, 3) for _ in range(20)]
+    )
 
     bad = {c: e.copy() for c, e in ents.items()}
     bad[2][5, 0] += 1

@@ -81,29 +81,18 @@ class Decoded:
             return len(self.names) - 1
 
 
-def window(buf: U8, width: int) -> U8:
-    """Read-only (len(buf) - width + 1, width) view of ``buf`` (at least ``width`` bytes)
-    whose row i starts at byte i; built directly on a contiguous buffer (fast)."""
-    n = buf.shape[0] - width + 1
-    if buf.ndim == 1 and buf.flags.c_contiguous and buf.dtype == np.uint8:
-        view = np.ndarray((n, width), dtype=np.uint8, buffer=buf, strides=(1, 1))
-        view.flags.writeable = False
-        return view
-    return np.lib.stride_tricks.sliding_window_view(buf, width)
-
-
 def gather(buf: U8, starts: I64, width: int) -> U8:
-    """(N, width) copies of ``buf[starts[i] : starts[i] + width]``: one fancy index of a
-    sliding-window view (a row copy each, no (N, width) index array)."""
+    """(N, width) copies of ``buf[starts[i] : starts[i] + width]``: one fancy index of a view
+    whose item i is ``V<width>`` from byte i (2-3x faster than rows of a 2-D window)."""
     n = starts.shape[0]
     if n == 0 or width == 0:
         return np.zeros((n, width), dtype=np.uint8)
     if int(starts.min()) < 0 or int(starts.max()) + width > buf.shape[0]:
         raise ValueError("gather: a row reaches outside the buffer")
-    return window(buf, width)[starts]
-
-
-rows_at = gather  #: the name the container readers use (bounds checked too)
+    if buf.ndim == 1 and buf.flags.c_contiguous and buf.dtype == np.uint8:
+        items = np.ndarray((buf.shape[0] - width + 1,), f"V{width}", buf, strides=(1,))
+        return items[starts].view(np.uint8).reshape(n, width)
+    return np.lib.stride_tricks.sliding_window_view(buf, width)[starts]
 
 
 class _Bytes:
@@ -185,7 +174,8 @@ def _walk(fields: tuple[str | int, ...], k: int, rows: I64, pos: int, leaf: _Lea
                 sub = acc.at_least(sub, base + pos + int(s))
                 if cdr and sub.size:
                     # rosbags rejects a CDR string without its NUL: so does the fast path
-                    sub = sub[acc.at(sub, base + pos + nbytes, 1)[:, 0] == 0]
+                    nul = acc.at(sub, base + pos + nbytes, 1)[:, 0] == 0
+                    sub = sub if nul.all() else sub[nul]
                 if sub.size == 0:
                     continue
                 nxt = _Leaf(**leaf.__dict__)
@@ -234,7 +224,8 @@ def fast_decode(msgtype: str, encoding: str, buf: U8, offset: I64, length: I64) 
         # Only little-endian plain CDR (encapsulation kind 0x0001) has this layout.
         rows = acc.at_least(rows, 4)
         head = acc.at(rows, 0, 2)
-        rows = rows[(head[:, 0] == 0) & (head[:, 1] == 1)]
+        good = (head[:, 0] == 0) & (head[:, 1] == 1)
+        rows = rows if good.all() else rows[good]  # (all, usually: no copy of the rows)
     leaves: list[_Leaf] = []
     if rows.size:
         _walk(fields, 0, rows, 0, _Leaf(rows, -1, -1, 0, -1, 0, -1), acc, cdr, leaves)
@@ -242,21 +233,19 @@ def fast_decode(msgtype: str, encoding: str, buf: U8, offset: I64, length: I64) 
         # all messages: plain slices, not fancy indexing
         into: slice | I64 = slice(None) if lf.rows.shape[0] == n else lf.rows
         if lf.stamp_at >= 0:
-            st = acc.at(lf.rows, lf.stamp_at, 8)
-            sec = st[:, :4].copy().view("<i4").reshape(-1).astype(np.int64)
-            nsec = st[:, 4:].copy().view("<u4").reshape(-1).astype(np.int64)
-            dec.stamp[into] = sec * 1_000_000_000 + nsec
-        if lf.pose_at >= 0:
+            st = np.ascontiguousarray(acc.at(lf.rows, lf.stamp_at, 8)).view("<u4")
+            sec = st[:, 0].view("<i4").astype(np.int64)
+            dec.stamp[into] = sec * 1_000_000_000 + st[:, 1]
+        if lf.pose_at >= 0:  # the doubles' bytes, copied as bytes (rows need not be aligned)
             pose = acc.at(lf.rows, lf.pose_at, 56)
-            if pose.strides[1] == 1 and pose.strides[0] % 8 and not pose.flags.c_contiguous:
-                pose = pose.copy()  # rows not 8-byte spaced: one copy, then reinterpret
-            dec.set_pose(into, pose.view("<f8"))
+            for col, a in ((dec.position, 0), (dec.orientation, 24)):
+                col.view(np.uint8).reshape(n, -1)[into] = pose[:, a : a + 8 * col.shape[1]]
         ok = np.ones(lf.rows.shape[0], dtype=bool)
         for at, size, codes in ((lf.frame_at, lf.frame_len, dec.frame_code),
                                  (lf.child_at, lf.child_len, dec.child_code)):  # fmt: skip
             if at >= 0:
                 ok &= _names(dec, codes, lf.rows, acc.at(lf.rows, at, size))
-        dec.handled[lf.rows[ok]] = True
+        dec.handled[into if ok.all() else lf.rows[ok]] = True
     return dec
 
 

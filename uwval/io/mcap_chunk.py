@@ -18,7 +18,7 @@ from mcap.opcode import Opcode
 from numpy.typing import NDArray
 
 from uwval.io.crc import crc32
-from uwval.io.raw import Buffer, unaligned
+from uwval.io.raw import Buffer
 
 REC = struct.Struct("<BQ")  # every record: opcode, content length
 _CHUNK = struct.Struct("<QQQI")  # message start/end time, uncompressed size, CRC
@@ -120,8 +120,8 @@ class WalkResult:
     tables: list[tuple[int, int, int]] = field(default_factory=list)
     stop: int = 0
     reason: str = ""
-    #: filled by :func:`check_index`: per channel, each indexed Message record's length
-    record_lengths: dict[int, NDArray[np.int64]] = field(default_factory=dict)
+    rec: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
+    length: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
 
 
 def walk_records(data: Buffer, start: int, end: int) -> WalkResult:
@@ -148,67 +148,78 @@ def walk_records(data: Buffer, start: int, end: int) -> WalkResult:
     return out
 
 
+#: a Message record's head, packed: 23 bytes (one gather of them checks every field)
+_HEAD = np.dtype([("op", "u1"), ("len", "<u8"), ("cid", "<u2"), ("seq", "<u4"), ("time", "<u8")])
+
+
 def check_index(
     buf: NDArray[np.uint8],
-    ents: dict[int, NDArray[np.uint64]],
-    limit: NDArray[np.int64],
-    cuts: NDArray[np.int64],
+    rows: NDArray[np.uint64],
+    chunk: NDArray[np.intp],
+    groups: list[tuple[int, int, int]],
+    at: NDArray[np.int64],
 ) -> tuple[str, WalkResult]:
-    """Check the MessageIndex entries ``ents`` (per channel: (log time, record offset) rows,
-    offsets into ``buf``) of chunks whose records lie end to end in ``buf``, split at
-    ``cuts``; ``limit`` is each entry's own chunk end (in ``ents``' order).
+    """Check the MessageIndex entries of chunks lying end to end in ``buf`` (chunk k in
+    ``buf[at[k]:at[k + 1]]``): ``rows[lo:hi]`` are channel ``cid``'s (log time, record
+    offset in its chunk) for each ``(cid, lo, hi)`` of ``groups``; ``chunk[i]``: row i's.
 
     Every entry must point at a Message record of its channel with the entry's log time,
     inside its chunk; the indexed records must not overlap, and the bytes between them must
-    hold only other records (no message left out of the index). Returns ``("", walk of the
-    gaps)`` when the index is right, else ``(reason, _)`` naming the first channel that fails.
-    All entries are checked by one gather of the record heads (a chunk holds every topic).
+    hold only other records (no message left out of the index). Returns ``("", walk)`` when
+    the index is right (the gaps' records; each row's record start and length in rec, length),
+    else ``(reason, _)`` naming the first channel that fails. One gather checks every head.
     """
-    gaps = WalkResult()
-    items = [(cid, e) for cid, e in ents.items() if len(e)]
-    if not items:
-        return "the index lists no messages", gaps
-    counts = np.array([len(e) for _, e in items], dtype=np.int64)
-    bounds = np.concatenate(([0], np.cumsum(counts)))
-    every = np.concatenate([e for _, e in items])
+    out = WalkResult()
+    if not len(rows):
+        return "the index lists no messages", out
 
     def first(mask: NDArray[np.bool_]) -> int:
-        return items[int(np.searchsorted(bounds, int(np.argmax(mask)), side="right")) - 1][0]
+        return groups[int(np.searchsorted([g[1] for g in groups], np.argmax(mask), "right")) - 1][0]
 
-    out = (limit < 31) | (every[:, 1] > (np.maximum(limit, 31) - 31).astype(np.uint64))
-    if out.any():
-        return f"channel {first(out)}: an entry points outside the chunk", gaps
-    rec = every[:, 1].astype(np.int64)
-    u64 = unaligned(buf, "<u8")
-    rl = u64[rec + 1].astype(np.int64)
+    base, limit = at[chunk], at[chunk + 1]
+    room = limit - base - 31  # the last offset a Message record's head fits at
+    off = rows[:, 1]
+    bad = (room < 0) | (off > np.maximum(room, 0).astype(np.uint64))
+    if bad.any():
+        return f"channel {first(bad)}: an entry points outside the chunk", out
+    rec = off.astype(np.int64) + base
+    heads = np.ndarray((buf.shape[0] - 22,), "V23", buf, strides=(1,))[rec].view(_HEAD)
+    rl = heads["len"]
+    cids = np.repeat([c for c, _l, _h in groups], [h - lo for _c, lo, h in groups])
     checks = (
-        (buf[rec] != Opcode.MESSAGE, "an entry does not point at a Message record"),
+        (heads["op"] != Opcode.MESSAGE, "an entry does not point at a Message record"),
+        (heads["cid"] != cids, "an entry points at a message of another channel"),
+        (heads["time"] != rows[:, 0], "an entry's log time differs from its message's"),
         (
-            unaligned(buf, "<u2")[rec + 9] != np.repeat([c for c, _ in items], counts),
-            "an entry points at a message of another channel",
+            (rl < 22) | (rl > (limit - rec - 9).astype(np.uint64)),
+            "a Message record runs past its chunk",
         ),
-        (u64[rec + 15] != every[:, 0], "an entry's log time differs from its message's"),
-        ((rl < 22) | (rl > limit) | (rec + 9 + rl > limit), "a Message record runs past its chunk"),
     )
     for mask, text in checks:
         if mask.any():
-            return f"channel {first(mask)}: {text}", gaps
-    for k, (cid, _e) in enumerate(items):
-        gaps.record_lengths[cid] = rl[int(bounds[k]) : int(bounds[k + 1])]
-    order = np.argsort(rec, kind="stable")
-    s, t = rec[order], (rec + 9 + rl)[order]
+            return f"channel {first(mask)}: {text}", out
+    rl = rl.astype(np.int64)
+    if buf.shape[0] < 1 << 32:  # records in file order: one sort of (start, length) keys
+        key = np.sort((rec.astype(np.uint64) << 32) | rl.astype(np.uint64), kind="stable")
+        s = (key >> 32).astype(np.int64)
+        t = s + 9 + (key & 0xFFFFFFFF).astype(np.int64)
+    else:
+        order = np.argsort(rec, kind="stable")
+        s, t = rec[order], (rec + 9 + rl)[order]
     if (s[1:] < t[:-1]).any():
-        return "indexed records overlap", gaps
+        return "indexed records overlap", out
     holes = np.flatnonzero(s[1:] > t[:-1])
     spans = [(0, int(s[0]))] + [(int(t[i]), int(s[i + 1])) for i in holes]
+    cuts = at[1:-1]
     for a, b in [*spans, (int(t[-1]), int(buf.shape[0]))]:
         edges = [a, *(int(x) for x in cuts[(cuts > a) & (cuts < b)]), b]
         for lo, hi in itertools.pairwise(edges):  # walked chunk by chunk
             w = walk_records(buf, lo, hi)
             if w.stop != hi:
-                return f"bytes {lo}..{hi} between indexed records are not whole records", gaps
+                return f"bytes {lo}..{hi} between indexed records are not whole records", out
             if w.messages:
                 n = sum(len(m[2]) for m in w.messages.values())
-                return f"{n} message(s) at bytes {lo}..{hi} are missing from the index", gaps
-            gaps.tables.extend(w.tables)
-    return "", gaps
+                return f"{n} message(s) at bytes {lo}..{hi} are missing from the index", out
+            out.tables.extend(w.tables)
+    out.rec, out.length = rec, rl
+    return "", out

@@ -17,6 +17,7 @@ from collections import deque
 from collections.abc import Iterable
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import zstandard
@@ -198,7 +199,7 @@ class _Reader:
         mm, end = self.mm, self.summary_start or self.size
         pos, gone = 8, set()
         last: _Chunk | None = None
-        found: list[_Chunk | tuple[int, int]] = []  # chunks, and unchunked messages (c, ln)
+        found: list[_Chunk | tuple[Any, ...]] = []  # + unchunked messages, a cut-off chunk
         head, listed_at = REC.unpack_from, self.chunk_index.get  # the loop's hot names
         while pos + 9 <= end:
             op, ln = head(mm, pos)
@@ -217,7 +218,7 @@ class _Reader:
                 continue
             if op == 0 or 0x10 <= op < 0x80 or c + ln > end:
                 if op == Opcode.CHUNK and not self.summary_start:
-                    self._partial_chunk(pos, c)
+                    found.append(("cut", pos, c, 0))  # read in file order, after the chunks before
                 if (pos := self._resync(pos, op, end)) < 0:
                     break
                 continue
@@ -278,30 +279,35 @@ class _Reader:
             out[cid] = np.frombuffer(self.mm, dtype="<u8", count=n // 8, offset=at).reshape(-1, 2)
         return out
 
-    def _read(self, found: list[_Chunk | tuple[int, int]]) -> None:
+    def _read(self, found: list[_Chunk | tuple[Any, ...]]) -> None:
         """Read the chunks and unchunked messages in file order: runs of chunks are
         decompressed on the threads, up to ``THREADS`` runs ahead of the one being read."""
-        pending: deque[tuple[list[_Chunk], _Job]] = deque()
+        pending: deque[tuple[list[_Chunk], I64, _Job]] = deque()
         run: list[_Chunk] = []
+        sizes = [0]  # where each chunk of the run starts in its buffer, and the buffer's size
         with ThreadPoolExecutor(THREADS, thread_name_prefix="uwval-mcap") as pool:
 
             def submit(keep: int) -> None:
                 if run:
-                    need = int(_starts(run)[-1])
-                    fits = [k for k, b in enumerate(self.spare) if len(b) >= need]
+                    fits = [k for k, b in enumerate(self.spare) if len(b) >= sizes[-1]]
                     buf = (
                         self.spare.pop(fits[0])
                         if fits
-                        else np.empty(max(need, 2 * BATCH_BYTES), np.uint8)
+                        else np.empty(max(sizes[-1], 2 * BATCH_BYTES), np.uint8)
                     )
-                    pending.append((list(run), pool.submit(self._inflate, list(run), buf)))
+                    at = np.array(sizes, np.int64)
+                    pending.append((list(run), at, pool.submit(self._inflate, list(run), at, buf)))
                     run.clear()
+                    sizes[:] = [0]
                 while len(pending) > keep:
                     self._take(*pending.popleft())
 
             for item in found:
-                if len(item) == 2:  # an unchunked message: what comes before it first
+                if len(item) != 3:  # an unchunked message, a cut-off chunk: what comes before first
                     submit(0)
+                if item[0] == "cut":
+                    self._partial_chunk(item[1], item[2])
+                elif len(item) == 2:
                     c, ln = item
                     cid, _seq, t = struct.unpack_from("<HIQ", self.mm, c)
                     data = np.frombuffer(self.mm[c + 22 : c + ln], dtype=np.uint8)
@@ -310,24 +316,24 @@ class _Reader:
                     self._fail(item[0], item[2], item[1])
                 else:
                     run.append(item)
-                    if int(_starts(run)[-1]) >= BATCH_BYTES:
+                    sizes.append(sizes[-1] + item[1].usize)
+                    if sizes[-1] >= BATCH_BYTES:
                         submit(THREADS)
             submit(0)
 
-    def _inflate(self, run: list[_Chunk], buf: U8) -> tuple[U8, list[tuple[str, str]]]:
-        """Decompress and CRC-check a run of chunks into ``buf`` (on an inflate thread)."""
-        at = _starts(run)
+    def _inflate(self, run: list[_Chunk], at: I64, buf: U8) -> tuple[U8, list[tuple[str, str]]]:
+        """Decompress and CRC-check a run of chunks into ``buf`` (chunk k from ``at[k]``; on
+        an inflate thread)."""
         heads = [h for _r, h, _i in run if isinstance(h, ChunkHeader)]
         zstd = zstandard.ZstdDecompressor()  # one context for the run (a new one costs)
         return buf, [
             inflate_into(self.mm, h, buf[at[k] : at[k + 1]], zstd) for k, h in enumerate(heads)
         ]
 
-    def _take(self, run: list[_Chunk], job: _Job) -> None:
+    def _take(self, run: list[_Chunk], at: I64, job: _Job) -> None:
         """Add the wanted messages of a decompressed run: every index checked at once; when
         anything in the run is off, chunk by chunk (each reports what is wrong)."""
         whole, status = job.result()
-        at = _starts(run)
         buf, ents = whole[: at[-1]], [self._entries(index) for _r, _h, index in run]
         if any(what for what, _c in status) or self._indexed(run, buf, at, ents):
             for k, (rec, _hdr, index) in enumerate(run):
@@ -354,26 +360,25 @@ class _Reader:
         ``at[k]``) located by their indexes when these check out: "", else why not."""
         if not all(ents):
             return "no usable index"
-        per: dict[int, list[tuple[np.ndarray, int]]] = {}
-        for k, e in enumerate(ents):
+        groups: dict[int, list[tuple[int, NDArray[np.uint64]]]] = {}
+        for k, e in enumerate(ents):  # every channel's entries together, chunk by chunk
             for cid, rows in (e or {}).items():
-                per.setdefault(cid, []).append((rows, k))
-        joined, limits = {}, []
-        for cid, parts in per.items():  # the entries' offsets moved by their chunk's start
-            ks = np.repeat([k for _r, k in parts], [len(r) for r, _k in parts])
-            joined[cid] = np.concatenate([r for r, _k in parts])
-            joined[cid][:, 1] += at[ks].astype(np.uint64)
-            limits.append(at[ks + 1])
-        reason, gaps = check_index(buf, joined, np.concatenate(limits), at[1:-1])
+                groups.setdefault(cid, []).append((k, rows))
+        spans, lo = [], 0
+        for cid, parts in groups.items():
+            spans.append((cid, lo, lo := lo + sum(len(r) for _k, r in parts)))
+        parts = [p for ps in groups.values() for p in ps]
+        chunk = np.repeat([k for k, _r in parts], [len(r) for _k, r in parts])
+        rows = np.concatenate([r for _k, r in parts])
+        reason, ck = check_index(buf, rows, chunk, spans, at)
         if reason:
             return reason
-        for op, a, b in gaps.tables:
+        for op, a, b in ck.tables:
             k = int(np.searchsorted(at, a, "right")) - 1
             self.define(op, None, buf[a:b].tobytes(), _inside(run[k][0], a - 9 - int(at[k])))
-        for cid, rows in joined.items():
-            if cid in gaps.record_lengths:
-                rec, rl = rows[:, 1].astype(np.int64), gaps.record_lengths[cid]
-                self._add(cid, buf, rec + 31, rl - 22, rows[:, 0].astype(np.int64))
+        for cid, lo, hi in spans:
+            times = rows[lo:hi, 0].astype(np.int64)
+            self._add(cid, buf, ck.rec[lo:hi] + 31, ck.length[lo:hi] - 22, times)
         return ""
 
     def _walk(self, rec: int, buf: U8, why: str, *, cut: bool = False) -> int:
@@ -454,12 +459,6 @@ class _Reader:
         if not self.footer:
             log.unclean = "no summary or footer: the writer did not finish"
         return log
-
-
-def _starts(run: list[_Chunk]) -> I64:
-    """Where each chunk of a run starts in the run's buffer, and the buffer's size."""
-    sizes = [h.usize if isinstance(h, ChunkHeader) else 0 for _r, h, _i in run]
-    return np.concatenate(([0], np.cumsum(sizes))).astype(np.int64)
 
 
 def _inside(chunk: int, at: int) -> str:
