@@ -307,7 +307,7 @@ def run(quick: bool = False) -> list[BenchRow]:
             notes=f"{reps} runs, median; 8x evo's time on a shape cannot go below this",
         )
     )
-    rows.append(_startup_row(d, reps))
+    rows.extend(_startup_rows(d, reps))
     own = files.get("mcap-1h")
     if own is not None:
         rows.append(_own_log_row(own, reps))
@@ -325,9 +325,10 @@ def run(quick: bool = False) -> list[BenchRow]:
     return rows
 
 
-def _startup_row(d: Path, reps: int) -> BenchRow:
-    """The whole command on a 2-second MCAP (one pair, the shapes' command): uwval's
-    start-up and fixed costs, what remains of a compare when the log is almost empty."""
+def _startup_rows(d: Path, reps: int) -> list[BenchRow]:
+    """Both tools on almost empty inputs, alternating: their start-up and fixed costs, which
+    stand under every whole-command row. A 2 s MCAP (100 + 120 poses, the shapes' command,
+    evo_ape bag2) and a TUM pair of its first 200 + 120 lines (evo_ape tum)."""
     from uwval.comparison.synthetic import unity_view, vehicle_motion
     from uwval.io.writers import open_writer, write_stream
 
@@ -337,16 +338,37 @@ def _startup_row(d: Path, reps: int) -> BenchRow:
         write_stream(w, vehicle.topic, vehicle, "enu")
         unity = unity_view(vehicle)
         write_stream(w, unity.topic, unity, unity.frame)
-    cmd = [
-        *(_exe("uwval"), "compare", str(log), "--gazebo-topic", vehicle.topic),
-        *("--unity-topic", unity.topic, "--sync", "nearest", "--frame", "enu"),
-    ]
-    return BenchRow(
-        "start-up: uwval compare of a 2 s MCAP (100 + 120 poses, one pair)",
-        median([run_command(cmd)[0] for _ in range(reps)]),
-        "s",
-        notes=f"{reps} runs, median; under every whole-command row, like the numpy floor",
-    )
+    topics = ("--gazebo-topic", vehicle.topic, "--unity-topic", unity.topic)
+    tum = [d / "startup.ref.tum", d / "startup.est.tum"]
+    for n, path in zip((200, 120), tum, strict=True):
+        path.write_text("".join(f"{k * 0.01:.4f} {k * 1e-3:.4f} 0 0 0 0 0 1\n" for k in range(n)))
+    pairs = {
+        "a 2 s MCAP (100 + 120 poses, one pair)": (
+            [_exe("uwval"), "compare", str(log), *topics, "--sync", "nearest", "--frame", "enu"],
+            [_exe("evo_ape"), "bag2", str(log), vehicle.topic, unity.topic],
+        ),
+        "a 200 + 120 line TUM pair": (
+            [_exe("uwval"), "compare", *map(str, tum), "--sync", "nearest"],
+            [_exe("evo_ape"), "tum", *map(str, tum)],
+        ),
+    }
+    rows = []
+    for what, (uw, evo) in pairs.items():
+        times: dict[str, list[float]] = {"uwval": [], "evo": []}
+        for _ in range(reps):  # alternate, as the shapes do
+            times["uwval"].append(run_command(uw)[0])
+            times["evo"].append(run_command(evo)[0])
+        rows.append(
+            BenchRow(
+                f"start-up: compare of {what}",
+                median(times["uwval"]),
+                "s",
+                median(times["evo"]),
+                f"evo_ape {evo[1]}",
+                notes=f"{reps} alternating runs, medians; under every whole-command row",
+            )
+        )
+    return rows
 
 
 def _own_log_row(own: ShapeFiles, reps: int) -> BenchRow:
