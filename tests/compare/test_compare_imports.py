@@ -94,3 +94,19 @@ def test_the_command_line_runs_blas_on_one_thread_unless_the_user_chose() -> Non
     # set before numpy loads, and a user's own setting is kept
     assert _blas_setting(None) == ("1", "False")
     assert _blas_setting("3") == ("3", "False")
+
+
+def test_a_compare_of_tum_text_does_not_load_pandas(tmp_path: Path) -> None:
+    # TUM text goes through numpy's reader: pandas' import (0.2-0.3 s with pyarrow) made a
+    # compare of a small TUM pair slower than evo_ape's (benchmarks/README.md, start-up rows)
+    from uwval.comparison.synthetic import vehicle_motion
+    from uwval.io.tum import write_tum
+
+    vehicle = vehicle_motion(2_000, 100.0)
+    write_tum(tmp_path / "a.tum", vehicle)
+    write_tum(tmp_path / "b.tum", vehicle)
+    loaded = _loaded_after_compare(
+        ["compare", str(tmp_path / "a.tum"), str(tmp_path / "b.tum"), "--sync", "nearest"]
+    )
+    assert "uwval.comparison.engine" in loaded
+    assert "pandas" not in loaded - _loaded_at_start()

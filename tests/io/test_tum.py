@@ -366,3 +366,16 @@ def test_foreign_bytes_inside_comments_are_fine_and_a_bom_is_skipped(tmp_path: P
         b"\xef\xbb\xbf# r\xc3\xa9f\xa0\x1c\n1 0 0 0 0 0 0 1 # \xa0 ok\n  #\x0b\n2 0 0 0 0 0 0 1\n"
     )
     assert read_tum(f).t.tolist() == [1_000_000_000, 2_000_000_000]
+
+
+def test_comments_may_hold_any_bytes(tmp_path: Path) -> None:
+    # docs/formats.md: UTF-8 text or stray bytes inside a comment (whole, indented or
+    # trailing) are not read
+    f = tmp_path / "u8.tum"
+    f.write_bytes(
+        b"# Z\xc3\xbcrich \xff\xfe\n1.5 1 2 3 0 0 0 1  # trailing \xe2\x82\xac\n"
+        b"  # indented \xa0\n2.5 4 5 6 0 0 1 0\n"
+    )
+    s = read_tum(f)
+    assert s.t.tolist() == [1_500_000_000, 2_500_000_000]
+    np.testing.assert_array_equal(s.position, [[1, 2, 3], [4, 5, 6]])
