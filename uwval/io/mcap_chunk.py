@@ -199,13 +199,8 @@ def check_index(
         if mask.any():
             return f"channel {first(mask)}: {text}", out
     rl = rl.astype(np.int64)
-    if buf.shape[0] < 1 << 32:  # records in file order: one sort of (start, length) keys
-        key = np.sort((rec.astype(np.uint64) << 32) | rl.astype(np.uint64), kind="stable")
-        s = (key >> 32).astype(np.int64)
-        t = s + 9 + (key & 0xFFFFFFFF).astype(np.int64)
-    else:
-        order = np.argsort(rec, kind="stable")
-        s, t = rec[order], (rec + 9 + rl)[order]
+    order = np.argsort(rec, kind="stable")  # the records in file order
+    s, t = rec[order], (rec + 9 + rl)[order]
     if (s[1:] < t[:-1]).any():
         return "indexed records overlap", out
     holes = np.flatnonzero(s[1:] > t[:-1])
