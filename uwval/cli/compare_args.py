@@ -18,6 +18,7 @@ from uwval.cli.declare import Opt
 from uwval.cli.shared_options import (
     ALIGN,
     CONFIG,
+    EVO_ALIGN,
     EXECUTOR,
     FORMAT,
     FRAME,
@@ -100,7 +101,7 @@ COMPARE_OPTIONS: tuple[Opt, ...] = (
         "a warning)",
     ),
     ALIGN,
-    Opt("evo_align", ("-a",), bool, False, "evo's -a: SE(3) Umeyama (-as: Sim(3))"),
+    EVO_ALIGN,
     Opt(
         "correct_scale",
         ("-s", "--correct_scale", "--correct-scale"),

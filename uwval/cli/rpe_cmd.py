@@ -21,6 +21,7 @@ from uwval.cli.console import error_console, output_console, warn
 from uwval.cli.declare import Arg, Opt, declare_signature
 from uwval.cli.shared_options import (
     ALIGN,
+    EVO_ALIGN,
     FORMAT,
     FRAME,
     JSON,
@@ -94,7 +95,7 @@ RPE_OPTIONS: tuple[Opt, ...] = (
         "Choose the pairs on the reference (default: on the estimate, as evo)",
     ),
     ALIGN,
-    Opt("evo_align", ("-a",), bool, False, "evo's -a: SE(3) Umeyama (-as: Sim(3))"),
+    EVO_ALIGN,
     Opt(
         "correct_scale",
         ("-s", "--correct_scale", "--correct-scale"),

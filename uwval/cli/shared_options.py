@@ -66,6 +66,7 @@ ALIGN = Opt(
     "Alignment: none, se3, sim3 (Umeyama), origin, scale or scale_origin "
     "(evo's flags -a, -as, --align_origin, -s do the same)",
 )
+EVO_ALIGN = Opt("evo_align", ("-a",), bool, False, "evo's -a: SE(3) Umeyama (-as: Sim(3))")
 CONFIG = Opt(
     "config",
     ("--config",),
