@@ -203,18 +203,25 @@ PARALLEL_DECODE_MIN = 100_000
 _CHILD_TYPES = ("/Odometry", "/TransformStamped")
 
 
-def tf_pairs(path: str | Path, topic: str) -> list[tuple[str, str, int]]:
-    """(parent, child, number of transforms) of every pair a TFMessage ``topic`` carries."""
+def _read_tf(path: str | Path, topic: str, *also: str) -> tuple[RawLog, str, Decoded]:
+    """The log (``topic``'s TFMessage topic and the topics ``also``), that topic's name and
+    its decoded transforms; a missing topic or one of another type is refused by name."""
     p = Path(path)
     _check_path(p)
     name = norm_topic(split_child(topic)[0])
-    log = scan_log(p, [name])
+    log = scan_log(p, sorted({name, *also}))
     raw = log.raw.get(name)
     if raw is None:
         raise LogReadError(_missing(p, topic, log))
     if raw.msgtype not in TF_TYPES:
         raise LogReadError(f"{p}: topic {name!r} is {raw.msgtype}, not a TF topic")
     dec, _bad = decode_tf(raw, errors="drop")
+    return log, name, dec
+
+
+def tf_pairs(path: str | Path, topic: str) -> list[tuple[str, str, int]]:
+    """(parent, child, number of transforms) of every pair a TFMessage ``topic`` carries."""
+    _log, _name, dec = _read_tf(path, topic)
     pairs: dict[tuple[str, str], int] = {}
     if len(dec.stamp):
         codes, counts = np.unique(
@@ -230,16 +237,7 @@ def tf_chains(path: str | Path, topic: str) -> list[tuple[str, tuple[str, ...], 
     """What ``TOPIC#CHILD`` can name on a TFMessage ``topic``: per child frame, the chain of
     frames from the dynamic parent down to it, and how many of its links are static
     (from ``/tf_static``). Dynamic children have chains of two frames and no static link."""
-    p = Path(path)
-    _check_path(p)
-    name = norm_topic(split_child(topic)[0])
-    log = scan_log(p, sorted({name, "/tf_static"}))
-    raw = log.raw.get(name)
-    if raw is None:
-        raise LogReadError(_missing(p, topic, log))
-    if raw.msgtype not in TF_TYPES:
-        raise LogReadError(f"{p}: topic {name!r} is {raw.msgtype}, not a TF topic")
-    dec, _bad = decode_tf(raw, errors="drop")
+    log, name, dec = _read_tf(path, topic, "/tf_static")
     edges = _edges(dec)
     parent_of = {child: parent for parent, child in edges}
     static: dict[str, str] = {}  # child -> parent
