@@ -236,8 +236,12 @@ def fast_decode(msgtype: str, encoding: str, buf: U8, offset: I64, length: I64) 
             st = np.ascontiguousarray(acc.at(lf.rows, lf.stamp_at, 8)).view("<u4")
             sec = st[:, 0].view("<i4").astype(np.int64)
             dec.stamp[into] = sec * 1_000_000_000 + st[:, 1]
-        if lf.pose_at >= 0:  # one contiguous copy (rows need not be aligned), read as <f8
-            dec.set_pose(into, np.ascontiguousarray(acc.at(lf.rows, lf.pose_at, 56)).view("<f8"))
+        if lf.pose_at >= 0:  # the <f8 bytes copied straight in (rows need not be aligned)
+            pose = acc.at(lf.rows, lf.pose_at, 56)
+            for col, a in ((dec.position, 0), (dec.orientation, 24)):
+                col.view(np.uint8).reshape(n, -1)[into] = pose[:, a : a + 8 * col.shape[1]]
+                if not np.little_endian:  # native doubles are big-endian here
+                    col[into] = col[into].byteswap()
         ok = np.ones(lf.rows.shape[0], dtype=bool)
         for at, size, codes in ((lf.frame_at, lf.frame_len, dec.frame_code),
                                  (lf.child_at, lf.child_len, dec.child_code)):  # fmt: skip

@@ -199,8 +199,15 @@ def check_index(
         if mask.any():
             return f"channel {first(mask)}: {text}", out
     rl = rl.astype(np.int64)
-    order = np.argsort(rec, kind="stable")  # the records in file order
-    s, t = rec[order], (rec + 9 + rl)[order]
+    # records in file order: one sort of packed (start, length) keys; argsort only for a run
+    # of 4 GiB or more (argsort alone raised a 1 h log's peak RSS from ~200 to ~250 MiB)
+    if buf.shape[0] < 1 << 32:
+        key = np.sort((rec.astype(np.uint64) << 32) | rl.astype(np.uint64), kind="stable")
+        s = (key >> 32).astype(np.int64)
+        t = s + 9 + (key & 0xFFFFFFFF).astype(np.int64)
+    else:
+        order = np.argsort(rec, kind="stable")
+        s, t = rec[order], (rec + 9 + rl)[order]
     if (s[1:] < t[:-1]).any():
         return "indexed records overlap", out
     holes = np.flatnonzero(s[1:] > t[:-1])
